@@ -1,0 +1,622 @@
+"""Datasets on disk: one reader and one writer for recordings, simulations and replays.
+
+A dataset is a folder (``DESIGN.md`` §3)::
+
+    rig.toml               the NOMINAL jig: what a user knows (the estimator reads this)
+    frames.jsonl           one JSON object per stereo frame, in order
+    left/NNNNNN.png        lossless images, 8 or 16 bit, gray or colour
+    right/NNNNNN.png
+    truth/NNNNNN.npz       simulations only: every marker's xyz_mm, axis, in_contact, left_px,
+                           right_px, visible_left, visible_right
+    as_built.toml          simulations only: the as-built jig the images were rendered from,
+    as_built_markers.npz   with its markers' real (x, y); for analysis only, never read by the estimator
+
+A frame object in ``frames.jsonl`` has ``index``, ``left`` and ``right`` (paths relative to the folder),
+optionally ``time_s``, and where known ``alpha_deg``, ``theta_deg``, ``part`` (``kind``,
+``diameter_mm``, ... as written by :func:`softjig.config.part_to_dict`) and ``truth`` (``normal``
+``[x, y, z]`` in J, ``push_depth_mm``, ``markers``: the relative path of the frame's ``.npz``,
+``T_J_part``: the part's 4x4 pose in J). An unloaded reference frame has ``reference: true`` and no
+``alpha_deg`` nor ``part``. Any other key is kept as is (:attr:`Frame.meta`).
+
+**Crash safety.** :class:`DatasetWriter` writes each image and ``.npz`` atomically
+(:mod:`softjig.io.files`) and appends the frame's line to ``frames.jsonl`` (flush + fsync) only after
+its files exist, so a recorder killed at any moment leaves every completed frame readable. A kill in the
+middle of the append can leave a truncated last line; :meth:`Dataset.open` skips it with a warning.
+
+**Laziness.** :meth:`Dataset.open` reads ``rig.toml`` and ``frames.jsonl`` only; images and truth are read
+when asked for (:meth:`Frame.load_left`, :meth:`Frame.load_right`, :meth:`Frame.load_truth_markers`).
+
+Every problem with the files is an :class:`~softjig.errors.InputError` (or its subclass
+:class:`~softjig.errors.ConfigError` for ``rig.toml``) naming the file and what to do.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import os
+import shutil
+import warnings
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import cv2
+import numpy as np
+
+from softjig.config import JigConfig, Part, dumps_jig, load_jig, loads_jig, part_from_dict, save_jig
+from softjig.errors import ConfigError, InputError
+from softjig.io.files import write_bytes_atomic, write_text_atomic
+
+if TYPE_CHECKING:
+    from softjig.sim.asbuilt import AsBuiltJig
+
+__all__ = [
+    "AS_BUILT_MARKERS_NAME",
+    "AS_BUILT_NAME",
+    "FRAMES_NAME",
+    "RIG_NAME",
+    "TRUTH_MARKER_FIELDS",
+    "Dataset",
+    "DatasetTruncationWarning",
+    "DatasetWriter",
+    "Frame",
+    "FrameTruth",
+    "encode_png",
+    "load_image",
+]
+
+RIG_NAME = "rig.toml"
+FRAMES_NAME = "frames.jsonl"
+AS_BUILT_NAME = "as_built.toml"
+AS_BUILT_MARKERS_NAME = "as_built_markers.npz"
+_SUBDIRS = ("left", "right", "truth")
+_DATASET_MEMBERS = (RIG_NAME, FRAMES_NAME, AS_BUILT_NAME, AS_BUILT_MARKERS_NAME, *_SUBDIRS)
+
+#: The arrays of a frame's truth ``.npz`` (each with one row per marker).
+TRUTH_MARKER_FIELDS = (
+    "xyz_mm", "axis", "in_contact", "left_px", "right_px", "visible_left", "visible_right",
+)
+_TRUTH_EXTRA_FIELDS = ("fiducial_corners_left_px", "fiducial_corners_right_px")
+
+PNG_COMPRESSION = 1  # zlib level: lossless either way; 1 is much faster to write than the default 3
+_RESERVED_KEYS = ("index", "left", "right")
+
+
+class DatasetTruncationWarning(UserWarning):
+    """A dataset's last ``frames.jsonl`` line was cut short (a recorder killed mid-write) and skipped."""
+
+
+# ------------------------------------------------------------------------------------------ images
+
+
+def load_image(path: str | os.PathLike[str]) -> np.ndarray:
+    """Read an image file as stored: ``uint8`` or ``uint16``, ``(H, W)`` gray or ``(H, W, 3)`` RGB.
+
+    Colour files are converted from OpenCV's BGR to RGB (``DESIGN.md`` §1); an alpha channel is dropped.
+
+    Raises
+    ------
+    InputError
+        If the file does not exist, is not a file, cannot be read, or is not an image OpenCV decodes.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"image {path} does not exist: check the path (a dataset's frames.jsonl "
+                         "names its images relative to the dataset folder)")
+    if not path.is_file():
+        raise InputError(f"image {path} is not a file")
+    try:
+        data = np.fromfile(path, dtype=np.uint8)
+    except OSError as exc:
+        raise InputError(f"cannot read image {path}: {exc}") from None
+    image = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
+    if image is None:
+        raise InputError(f"cannot decode image {path}: the file is empty, truncated or not an image "
+                         "format OpenCV reads (use PNG); re-record or re-simulate that frame")
+    if image.dtype not in (np.uint8, np.uint16):
+        raise InputError(f"image {path} has pixel type {image.dtype}; softjig reads 8- or 16-bit images")
+    if image.ndim == 3:
+        if image.shape[2] == 1:
+            image = image[:, :, 0]
+        elif image.shape[2] == 3:
+            image = cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+        elif image.shape[2] == 4:
+            image = cv2.cvtColor(image, cv2.COLOR_BGRA2RGB)
+        else:
+            raise InputError(f"image {path} has {image.shape[2]} channels; expected 1, 3 or 4")
+    return image
+
+
+def _check_image(image: np.ndarray, name: str) -> np.ndarray:
+    image = np.asarray(image)
+    if image.dtype not in (np.uint8, np.uint16):
+        raise InputError(f"{name} image must be uint8 or uint16, got {image.dtype}")
+    if not (image.ndim == 2 or (image.ndim == 3 and image.shape[2] == 3)):
+        raise InputError(f"{name} image must have shape (H, W) or (H, W, 3), got {image.shape}")
+    if image.size == 0:
+        raise InputError(f"{name} image is empty (shape {image.shape})")
+    return image
+
+
+def encode_png(image: np.ndarray, *, compression: int = PNG_COMPRESSION) -> bytes:
+    """Lossless PNG bytes of a ``uint8``/``uint16`` image, ``(H, W)`` gray or ``(H, W, 3)`` RGB.
+
+    Expensive for large images; :class:`DatasetWriter` accepts these bytes in place of the array so that
+    worker processes can encode while one process writes.
+    """
+    image = _check_image(image, "the")
+    if image.ndim == 3:
+        image = cv2.cvtColor(image, cv2.COLOR_RGB2BGR)
+    params = [cv2.IMWRITE_PNG_COMPRESSION, compression,
+              # For noisy sensor images, the "average" filter plus Huffman coding alone is both faster
+              # (~2x) and smaller than zlib's default strategy; still lossless.
+              cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_HUFFMAN_ONLY,
+              cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_AVG]
+    ok, buf = cv2.imencode(".png", np.ascontiguousarray(image), params)
+    if not ok:  # pragma: no cover - OpenCV encodes any valid uint8/uint16 array
+        raise InputError(f"OpenCV could not encode an image of shape {image.shape} as PNG")
+    return buf.tobytes()
+
+
+# ----------------------------------------------------------------------------------------- frames
+
+
+@dataclass(frozen=True, eq=False)
+class FrameTruth:
+    """Ground truth of a simulated frame.
+
+    Attributes
+    ----------
+    normal : (3,) the part's true principal normal in J, or ``None`` (reference frame).
+    push_depth_mm : the true push depth (``DESIGN.md`` §1), or ``None``.
+    markers : path of the frame's truth ``.npz`` relative to the dataset folder, or ``None``.
+    T_J_part : (4, 4) the part's true pose in J, or ``None``.
+    """
+
+    normal: np.ndarray | None = None
+    push_depth_mm: float | None = None
+    markers: str | None = None
+    T_J_part: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One stereo frame of a dataset: its metadata, and its images and truth on demand.
+
+    Attributes
+    ----------
+    root : the dataset folder.
+    index : the frame's index as written in ``frames.jsonl``.
+    left, right : image paths relative to ``root``.
+    time_s : capture time (s), if known.
+    alpha_deg, theta_deg : the part's tilt and tilt azimuth (commanded or true), if known.
+    part : the part pressed into the jig, if known.
+    reference : whether this is an unloaded reference frame.
+    truth : ground truth (simulations), or ``None``.
+    meta : the frame's whole JSON object, including keys softjig does not interpret.
+    """
+
+    root: Path
+    index: int
+    left: str
+    right: str
+    time_s: float | None = None
+    alpha_deg: float | None = None
+    theta_deg: float | None = None
+    part: Part | None = None
+    reference: bool = False
+    truth: FrameTruth | None = field(default=None, compare=False)
+    meta: dict[str, Any] = field(default_factory=dict, compare=True, hash=False)
+
+    @property
+    def left_path(self) -> Path:
+        """Absolute path of the left image."""
+        return self.root / self.left
+
+    @property
+    def right_path(self) -> Path:
+        """Absolute path of the right image."""
+        return self.root / self.right
+
+    def load_left(self) -> np.ndarray:
+        """The left image (see :func:`load_image`)."""
+        return load_image(self.left_path)
+
+    def load_right(self) -> np.ndarray:
+        """The right image (see :func:`load_image`)."""
+        return load_image(self.right_path)
+
+    def load_truth_markers(self) -> dict[str, np.ndarray]:
+        """Every marker's truth: a dict with the arrays of :data:`TRUTH_MARKER_FIELDS` (and the
+        fiducials' true corners when stored).
+
+        Raises
+        ------
+        InputError
+            If the frame has no truth markers (a recording) or the ``.npz`` is missing or unreadable.
+        """
+        if self.truth is None or self.truth.markers is None:
+            raise InputError(f"frame {self.index} of {self.root} has no truth markers: only simulated "
+                             "datasets have them")
+        path = self.root / self.truth.markers
+        if not path.is_file():
+            raise InputError(f"truth file {path} of frame {self.index} does not exist: the dataset is "
+                             "incomplete; re-simulate it")
+        try:
+            with np.load(path, allow_pickle=False) as npz:
+                return {name: npz[name] for name in npz.files}
+        except (OSError, ValueError, EOFError) as exc:
+            raise InputError(f"cannot read truth file {path} of frame {self.index}: {exc}") from None
+
+
+def _frame_from_json(root: Path, obj: Any, where: str) -> Frame:
+    """Parse one ``frames.jsonl`` object; ``where`` names the file and line for error messages."""
+    if not isinstance(obj, dict):
+        raise InputError(f"{where}: expected a JSON object, got {type(obj).__name__}")
+    missing = [k for k in _RESERVED_KEYS if k not in obj]
+    if missing:
+        raise InputError(f"{where}: the frame lacks {', '.join(missing)} (every frame needs index, left "
+                         "and right)")
+    index = obj["index"]
+    if not isinstance(index, int) or isinstance(index, bool) or index < 0:
+        raise InputError(f"{where}: index must be a non-negative integer, got {index!r}")
+    for side in ("left", "right"):
+        if not isinstance(obj[side], str) or not obj[side]:
+            raise InputError(f"{where}: {side} must be an image path relative to the dataset, "
+                             f"got {obj[side]!r}")
+
+    def number(key: str) -> float | None:
+        value = obj.get(key)
+        if value is None:
+            return None
+        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+            raise InputError(f"{where}: {key} must be a finite number, got {value!r}")
+        return float(value)
+
+    part = None
+    if obj.get("part") is not None:
+        if not isinstance(obj["part"], dict):
+            raise InputError(f"{where}: part must be an object like "
+                             '{"kind": "cylinder", "diameter_mm": 50}')
+        try:
+            part = part_from_dict(obj["part"])
+        except ConfigError as exc:
+            raise InputError(f"{where}: {exc}") from None
+    truth = _truth_from_json(obj.get("truth"), where)
+    reference = obj.get("reference", False)
+    if not isinstance(reference, bool):
+        raise InputError(f"{where}: reference must be true or false, got {reference!r}")
+    return Frame(
+        root=root,
+        index=index,
+        left=obj["left"],
+        right=obj["right"],
+        time_s=number("time_s"),
+        alpha_deg=number("alpha_deg"),
+        theta_deg=number("theta_deg"),
+        part=part,
+        reference=reference,
+        truth=truth,
+        meta=obj,
+    )
+
+
+def _truth_from_json(obj: Any, where: str) -> FrameTruth | None:
+    if obj is None:
+        return None
+    if not isinstance(obj, dict):
+        raise InputError(f"{where}: truth must be an object, got {type(obj).__name__}")
+
+    def array(key: str, shape: tuple[int, ...]) -> np.ndarray | None:
+        if obj.get(key) is None:
+            return None
+        try:
+            value = np.asarray(obj[key], dtype=float)
+        except (TypeError, ValueError):
+            value = None
+        if value is None or value.shape != shape or not np.all(np.isfinite(value)):
+            raise InputError(f"{where}: truth.{key} must be {shape} finite numbers, got {obj[key]!r}")
+        return value
+
+    push = obj.get("push_depth_mm")
+    if push is not None and (isinstance(push, bool) or not isinstance(push, int | float)):
+        raise InputError(f"{where}: truth.push_depth_mm must be a number, got {push!r}")
+    markers = obj.get("markers")
+    if markers is not None and not isinstance(markers, str):
+        raise InputError(f"{where}: truth.markers must be a relative path, got {markers!r}")
+    return FrameTruth(
+        normal=array("normal", (3,)),
+        push_depth_mm=None if push is None else float(push),
+        markers=markers,
+        T_J_part=array("T_J_part", (4, 4)),
+    )
+
+
+# ---------------------------------------------------------------------------------------- reader
+
+
+class Dataset:
+    """A dataset folder, opened lazily (:meth:`open`): ``len(ds)``, ``ds[i]``, ``for frame in ds``.
+
+    ``ds[i]`` is the ``i``-th frame in file order (``frame.index`` for datasets softjig wrote).
+    """
+
+    def __init__(self, root: Path, jig: JigConfig, frames: list[Frame],
+                 warnings_: list[str] | None = None) -> None:
+        self.root = root
+        self.jig = jig  #: the nominal jig of ``rig.toml``
+        self._frames = frames
+        self.warnings: list[str] = list(warnings_ or [])  #: problems met while opening
+
+    @classmethod
+    def open(cls, path: str | os.PathLike[str]) -> Dataset:
+        """Open a dataset folder: read its ``rig.toml`` and ``frames.jsonl`` (no image).
+
+        Raises
+        ------
+        InputError
+            Missing folder, missing ``rig.toml`` or ``frames.jsonl``, a corrupt line (named by number).
+            A truncated *last* line (a recorder killed mid-write) is skipped with a
+            :class:`DatasetTruncationWarning` instead.
+        ConfigError
+            ``rig.toml`` is invalid (the message names the file and the field).
+        """
+        root = Path(path)
+        if not root.exists():
+            raise InputError(f"dataset folder {root} does not exist: give the folder written by "
+                             "`softjig simulate` or a recorder")
+        if not root.is_dir():
+            raise InputError(f"{root} is not a folder: a dataset is a folder holding {RIG_NAME}, "
+                             f"{FRAMES_NAME}, left/ and right/")
+        rig = root / RIG_NAME
+        if not rig.is_file():
+            raise InputError(f"{rig} does not exist: {root} is not a softjig dataset (a dataset folder "
+                             f"holds {RIG_NAME}, {FRAMES_NAME}, left/ and right/)")
+        try:
+            jig = load_jig(rig)
+        except ConfigError as exc:
+            raise ConfigError(f"{rig}: {exc}" if str(rig) not in str(exc) else str(exc)) from None
+        frames_path = root / FRAMES_NAME
+        if not frames_path.is_file():
+            raise InputError(f"{frames_path} does not exist: {root} is not a complete softjig dataset "
+                             f"(a dataset folder holds {RIG_NAME} and {FRAMES_NAME})")
+        frames, notes = _read_frames(root, frames_path)
+        return cls(root, jig, frames, notes)
+
+    def __len__(self) -> int:
+        return len(self._frames)
+
+    def __getitem__(self, i: int) -> Frame:
+        return self._frames[i]
+
+    def __iter__(self) -> Iterator[Frame]:
+        return iter(self._frames)
+
+    def __repr__(self) -> str:
+        return f"Dataset({str(self.root)!r}, {len(self)} frames)"
+
+    @property
+    def frames(self) -> tuple[Frame, ...]:
+        """All frames, in file order."""
+        return tuple(self._frames)
+
+    @property
+    def has_as_built(self) -> bool:
+        """Whether the dataset stores the as-built jig it was simulated from."""
+        return (self.root / AS_BUILT_NAME).is_file()
+
+    def as_built(self) -> AsBuiltJig:
+        """The as-built jig the images were rendered from (simulations only; for analysis, never for
+        estimation).
+
+        Raises
+        ------
+        InputError
+            If the dataset is a recording (no ``as_built.toml``) or the files are unreadable.
+        """
+        from softjig.sim.asbuilt import AsBuiltJig
+
+        toml_path, npz_path = self.root / AS_BUILT_NAME, self.root / AS_BUILT_MARKERS_NAME
+        if not toml_path.is_file():
+            raise InputError(f"{self.root} has no {AS_BUILT_NAME}: only simulated datasets store the "
+                             "as-built jig")
+        try:
+            text = toml_path.read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as exc:
+            raise InputError(f"cannot read {toml_path}: {exc}") from None
+        jig = loads_jig(text, source=str(toml_path))
+        if not npz_path.is_file():
+            raise InputError(f"{npz_path} does not exist: the dataset is incomplete; re-simulate it")
+        try:
+            with np.load(npz_path, allow_pickle=False) as npz:
+                xy = np.array(npz["marker_xy_mm"], dtype=float)
+        except (OSError, ValueError, KeyError, EOFError) as exc:
+            raise InputError(f"cannot read {npz_path}: {exc}") from None
+        return AsBuiltJig(jig=jig, marker_xy_mm=xy)
+
+
+def _read_frames(root: Path, frames_path: Path) -> tuple[list[Frame], list[str]]:
+    try:
+        raw = frames_path.read_bytes()
+    except OSError as exc:
+        raise InputError(f"cannot read {frames_path}: {exc}") from None
+    lines = raw.split(b"\n")
+    numbered = [(n, line) for n, line in enumerate(lines, start=1) if line.strip()]
+    frames: list[Frame] = []
+    notes: list[str] = []
+    for k, (n, line) in enumerate(numbered):
+        where = f"{frames_path}, line {n}"
+        try:
+            obj = json.loads(line.decode("utf-8"))
+        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+            if k == len(numbered) - 1:
+                note = (f"{where}: the last line is cut short ({exc}), probably by a recorder killed "
+                        f"mid-write; skipped it and kept the {len(frames)} complete frames")
+                warnings.warn(note, DatasetTruncationWarning, stacklevel=3)
+                notes.append(note)
+                break
+            raise InputError(f"{where}: not valid JSON ({exc}); fix or delete that line") from None
+        frames.append(_frame_from_json(root, obj, where))
+    return frames, notes
+
+
+# ---------------------------------------------------------------------------------------- writer
+
+
+def _json_default(value: Any) -> Any:
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, Path):
+        return value.as_posix()
+    raise TypeError(f"cannot write {type(value).__name__} to frames.jsonl")
+
+
+def _truth_arrays(truth_markers: Any) -> dict[str, np.ndarray]:
+    """The arrays to store from a mapping or an object with the :data:`TRUTH_MARKER_FIELDS` attributes."""
+    names = (*TRUTH_MARKER_FIELDS, *_TRUTH_EXTRA_FIELDS)
+    if isinstance(truth_markers, Mapping):
+        arrays = {k: np.asarray(v) for k, v in truth_markers.items()}
+    else:
+        arrays = {k: np.asarray(getattr(truth_markers, k)) for k in names
+                  if getattr(truth_markers, k, None) is not None}
+    missing = [k for k in TRUTH_MARKER_FIELDS if k not in arrays]
+    if missing:
+        raise InputError(f"truth markers lack {', '.join(missing)}")
+    return arrays
+
+
+class DatasetWriter:
+    """Write a dataset folder frame by frame (a context manager).
+
+    Parameters
+    ----------
+    path : the dataset folder; created if missing.
+    jig : the NOMINAL jig, written as ``rig.toml``.
+    as_built : for simulations, the as-built jig the images come from (``as_built.toml`` and
+        ``as_built_markers.npz``, for analysis only).
+    overwrite : replace an existing dataset in ``path``. Without it a non-empty folder is refused; even
+        with it, a non-empty folder that is not a dataset (no ``rig.toml`` nor ``frames.jsonl``) is
+        refused, so a mistyped path never deletes unrelated files.
+    png_compression : zlib level of the PNGs (0-9; all lossless).
+
+    Examples
+    --------
+    >>> with DatasetWriter("out/rec", jig) as writer:                     # doctest: +SKIP
+    ...     writer.add_frame(left, right, {"time_s": 0.0})
+    """
+
+    def __init__(self, path: str | os.PathLike[str], jig: JigConfig, *, as_built: AsBuiltJig | None = None,
+                 overwrite: bool = False, png_compression: int = PNG_COMPRESSION) -> None:
+        self.root = Path(path)
+        self.jig = jig
+        self.as_built = as_built
+        self.overwrite = overwrite
+        self.png_compression = int(png_compression)
+        self._next_index = 0
+        self._frames_fh: io.BufferedWriter | None = None
+
+    # -- lifecycle
+    def open(self) -> DatasetWriter:
+        """Prepare the folder and write ``rig.toml`` (called by ``with``)."""
+        if self._frames_fh is not None:
+            return self
+        root = self.root
+        if root.exists() and not root.is_dir():
+            raise InputError(f"{root} exists and is not a folder: choose another output folder")
+        if root.is_dir() and any(root.iterdir()):
+            is_dataset = (root / FRAMES_NAME).exists() or (root / RIG_NAME).exists()
+            if not is_dataset:
+                raise InputError(f"{root} is not empty and is not a softjig dataset: choose an empty or "
+                                 "new output folder")
+            if not self.overwrite:
+                raise InputError(f"{root} already holds a dataset: choose another output folder or "
+                                 "overwrite it (--overwrite, or overwrite=True)")
+            for name in _DATASET_MEMBERS:
+                member = root / name
+                if member.is_dir():
+                    shutil.rmtree(member)
+                elif member.exists():
+                    member.unlink()
+        root.mkdir(parents=True, exist_ok=True)
+        save_jig(self.jig, root / RIG_NAME)
+        if self.as_built is not None:
+            write_text_atomic(root / AS_BUILT_NAME, dumps_jig(self.as_built.jig))
+            buf = io.BytesIO()
+            np.savez(buf, marker_xy_mm=np.asarray(self.as_built.marker_xy_mm, dtype=float))
+            write_bytes_atomic(root / AS_BUILT_MARKERS_NAME, buf.getvalue())
+        for sub in ("left", "right"):
+            (root / sub).mkdir(exist_ok=True)
+        self._frames_fh = open(root / FRAMES_NAME, "ab")  # noqa: SIM115 - closed in close()
+        return self
+
+    def close(self) -> None:
+        """Close ``frames.jsonl`` (called by ``with``)."""
+        if self._frames_fh is not None:
+            self._frames_fh.close()
+            self._frames_fh = None
+
+    def __enter__(self) -> DatasetWriter:
+        return self.open()
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    @property
+    def n_frames(self) -> int:
+        """How many frames were added."""
+        return self._next_index
+
+    # -- frames
+    def add_frame(self, left: np.ndarray | bytes, right: np.ndarray | bytes,
+                  meta: dict[str, Any] | None = None, truth_markers: Any = None) -> int:
+        """Write one stereo frame and return its index.
+
+        Parameters
+        ----------
+        left, right : ``uint8``/``uint16`` images, ``(H, W)`` or ``(H, W, 3)`` RGB; or PNG bytes from
+            :func:`encode_png`.
+        meta : the frame's JSON metadata (``time_s``, ``alpha_deg``, ``theta_deg``, ``part``, ``truth``,
+            ``reference``, anything else JSON can hold; numpy values are converted). ``index``, ``left``
+            and ``right`` are set by the writer.
+        truth_markers : simulations: a mapping (or an object with those attributes, like the renderer's
+            ``MarkerTruth``) holding :data:`TRUTH_MARKER_FIELDS`; stored as ``truth/NNNNNN.npz`` and
+            named in ``meta["truth"]["markers"]``.
+        """
+        if self._frames_fh is None:
+            self.open()
+        assert self._frames_fh is not None
+        meta = dict(meta or {})
+        clash = [k for k in _RESERVED_KEYS if k in meta]
+        if clash:
+            raise InputError(f"frame metadata must not set {', '.join(clash)}: the writer sets them")
+        index = self._next_index
+        name = f"{index:06d}"
+        record: dict[str, Any] = {"index": index, "left": f"left/{name}.png", "right": f"right/{name}.png"}
+        record.update(meta)
+        if truth_markers is not None:
+            truth = dict(record.get("truth") or {})
+            truth["markers"] = f"truth/{name}.npz"
+            record["truth"] = truth
+        try:
+            line = json.dumps(record, default=_json_default, allow_nan=False, separators=(",", ":"))
+        except (TypeError, ValueError) as exc:
+            raise InputError(f"frame {index}: metadata cannot be written as JSON: {exc}") from None
+        arrays = None if truth_markers is None else _truth_arrays(truth_markers)
+        # Files first, the line last: a frame is in frames.jsonl only once its files are complete.
+        for side, image in (("left", left), ("right", right)):
+            data = image if isinstance(image, bytes) else encode_png(image, compression=self.png_compression)
+            write_bytes_atomic(self.root / side / f"{name}.png", data)
+        if arrays is not None:
+            buf = io.BytesIO()
+            np.savez(buf, **arrays)
+            write_bytes_atomic(self.root / "truth" / f"{name}.npz", buf.getvalue())
+        self._frames_fh.write(line.encode("utf-8") + b"\n")
+        self._frames_fh.flush()
+        os.fsync(self._frames_fh.fileno())
+        self._next_index += 1
+        return index

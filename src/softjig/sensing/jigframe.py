@@ -1,0 +1,160 @@
+"""The cameras' pose in the jig frame J: from the fiducials on the base plate, or fixed in the config.
+
+The paper transforms the triangulated markers into the jig frame with fiducials on the base plate. Ours
+are ArUco markers on the plate's bottom face (``fiducials.z_mm``, default ``-5``): the cameras see them
+through air only, so a plain pinhole model is exact for them. Both cameras' views are used at once: the
+stereo head's pose is the one that minimises the reprojection error of every fiducial corner found in
+either image (OpenCV's PnP for the start, then a joint Levenberg-Marquardt refinement with SciPy), with the
+right camera held at its configured pose relative to the left one.
+
+When the fiducials are not visible, or the user calibrated the extrinsics once, the poses in the config
+are used instead (``sensing.extrinsics``); the result says which source was used.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from scipy.optimize import least_squares
+
+from softjig.config import CameraConfig, JigConfig
+from softjig.errors import EstimationError
+from softjig.geometry import invert_pose, pose_from_rotvec_translation
+from softjig.sensing.fiducials import detect_fiducials, fiducial_corners_J
+
+MIN_FIDUCIALS_PER_IMAGE = 2  # 8 corners: a well-conditioned planar PnP
+
+
+@dataclass(frozen=True)
+class JigFrame:
+    """Both cameras' poses in J and where they came from.
+
+    Attributes
+    ----------
+    T_J_left, T_J_right : (4, 4) the cameras' poses in J (mm).
+    source : ``"fiducials"`` (measured in these images) or ``"config"`` (fixed extrinsics).
+    reprojection_rms_px : RMS reprojection error of the fiducial corners (``nan`` for ``"config"``).
+    fiducial_ids : ids found in both images (empty for ``"config"``).
+    fiducial_quads_left_px, fiducial_quads_right_px : (M, 4, 2) where each fiducial is in each image
+        (found, or projected from the config's poses): markers detected there are not membrane markers.
+    """
+
+    T_J_left: np.ndarray
+    T_J_right: np.ndarray
+    source: str
+    reprojection_rms_px: float
+    fiducial_ids: tuple[int, ...]
+    fiducial_quads_left_px: np.ndarray
+    fiducial_quads_right_px: np.ndarray
+
+
+def _projected_quads(jig: JigConfig, camera: CameraConfig, T_J_cam: np.ndarray) -> np.ndarray:
+    corners = fiducial_corners_J(jig.fiducials).reshape(-1, 3)
+    return _project(camera, invert_pose(T_J_cam), corners).reshape(-1, 4, 2)
+
+
+def jig_frame_from_config(jig: JigConfig) -> JigFrame:
+    """The fixed extrinsics written in the config."""
+    left, right = jig.cameras.left, jig.cameras.right
+    return JigFrame(
+        left.T_J_cam,
+        right.T_J_cam,
+        "config",
+        float("nan"),
+        (),
+        _projected_quads(jig, left, left.T_J_cam),
+        _projected_quads(jig, right, right.T_J_cam),
+    )
+
+
+def inside_fiducials(xy_px: np.ndarray, quads_px: np.ndarray, *, quiet_zone: float = 1.0 / 3.0) -> np.ndarray:
+    """Which points lie on a fiducial or its white quiet zone (each quad grown by ``quiet_zone`` of its
+    size about its centre; ArUco 4x4 markers are 6 cells wide, so one cell each side is 1/3)."""
+    inside = np.zeros(len(xy_px), dtype=bool)
+    for quad in quads_px:
+        centre = quad.mean(axis=0)
+        grown = (centre + (quad - centre) * (1.0 + quiet_zone)).astype(np.float32)
+        inside |= np.array([cv2.pointPolygonTest(grown, (float(x), float(y)), False) >= 0 for x, y in xy_px])
+    return inside
+
+
+def _project(camera: CameraConfig, T_cam_J: np.ndarray, points_J: np.ndarray) -> np.ndarray:
+    p = points_J @ T_cam_J[:3, :3].T + T_cam_J[:3, 3]
+    rvec, _ = cv2.Rodrigues(np.eye(3))
+    px, _ = cv2.projectPoints(p, rvec, np.zeros(3), camera.K, np.asarray(camera.distortion, float))
+    return px.reshape(-1, 2)
+
+
+def jig_frame_from_fiducials(left_u8: np.ndarray, right_u8: np.ndarray, jig: JigConfig) -> JigFrame | None:
+    """Measure the stereo head's pose in J from the fiducials seen in an 8-bit gray stereo pair.
+
+    Returns ``None`` when fewer than :data:`MIN_FIDUCIALS_PER_IMAGE` configured fiducials are found in
+    either image.
+    """
+    fid = jig.fiducials
+    corners_J = dict(zip(fid.ids, fiducial_corners_J(fid), strict=True))
+    found = [detect_fiducials(img, fid) for img in (left_u8, right_u8)]
+    if min(len(f) for f in found) < MIN_FIDUCIALS_PER_IMAGE:
+        return None
+    cams = (jig.cameras.left, jig.cameras.right)
+    # The right camera's pose relative to the left one is fixed by the config (the stereo calibration).
+    T_left_right = invert_pose(cams[0].T_J_cam) @ cams[1].T_J_cam
+    obj = [np.concatenate([corners_J[i] for i in f]) for f in found]
+    img = [np.concatenate([f[i] for i in f]) for f in found]
+
+    ok, rvec, tvec = cv2.solvePnP(
+        obj[0], img[0], cams[0].K, np.asarray(cams[0].distortion, float), flags=cv2.SOLVEPNP_IPPE
+    )
+    if not ok:
+        return None
+
+    def residuals(x: np.ndarray) -> np.ndarray:
+        T_left_J = pose_from_rotvec_translation(x[:3], x[3:])
+        T_right_J = invert_pose(T_left_right) @ T_left_J
+        return np.concatenate(
+            [
+                (_project(cams[0], T_left_J, obj[0]) - img[0]).ravel(),
+                (_project(cams[1], T_right_J, obj[1]) - img[1]).ravel(),
+            ]
+        )
+
+    fit = least_squares(residuals, np.concatenate([rvec.ravel(), tvec.ravel()]), method="lm")
+    T_left_J = pose_from_rotvec_translation(fit.x[:3], fit.x[3:])
+    T_J_left = invert_pose(T_left_J)
+    rms = float(np.sqrt(np.mean(fit.fun**2)))
+    both = tuple(sorted(set(found[0]) & set(found[1])))
+    quads = [np.array(list(f.values())).reshape(-1, 4, 2) for f in found]
+    return JigFrame(T_J_left, T_J_left @ T_left_right, "fiducials", rms, both, quads[0], quads[1])
+
+
+def resolve_jig_frame(
+    left_u8: np.ndarray, right_u8: np.ndarray, jig: JigConfig
+) -> tuple[JigFrame, list[str]]:
+    """The jig frame as ``sensing.extrinsics`` asks, with any warning to report.
+
+    ``"fiducials"`` requires them; ``"config"`` uses the fixed extrinsics; ``"auto"`` measures them when
+    found and falls back to the config with a warning.
+
+    Raises
+    ------
+    EstimationError
+        ``sensing.extrinsics == "fiducials"`` and the fiducials were not found.
+    """
+    mode = jig.sensing.extrinsics
+    if mode == "config":
+        return jig_frame_from_config(jig), []
+    frame = jig_frame_from_fiducials(left_u8, right_u8, jig)
+    if frame is not None:
+        return frame, []
+    message = (
+        f"fewer than {MIN_FIDUCIALS_PER_IMAGE} of the fiducials {list(jig.fiducials.ids)} were found "
+        "in each image"
+    )
+    if mode == "fiducials":
+        raise EstimationError(
+            f"{message} and sensing.extrinsics is 'fiducials': make them visible, or set "
+            "sensing.extrinsics = 'config' to use the calibrated camera poses in the config"
+        )
+    return jig_frame_from_config(jig), [f"{message}: used the camera poses in the config instead"]

@@ -1,0 +1,100 @@
+"""A picture of what the pipeline did: markers, matches, the crop and the normal over the stereo pair.
+
+Pure drawing: arrays in, an RGB ``uint8`` array out (the CLI writes it to a file). Like the paper's figure
+of blurred markers, detections are circled; colours say what became of each marker:
+
+- red circle: detected, not matched between the images;
+- green circle: matched (the same colour in both images);
+- yellow dot: matched and inside the crop, i.e. used in the plane fit;
+- cyan ellipse: the crop (the part's base radius around the jig axis, at the fitted plane's height);
+- magenta arrow: the principal normal, 20 mm long, from the plane on the jig axis.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from softjig.geometry import invert_pose
+from softjig.sensing.detect import to_gray_float
+from softjig.sensing.pipeline import SensingResult
+
+RED, GREEN, YELLOW, CYAN, MAGENTA, WHITE = (
+    (230, 40, 40),
+    (40, 220, 60),
+    (255, 230, 0),
+    (0, 220, 255),
+    (255, 0, 255),
+    (255, 255, 255),
+)
+NORMAL_LENGTH_MM = 20.0
+
+
+def _rgb8(image: np.ndarray) -> np.ndarray:
+    gray = (to_gray_float(image) * 255.0 + 0.5).astype(np.uint8)
+    return np.ascontiguousarray(np.repeat(gray[:, :, None], 3, axis=2))
+
+
+def _project_left(points_J: np.ndarray, result: SensingResult, K: np.ndarray) -> np.ndarray:
+    """Pinhole projection into the left image (the same model the paper's triangulation assumes)."""
+    T_left_J = invert_pose(result.frame.T_J_left)
+    p = points_J @ T_left_J[:3, :3].T + T_left_J[:3, 3]
+    uv = p[:, :2] / p[:, 2:3]
+    return uv * [K[0, 0], K[1, 1]] + [K[0, 2], K[1, 2]]
+
+
+def _pt(xy: np.ndarray) -> tuple[int, int]:
+    return round(float(xy[0])), round(float(xy[1]))
+
+
+def draw_overlay(
+    left: np.ndarray, right: np.ndarray, result: SensingResult, K_left: np.ndarray
+) -> np.ndarray:
+    """Draw the pipeline's result over the stereo pair, side by side (left | right).
+
+    Parameters
+    ----------
+    left, right : the input images (any dtype :func:`~softjig.sensing.detect.to_gray_float` accepts).
+    result : what :func:`~softjig.sensing.pipeline.estimate_pair` returned for them.
+    K_left : (3, 3) intrinsics of the left camera (px).
+
+    Returns
+    -------
+    np.ndarray
+        ``(H, 2 W, 3)`` RGB ``uint8`` image.
+    """
+    canvas_left, canvas_right = _rgb8(left), _rgb8(right)
+    radius = max(round(float(np.sqrt(2.0) * result.left.sigma_px)), 2)
+    matched_left = np.zeros(len(result.left), bool)
+    matched_left[result.matches.left_index] = True
+    matched_right = np.zeros(len(result.right), bool)
+    matched_right[result.matches.right_index] = True
+    for canvas, markers, matched in (
+        (canvas_left, result.left, matched_left),
+        (canvas_right, result.right, matched_right),
+    ):
+        for xy, ok in zip(markers.xy_px, matched, strict=True):
+            cv2.circle(canvas, _pt(xy), radius, GREEN if ok else RED, 1, cv2.LINE_AA)
+    for k in np.flatnonzero(result.used):
+        cv2.circle(canvas_left, _pt(result.left.xy_px[result.matches.left_index[k]]), 2, YELLOW, -1)
+        cv2.circle(canvas_right, _pt(result.right.xy_px[result.matches.right_index[k]]), 2, YELLOW, -1)
+
+    est, plane = result.estimate, result.plane
+    z0 = plane.z_at(0.0, 0.0)
+    angles = np.linspace(0, 2 * np.pi, 73)
+    crop_radius = est.part_diameter_mm / 2.0
+    ring = np.column_stack(
+        [crop_radius * np.cos(angles), crop_radius * np.sin(angles), np.zeros_like(angles)]
+    )
+    ring[:, 2] = [plane.z_at(x, y) for x, y in ring[:, :2]]
+    ring_px = _project_left(ring, result, K_left)
+    cv2.polylines(canvas_left, [np.round(ring_px).astype(np.int32)], True, CYAN, 1, cv2.LINE_AA)
+    base = np.array([0.0, 0.0, z0])
+    arrow = _project_left(np.array([base, base + NORMAL_LENGTH_MM * np.asarray(est.normal)]), result, K_left)
+    cv2.arrowedLine(canvas_left, _pt(arrow[0]), _pt(arrow[1]), MAGENTA, 2, cv2.LINE_AA, tipLength=0.2)
+    text = (
+        f"Ax {est.tilt_x_deg:+.2f} deg  Ay {est.tilt_y_deg:+.2f} deg  push {est.push_depth_mm:.2f} mm  "
+        f"{est.n_points} pts  rms {est.rms_residual_mm:.3f} mm  frame: {est.frame_source}"
+    )
+    cv2.putText(canvas_left, text, (10, 24), cv2.FONT_HERSHEY_SIMPLEX, 0.6, WHITE, 1, cv2.LINE_AA)
+    return np.concatenate([canvas_left, canvas_right], axis=1)

@@ -1,0 +1,339 @@
+"""The dataset reader and writer: round trips, crash safety, laziness and every bad input."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from softjig.config import CylinderPart, default_jig, exact_jig, part_to_dict
+from softjig.errors import ConfigError, InputError
+from softjig.io import dataset as ds_mod
+from softjig.io.dataset import (
+    Dataset,
+    DatasetTruncationWarning,
+    DatasetWriter,
+    encode_png,
+    load_image,
+)
+from softjig.sim.asbuilt import draw_as_built
+
+H, W = 48, 64
+
+
+def _images(rng: np.random.Generator, dtype=np.uint8, color: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    shape = (H, W, 3) if color else (H, W)
+    hi = np.iinfo(dtype).max
+    return (rng.integers(0, hi, shape, endpoint=True).astype(dtype),
+            rng.integers(0, hi, shape, endpoint=True).astype(dtype))
+
+
+def _truth(rng: np.random.Generator, n: int = 7) -> dict[str, np.ndarray]:
+    return {
+        "xyz_mm": rng.normal(size=(n, 3)),
+        "axis": rng.normal(size=(n, 3)),
+        "in_contact": rng.random(n) > 0.5,
+        "left_px": rng.normal(size=(n, 2)),
+        "right_px": rng.normal(size=(n, 2)),
+        "visible_left": rng.random(n) > 0.2,
+        "visible_right": rng.random(n) > 0.2,
+    }
+
+
+def _meta(i: int) -> dict:
+    part = CylinderPart(diameter_mm=40.0 + i)
+    return {
+        "time_s": 0.1 * i,
+        "alpha_deg": 10.0,
+        "theta_deg": 30.0 * i,
+        "part": part_to_dict(part),
+        "truth": {"normal": [0.1, 0.0, float(np.sqrt(0.99))], "push_depth_mm": 3.0,
+                  "T_J_part": np.eye(4).tolist()},
+        "custom": {"note": f"frame {i}"},
+    }
+
+
+@pytest.fixture
+def jig():
+    return default_jig()
+
+
+def _write(path: Path, jig, n: int = 3, *, dtype=np.uint8, color=False, truth=True, seed=0):
+    rng = np.random.default_rng(seed)
+    written = []
+    with DatasetWriter(path, jig, as_built=draw_as_built(jig, 1)) as writer:
+        ref_l, ref_r = _images(rng, dtype, color)
+        writer.add_frame(ref_l, ref_r, {"reference": True}, truth_markers=_truth(rng) if truth else None)
+        written.append((ref_l, ref_r, {"reference": True}))
+        for i in range(1, n):
+            left, right = _images(rng, dtype, color)
+            meta = _meta(i)
+            idx = writer.add_frame(left, right, meta, truth_markers=_truth(rng) if truth else None)
+            assert idx == i
+            written.append((left, right, meta))
+    return written
+
+
+# ------------------------------------------------------------------------------------- round trip
+
+
+@pytest.mark.parametrize(("dtype", "color"), [(np.uint8, False), (np.uint16, False), (np.uint8, True),
+                                              (np.uint16, True)])
+def test_round_trip_is_bit_exact(tmp_path, jig, dtype, color):
+    written = _write(tmp_path / "ds", jig, 3, dtype=dtype, color=color)
+    ds = Dataset.open(tmp_path / "ds")
+    assert len(ds) == 3
+    assert ds.jig == jig
+    for frame, (left, right, meta) in zip(ds, written, strict=True):
+        got_l, got_r = frame.load_left(), frame.load_right()
+        assert got_l.dtype == dtype and got_l.shape == left.shape
+        np.testing.assert_array_equal(got_l, left)
+        np.testing.assert_array_equal(got_r, right)
+        expected = {"index": frame.index, "left": f"left/{frame.index:06d}.png",
+                    "right": f"right/{frame.index:06d}.png", **json.loads(json.dumps(meta))}
+        expected.setdefault("truth", {})["markers"] = f"truth/{frame.index:06d}.npz"
+        assert frame.meta == expected
+
+
+def test_frame_fields_and_truth(tmp_path, jig):
+    rng_ref = np.random.default_rng(0)
+    _write(tmp_path / "ds", jig, 3)
+    ds = Dataset.open(tmp_path / "ds")
+    ref, f1 = ds[0], ds[1]
+    assert ref.reference and ref.alpha_deg is None and ref.part is None
+    assert not f1.reference
+    assert f1.alpha_deg == 10.0 and f1.theta_deg == 30.0 and f1.time_s == pytest.approx(0.1)
+    assert f1.part == CylinderPart(diameter_mm=41.0)
+    assert f1.truth is not None and f1.truth.push_depth_mm == 3.0
+    np.testing.assert_allclose(f1.truth.T_J_part, np.eye(4))
+    assert f1.truth.normal.shape == (3,)
+    # the truth npz holds exactly what was written (same rng sequence as _write)
+    _images(rng_ref)
+    truth0 = _truth(rng_ref)
+    got = ref.load_truth_markers()
+    assert set(got) == set(truth0)
+    for k, v in truth0.items():
+        np.testing.assert_array_equal(got[k], v)
+    assert [f.index for f in ds] == [0, 1, 2]
+    assert ds[-1].index == 2
+
+
+def test_as_built_stored_for_analysis(tmp_path, jig):
+    _write(tmp_path / "ds", jig, 1)
+    ds = Dataset.open(tmp_path / "ds")
+    assert ds.has_as_built
+    as_built = ds.as_built()
+    expected = draw_as_built(jig, 1)
+    assert as_built.jig == expected.jig
+    np.testing.assert_array_equal(as_built.marker_xy_mm, expected.marker_xy_mm)
+    assert ds.jig == jig  # the nominal jig is what the dataset's jig is
+
+
+def test_recording_without_truth_or_as_built(tmp_path, jig):
+    rng = np.random.default_rng(0)
+    with DatasetWriter(tmp_path / "rec", jig) as writer:
+        writer.add_frame(*_images(rng), {"time_s": 0.0})
+    ds = Dataset.open(tmp_path / "rec")
+    assert not ds.has_as_built
+    assert ds[0].truth is None
+    with pytest.raises(InputError, match=r"as_built\.toml"):
+        ds.as_built()
+    with pytest.raises(InputError, match="no truth markers"):
+        ds[0].load_truth_markers()
+
+
+def test_writer_accepts_png_bytes(tmp_path, jig):
+    rng = np.random.default_rng(3)
+    left, right = _images(rng, np.uint16)
+    with DatasetWriter(tmp_path / "ds", jig) as writer:
+        writer.add_frame(encode_png(left), encode_png(right), {})
+    frame = Dataset.open(tmp_path / "ds")[0]
+    np.testing.assert_array_equal(frame.load_left(), left)
+    np.testing.assert_array_equal(frame.load_right(), right)
+
+
+def test_empty_dataset_is_valid(tmp_path, jig):
+    with DatasetWriter(tmp_path / "ds", jig):
+        pass
+    assert len(Dataset.open(tmp_path / "ds")) == 0
+
+
+# ---------------------------------------------------------------------------------------- laziness
+
+
+def test_open_reads_no_image(tmp_path, jig, monkeypatch):
+    _write(tmp_path / "ds", jig, 5)
+    calls = []
+    monkeypatch.setattr(ds_mod.cv2, "imdecode", lambda *a, **k: calls.append(a) or None)
+    monkeypatch.setattr(ds_mod.np, "fromfile", lambda *a, **k: calls.append(a) or None)
+    ds = Dataset.open(tmp_path / "ds")
+    frames = list(ds)
+    assert len(frames) == 5 and ds[3].index == 3
+    assert calls == []
+
+
+# ----------------------------------------------------------------------------------- crash safety
+
+
+@pytest.mark.parametrize("newline", [False, True])
+def test_killed_writer_leaves_complete_frames(tmp_path, jig, newline):
+    written = _write(tmp_path / "ds", jig, 4)
+    line = json.dumps({"index": 4, "left": "left/000004.png", "right": "right/000004.png",
+                       "alpha_deg": 10.0})
+    with open(tmp_path / "ds" / "frames.jsonl", "a") as fh:
+        fh.write(line[: len(line) // 2] + ("\n" if newline else ""))
+    with pytest.warns(DatasetTruncationWarning, match="line 5"):
+        ds = Dataset.open(tmp_path / "ds")
+    assert len(ds) == 4
+    assert ds.warnings and "line 5" in ds.warnings[0]
+    for frame, (left, _, _) in zip(ds, written, strict=True):
+        np.testing.assert_array_equal(frame.load_left(), left)
+
+
+def test_writer_leaves_no_temporary_files(tmp_path, jig):
+    _write(tmp_path / "ds", jig, 2)
+    assert not [p for p in (tmp_path / "ds").rglob("*") if p.name.startswith(".")]
+
+
+# ------------------------------------------------------------------------------------- bad inputs
+
+
+def test_missing_folder(tmp_path):
+    with pytest.raises(InputError, match="does not exist"):
+        Dataset.open(tmp_path / "nope")
+
+
+def test_not_a_folder(tmp_path):
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(InputError, match="not a folder"):
+        Dataset.open(tmp_path / "file")
+
+
+def test_missing_rig(tmp_path, jig):
+    _write(tmp_path / "ds", jig, 1)
+    (tmp_path / "ds" / "rig.toml").unlink()
+    with pytest.raises(InputError, match=r"rig\.toml does not exist"):
+        Dataset.open(tmp_path / "ds")
+
+
+def test_invalid_rig_names_file_and_field(tmp_path, jig):
+    _write(tmp_path / "ds", jig, 1)
+    rig = tmp_path / "ds" / "rig.toml"
+    rig.write_text(rig.read_text().replace("pitch_mm = 8.0", "pitch_mm = -8.0"))
+    with pytest.raises(ConfigError, match=r"rig\.toml.*markers\.pitch_mm"):
+        Dataset.open(tmp_path / "ds")
+
+
+def test_missing_frames_file(tmp_path, jig):
+    _write(tmp_path / "ds", jig, 1)
+    (tmp_path / "ds" / "frames.jsonl").unlink()
+    with pytest.raises(InputError, match=r"frames\.jsonl does not exist"):
+        Dataset.open(tmp_path / "ds")
+
+
+def test_corrupt_line_in_the_middle_is_named(tmp_path, jig):
+    _write(tmp_path / "ds", jig, 3)
+    path = tmp_path / "ds" / "frames.jsonl"
+    lines = path.read_text().splitlines()
+    lines[1] = lines[1][:20]
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(InputError, match=r"frames\.jsonl, line 2: not valid JSON"):
+        Dataset.open(tmp_path / "ds")
+
+
+@pytest.mark.parametrize(("line", "match"), [
+    ('[1, 2]', "expected a JSON object"),
+    ('{"index": 0, "left": "left/000000.png"}', "lacks right"),
+    ('{"index": -1, "left": "a.png", "right": "b.png"}', "index must be"),
+    ('{"index": 0, "left": 3, "right": "b.png"}', "left must be"),
+    ('{"index": 0, "left": "a", "right": "b", "alpha_deg": "ten"}', "alpha_deg must be"),
+    ('{"index": 0, "left": "a", "right": "b", "part": {"kind": "sphere"}}', "part.kind"),
+    ('{"index": 0, "left": "a", "right": "b", "truth": {"normal": [0, 1]}}', "truth.normal"),
+])
+def test_invalid_frame_objects(tmp_path, jig, line, match):
+    _write(tmp_path / "ds", jig, 1)
+    with open(tmp_path / "ds" / "frames.jsonl", "a") as fh:
+        fh.write(line + "\n")
+    with pytest.raises(InputError, match=match) as info:
+        Dataset.open(tmp_path / "ds")
+    assert "line 2" in str(info.value)
+
+
+def test_missing_and_unreadable_images(tmp_path, jig):
+    _write(tmp_path / "ds", jig, 2)
+    ds = Dataset.open(tmp_path / "ds")
+    (tmp_path / "ds" / "left" / "000000.png").unlink()
+    with pytest.raises(InputError, match=r"000000\.png does not exist"):
+        ds[0].load_left()
+    (tmp_path / "ds" / "right" / "000001.png").write_bytes(b"\x89PNG\r\n\x1a\n garbage")
+    with pytest.raises(InputError, match=r"cannot decode image .*000001\.png"):
+        ds[1].load_right()
+    (tmp_path / "ds" / "truth" / "000001.npz").unlink()
+    with pytest.raises(InputError, match="re-simulate"):
+        ds[1].load_truth_markers()
+
+
+def test_load_image_errors(tmp_path):
+    with pytest.raises(InputError, match="does not exist"):
+        load_image(tmp_path / "none.png")
+    with pytest.raises(InputError, match="not a file"):
+        load_image(tmp_path)
+    (tmp_path / "empty.png").write_bytes(b"")
+    with pytest.raises(InputError, match="cannot decode"):
+        load_image(tmp_path / "empty.png")
+
+
+def test_load_image_color_is_rgb(tmp_path):
+    bgr = np.zeros((4, 5, 3), np.uint8)
+    bgr[..., 0] = 200  # blue in OpenCV's order
+    cv2.imwrite(str(tmp_path / "blue.png"), bgr)
+    rgb = load_image(tmp_path / "blue.png")
+    assert rgb.shape == (4, 5, 3) and rgb[0, 0, 2] == 200 and rgb[0, 0, 0] == 0
+
+
+# ----------------------------------------------------------------------------------- overwriting
+
+
+def test_refuses_to_overwrite_a_dataset(tmp_path, jig):
+    _write(tmp_path / "ds", jig, 2)
+    with pytest.raises(InputError, match="already holds a dataset"), DatasetWriter(tmp_path / "ds", jig):
+        pass
+    assert len(Dataset.open(tmp_path / "ds")) == 2
+    _write(tmp_path / "other", jig, 1)
+    with DatasetWriter(tmp_path / "ds", exact_jig(jig), overwrite=True) as writer:
+        writer.add_frame(*_images(np.random.default_rng(0)), {})
+    ds = Dataset.open(tmp_path / "ds")
+    assert len(ds) == 1 and not ds.has_as_built and ds.jig == exact_jig(jig)
+    assert not (tmp_path / "ds" / "left" / "000001.png").exists()
+
+
+def test_refuses_a_non_dataset_folder_even_with_overwrite(tmp_path, jig):
+    (tmp_path / "stuff").mkdir()
+    (tmp_path / "stuff" / "thesis.tex").write_text("precious")
+    with pytest.raises(InputError, match="not a softjig dataset"), \
+            DatasetWriter(tmp_path / "stuff", jig, overwrite=True):
+        pass
+    assert (tmp_path / "stuff" / "thesis.tex").read_text() == "precious"
+    (tmp_path / "afile").write_text("x")
+    with pytest.raises(InputError, match="not a folder"), DatasetWriter(tmp_path / "afile", jig):
+        pass
+
+
+def test_writer_rejects_bad_frames(tmp_path, jig):
+    rng = np.random.default_rng(0)
+    with DatasetWriter(tmp_path / "ds", jig) as writer:
+        left, right = _images(rng)
+        with pytest.raises(InputError, match="uint8 or uint16"):
+            writer.add_frame(left.astype(float), right, {})
+        with pytest.raises(InputError, match="must not set index"):
+            writer.add_frame(left, right, {"index": 5})
+        with pytest.raises(InputError, match="JSON"):
+            writer.add_frame(left, right, {"alpha_deg": float("nan")})
+        with pytest.raises(InputError, match="truth markers lack"):
+            writer.add_frame(left, right, {}, truth_markers={"xyz_mm": np.zeros((1, 3))})
+        assert writer.add_frame(left, right, {"alpha_deg": np.float64(5.0)}) == 0
+    ds = Dataset.open(tmp_path / "ds")
+    assert len(ds) == 1 and ds[0].alpha_deg == 5.0
