@@ -35,7 +35,7 @@ def test_unloaded_jig_is_at_rest():
 
 
 def test_flat_push_conforms_to_the_face():
-    part, T, state = _pressed(50, 0.0, push=3.0)
+    _, T, state = _pressed(50, 0.0, push=3.0)
     c = state.in_contact
     r = np.hypot(*XY.T)
     assert c.sum() == (r <= 25).sum()  # all markers under the face touch it

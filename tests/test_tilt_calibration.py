@@ -25,6 +25,7 @@ def test_pure_sine_recovers_offset_and_scale():
     assert cal.scale == pytest.approx(g, abs=1e-9)
     cx, cy = cal.apply(ax, ay)
     assert np.allclose(cx, alpha * np.sin(theta), atol=1e-9)
+    assert np.allclose(cy, alpha * np.cos(theta), atol=1e-9)
 
 
 def test_hand_computed_case():

@@ -199,14 +199,16 @@ def check_image_content(gray: npt.ArrayLike, *, name: str = "the image") -> None
             f"[0, 1], got dtype {arr.dtype} and shape {arr.shape}; convert it with "
             "to_gray_float() first."
         )
-    std = float(np.std(arr, dtype=np.float64))
+    # A 1-in-4 subsample decides blank or saturated as well as every pixel, at a sixteenth of the cost.
+    sample = np.ascontiguousarray(arr[::4, ::4], dtype=np.float32)
+    mean, std = (float(v) for v in np.ravel(cv2.meanStdDev(sample)))
     if std < _BLANK_STD:
         raise InputError(
             f"{name} is blank: its gray levels vary by only {std:.2e} of full scale "
-            f"(mean {float(np.mean(arr, dtype=np.float64)):.3f}); check the lighting/exposure, "
+            f"(mean {mean:.3f}); check the lighting/exposure, "
             "the lens cap and the camera connection."
         )
-    saturated = float(np.count_nonzero(arr >= 1.0)) / arr.size
+    saturated = float(np.count_nonzero(sample >= 1.0)) / sample.size
     if saturated > _SATURATED_FRACTION:
         raise InputError(
             f"{name} is saturated: {100.0 * saturated:.0f}% of its pixels are at full "

@@ -33,8 +33,18 @@ def fiducial_corners_J(fiducials: FiducialConfig) -> np.ndarray:
     return np.concatenate([xy, z], axis=2)
 
 
-def detect_fiducials(gray_u8: np.ndarray, fiducials: FiducialConfig) -> dict[int, np.ndarray]:
+def detect_fiducials(
+    gray_u8: np.ndarray, fiducials: FiducialConfig, *, expected_quads_px: np.ndarray | None = None
+) -> dict[int, np.ndarray]:
     """Find the configured fiducials in one 8-bit gray image with OpenCV's ArUco detector.
+
+    Parameters
+    ----------
+    gray_u8 : (H, W) uint8 image.
+    fiducials : which markers to look for.
+    expected_quads_px : (M, 4, 2) where the fiducials should be (e.g. projected with the config's
+        camera poses). When given, each is first searched in a window around its expected place (a
+        fraction of the cost of the whole image); the whole image is searched only if one is missing.
 
     Returns
     -------
@@ -42,8 +52,27 @@ def detect_fiducials(gray_u8: np.ndarray, fiducials: FiducialConfig) -> dict[int
         ``{id: (4, 2) corners in px}`` for each configured id found (sub-pixel corners, ArUco order);
         ids not in the config are ignored.
     """
-    detector = _detector(fiducials.dictionary)
-    corners, ids, _ = detector.detectMarkers(gray_u8)
+    found: dict[int, np.ndarray] = {}
+    if expected_quads_px is not None:
+        h, w = gray_u8.shape
+        for quad in np.asarray(expected_quads_px, dtype=float):
+            side = float(np.ptp(quad, axis=0).max())
+            lo = np.floor(quad.min(axis=0) - side).astype(int).clip(0, [w, h])
+            hi = np.ceil(quad.max(axis=0) + side).astype(int).clip(0, [w, h])
+            if np.any(hi - lo < 8):
+                continue
+            window = np.ascontiguousarray(gray_u8[lo[1] : hi[1], lo[0] : hi[0]])
+            for marker_id, corners in _detect(window, fiducials).items():
+                found.setdefault(marker_id, corners + lo)
+        if set(fiducials.ids) <= set(found):
+            return found
+    for marker_id, corners in _detect(gray_u8, fiducials).items():
+        found.setdefault(marker_id, corners)
+    return found
+
+
+def _detect(gray_u8: np.ndarray, fiducials: FiducialConfig) -> dict[int, np.ndarray]:
+    corners, ids, _ = _detector(fiducials.dictionary).detectMarkers(gray_u8)
     wanted = set(fiducials.ids)
     found: dict[int, np.ndarray] = {}
     if ids is None:

@@ -71,19 +71,28 @@ def jig_frame_from_config(jig: JigConfig) -> JigFrame:
 
 def inside_fiducials(xy_px: np.ndarray, quads_px: np.ndarray, *, quiet_zone: float = 1.0 / 3.0) -> np.ndarray:
     """Which points lie on a fiducial or its white quiet zone (each quad grown by ``quiet_zone`` of its
-    size about its centre; ArUco 4x4 markers are 6 cells wide, so one cell each side is 1/3)."""
-    inside = np.zeros(len(xy_px), dtype=bool)
-    for quad in quads_px:
-        centre = quad.mean(axis=0)
-        grown = (centre + (quad - centre) * (1.0 + quiet_zone)).astype(np.float32)
-        inside |= np.array([cv2.pointPolygonTest(grown, (float(x), float(y)), False) >= 0 for x, y in xy_px])
-    return inside
+    size about its centre; ArUco 4x4 markers are 6 cells wide, so one cell each side is 1/3).
+
+    A fiducial's image is a convex quadrilateral: a point is inside when it lies on the same side of all
+    four edges (vectorised over points and quads).
+    """
+    xy = np.asarray(xy_px, dtype=float).reshape(-1, 2)
+    if len(quads_px) == 0 or len(xy) == 0:
+        return np.zeros(len(xy), dtype=bool)
+    quads = np.asarray(quads_px, dtype=float).reshape(-1, 4, 2)
+    centres = quads.mean(axis=1, keepdims=True)
+    grown = centres + (quads - centres) * (1.0 + quiet_zone)  # (Q, 4, 2)
+    edges = np.roll(grown, -1, axis=1) - grown  # (Q, 4, 2)
+    rel = xy[:, None, None, :] - grown[None]  # (N, Q, 4, 2)
+    cross = edges[None, ..., 0] * rel[..., 1] - edges[None, ..., 1] * rel[..., 0]  # (N, Q, 4)
+    inside = np.all(cross >= 0, axis=2) | np.all(cross <= 0, axis=2)
+    return inside.any(axis=1)
 
 
 def _project(camera: CameraConfig, T_cam_J: np.ndarray, points_J: np.ndarray) -> np.ndarray:
-    p = points_J @ T_cam_J[:3, :3].T + T_cam_J[:3, 3]
-    rvec, _ = cv2.Rodrigues(np.eye(3))
-    px, _ = cv2.projectPoints(p, rvec, np.zeros(3), camera.K, np.asarray(camera.distortion, float))
+    """Pinhole projection (with the camera's distortion) of points in J into a camera at ``T_cam_J``."""
+    rvec, _ = cv2.Rodrigues(T_cam_J[:3, :3])
+    px, _ = cv2.projectPoints(points_J, rvec, T_cam_J[:3, 3], camera.K, np.asarray(camera.distortion, float))
     return px.reshape(-1, 2)
 
 
@@ -95,7 +104,11 @@ def jig_frame_from_fiducials(left_u8: np.ndarray, right_u8: np.ndarray, jig: Jig
     """
     fid = jig.fiducials
     corners_J = dict(zip(fid.ids, fiducial_corners_J(fid), strict=True))
-    found = [detect_fiducials(img, fid) for img in (left_u8, right_u8)]
+    expected = jig_frame_from_config(jig)
+    found = [
+        detect_fiducials(left_u8, fid, expected_quads_px=expected.fiducial_quads_left_px),
+        detect_fiducials(right_u8, fid, expected_quads_px=expected.fiducial_quads_right_px),
+    ]
     if min(len(f) for f in found) < MIN_FIDUCIALS_PER_IMAGE:
         return None
     cams = (jig.cameras.left, jig.cameras.right)

@@ -21,6 +21,7 @@ pinhole pair), so zero push reads zero; it stays compressed by the same factor.
 
 from __future__ import annotations
 
+import time
 from dataclasses import asdict, dataclass
 from functools import lru_cache
 
@@ -220,6 +221,7 @@ def estimate_pair(
     part_diameter_mm: float,
     calibration: TiltCalibration | None = None,
     method: str = "paper",
+    timings: dict[str, float] | None = None,
 ) -> SensingResult:
     """Estimate the principal normal of the part on the jig from one rectified stereo pair.
 
@@ -231,6 +233,8 @@ def estimate_pair(
         jig axis are fitted).
     calibration : the paper's tilt calibration to apply, if any.
     method : ``"paper"``: the method exactly as published.
+    timings : if given, filled with each stage's wall time in seconds (``checks``, ``frame``,
+        ``detect``, ``match``, ``triangulate``, ``fit``).
 
     Returns
     -------
@@ -254,8 +258,10 @@ def estimate_pair(
             "the config's cameras are not a rectified pair (cameras.rectified = false): the paper's method "
             "needs rectified images"
         )
+    clock = _StageClock(timings)
     gray_left, gray_right = _checked_pair(left, right, jig)
     setup = sensing_setup(jig)
+    clock.lap("checks")
     warnings: list[str] = []
 
     kwargs = {"sigma_px": setup.sigma_px}
@@ -263,8 +269,10 @@ def estimate_pair(
         kwargs["threshold"] = setup.threshold
     frame, frame_warnings = resolve_jig_frame(_to_u8(gray_left), _to_u8(gray_right), jig)
     warnings += frame_warnings
+    clock.lap("frame")
     markers_left = _off_fiducials(detect_markers(gray_left, **kwargs), frame.fiducial_quads_left_px)
     markers_right = _off_fiducials(detect_markers(gray_right, **kwargs), frame.fiducial_quads_right_px)
+    clock.lap("detect")
     matches = match_rectified(
         markers_left.xy_px,
         markers_right.xy_px,
@@ -272,10 +280,12 @@ def estimate_pair(
         min_disparity_px=setup.min_disparity_px,
         max_disparity_px=setup.max_disparity_px,
     )
+    clock.lap("match")
     xy_left = markers_left.xy_px[matches.left_index]
     xy_right = markers_right.xy_px[matches.right_index]
     points_cam = _triangulate(xy_left, xy_right, jig) if len(matches) else np.zeros((0, 3))
     points_J = transform_points(frame.T_J_left, points_cam)
+    clock.lap("triangulate")
 
     radius = part_diameter_mm / 2.0
     used = np.hypot(points_J[:, 0], points_J[:, 1]) < radius
@@ -324,7 +334,22 @@ def estimate_pair(
         n_markers_right=len(markers_right),
         n_matches=len(matches),
     )
+    clock.lap("fit")
     return SensingResult(estimate, markers_left, markers_right, matches, points_J, used, plane, frame)
+
+
+class _StageClock:
+    """Records the wall time of consecutive stages into a dict, when one is given."""
+
+    def __init__(self, timings: dict[str, float] | None) -> None:
+        self.timings = timings
+        self.last = time.perf_counter()
+
+    def lap(self, stage: str) -> None:
+        if self.timings is not None:
+            now = time.perf_counter()
+            self.timings[stage] = now - self.last
+            self.last = now
 
 
 def _off_fiducials(markers: Markers, quads_px: np.ndarray) -> Markers:
