@@ -36,18 +36,14 @@ class BatchSettings:
 
 
 def frame_part_diameter_mm(frame: Frame, settings: BatchSettings) -> float:
-    """The crop diameter of a frame: the one given for all, else the frame's part's."""
+    """The crop diameter of a frame (mm): the one given for all, else the frame's part's."""
     if settings.part_diameter_mm is not None:
         return settings.part_diameter_mm
-    part = frame.part or {}
-    diameter = part.get("diameter_mm")
-    if diameter is None and part.get("kind") == "box":
-        diameter = min(part.get("size_x_mm", 0.0), part.get("size_y_mm", 0.0)) or None
-    if diameter is None:
+    if frame.part is None:
         raise InputError(
-            "the frame names no part size (e.g. an unloaded reference frame): pass --part-diameter"
+            "the frame names no part (e.g. an unloaded reference frame): pass --part-diameter"
         )
-    return float(diameter)
+    return float(frame.part.diameter_mm)  # a box's is its inscribed circle's
 
 
 def estimate_frame(frame: Frame, settings: BatchSettings) -> dict:

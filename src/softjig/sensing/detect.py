@@ -28,6 +28,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.spatial import cKDTree
 
+from softjig.checks import finite_float
 from softjig.errors import InputError
 
 __all__ = [
@@ -258,8 +259,8 @@ def log_sigma_px(marker_diameter_px: float, *, blur_sigma_px: float = 0.0) -> fl
     >>> round(log_sigma_px(15.0, blur_sigma_px=3.0), 3)
     5.546
     """
-    d = _finite_float(marker_diameter_px, "marker_diameter_px")
-    b = _finite_float(blur_sigma_px, "blur_sigma_px")
+    d = finite_float(marker_diameter_px, "marker_diameter_px")
+    b = finite_float(blur_sigma_px, "blur_sigma_px")
     if d <= 0.0:
         raise InputError(f"marker_diameter_px must be > 0, got {d}.")
     if b < 0.0:
@@ -353,15 +354,15 @@ def detect_markers(
     the centre error is about 0.35 px RMS at contrast 120/255 (0.03 px with camera noise
     alone), growing to about 1 px at contrast 0.15.
     """
-    sigma = _finite_float(sigma_px, "sigma_px")
+    sigma = finite_float(sigma_px, "sigma_px")
     if sigma <= 0.0:
         raise InputError(f"sigma_px must be > 0, got {sigma}; use log_sigma_px() to choose it.")
-    thr = _finite_float(threshold, "threshold")
+    thr = finite_float(threshold, "threshold")
     if thr < 0.0:
         raise InputError(f"threshold must be >= 0 (a bright-blob response), got {thr}.")
     if min_distance_px is None:
         min_distance_px = 2.0 * sigma
-    min_dist = _finite_float(min_distance_px, "min_distance_px")
+    min_dist = finite_float(min_distance_px, "min_distance_px")
     if min_dist < 1.0:
         raise InputError(f"min_distance_px must be >= 1, got {min_dist}.")
     if border_px is None:
@@ -386,17 +387,6 @@ def detect_markers(
         peak[ok] = peak_fit[ok]
     order = np.argsort(-peak, kind="stable")
     return Markers(xy_px=xy[order], response=peak[order], sigma_px=sigma)
-
-
-def _finite_float(value: object, name: str) -> float:
-    """``float(value)``, or an InputError naming the parameter if it is not a finite number."""
-    try:
-        out = float(value)  # type: ignore[arg-type]
-    except (TypeError, ValueError):
-        raise InputError(f"{name} must be a number, got {value!r}.") from None
-    if not math.isfinite(out):
-        raise InputError(f"{name} must be finite, got {out}.")
-    return out
 
 
 def _log_response(gray: np.ndarray, sigma: float) -> np.ndarray:

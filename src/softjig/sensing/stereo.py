@@ -13,7 +13,6 @@ Everything here is pure: arrays in, frozen dataclasses / arrays out.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -22,6 +21,7 @@ from scipy.optimize import linear_sum_assignment
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
+from softjig.checks import finite_float, positive_float
 from softjig.errors import InputError
 
 __all__ = [
@@ -120,11 +120,11 @@ def disparity_window_px(
     >>> round(lo, 2), round(hi, 2)
     (140.31, 160.57)
     """
-    fx = _positive(fx_px, "fx_px")
-    baseline = _positive(baseline_mm, "baseline_mm")
-    z_min = _positive(depth_min_mm, "depth_min_mm")
-    z_max = _positive(depth_max_mm, "depth_max_mm")
-    margin = _finite(margin_px, "margin_px")
+    fx = positive_float(fx_px, "fx_px")
+    baseline = positive_float(baseline_mm, "baseline_mm")
+    z_min = positive_float(depth_min_mm, "depth_min_mm")
+    z_max = positive_float(depth_max_mm, "depth_max_mm")
+    margin = finite_float(margin_px, "margin_px")
     if z_min >= z_max:
         raise InputError(
             f"depth_min_mm ({z_min}) must be smaller than depth_max_mm ({z_max}); "
@@ -200,10 +200,10 @@ def match_rectified(
     """
     left = _as_points(left_xy, "left_xy")
     right = _as_points(right_xy, "right_xy")
-    tol = _positive(row_tolerance_px, "row_tolerance_px")
-    d_min = _finite(min_disparity_px, "min_disparity_px")
-    d_max = _finite(max_disparity_px, "max_disparity_px")
-    weight = _finite(disparity_weight, "disparity_weight")
+    tol = positive_float(row_tolerance_px, "row_tolerance_px")
+    d_min = finite_float(min_disparity_px, "min_disparity_px")
+    d_max = finite_float(max_disparity_px, "max_disparity_px")
+    weight = finite_float(disparity_weight, "disparity_weight")
     if d_min >= d_max:
         raise InputError(
             f"min_disparity_px ({d_min}) must be smaller than max_disparity_px ({d_max}); "
@@ -288,11 +288,11 @@ def triangulate_rectified(
             f"left_xy has {len(left)} points but right_xy has {len(right)}; pass matched "
             "pairs, e.g. left_xy[m.left_index] and right_xy[m.right_index]."
         )
-    fx = _positive(fx_px, "fx_px")
-    fy = _positive(fy_px, "fy_px")
-    cx = _finite(cx_px, "cx_px")
-    cy = _finite(cy_px, "cy_px")
-    baseline = _positive(baseline_mm, "baseline_mm")
+    fx = positive_float(fx_px, "fx_px")
+    fy = positive_float(fy_px, "fy_px")
+    cx = finite_float(cx_px, "cx_px")
+    cy = finite_float(cy_px, "cy_px")
+    baseline = positive_float(baseline_mm, "baseline_mm")
     disparity = left[:, 0] - right[:, 0]
     bad = np.flatnonzero(disparity <= 0.0)
     if len(bad):
@@ -365,21 +365,3 @@ def _as_points(points: npt.ArrayLike, name: str) -> np.ndarray:
     if not np.all(np.isfinite(arr)):
         raise InputError(f"{name} contains NaN or infinite coordinates; remove them first.")
     return arr
-
-
-def _finite(value: object, name: str) -> float:
-    """``float(value)``, or an InputError naming the parameter if it is not a finite number."""
-    try:
-        out = float(value)  # type: ignore[arg-type]
-    except (TypeError, ValueError):
-        raise InputError(f"{name} must be a number, got {value!r}.") from None
-    if not math.isfinite(out):
-        raise InputError(f"{name} must be finite, got {out}.")
-    return out
-
-
-def _positive(value: object, name: str) -> float:
-    out = _finite(value, name)
-    if out <= 0.0:
-        raise InputError(f"{name} must be > 0, got {out}.")
-    return out

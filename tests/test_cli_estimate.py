@@ -1,0 +1,142 @@
+"""`softjig estimate` end to end: a pair (table, --json, --overlay), a dataset (JSONL, CSV), exit codes."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from softjig.cli import app
+from softjig.config import dumps_jig
+from softjig.io.dataset import Dataset
+from softjig.sim.scenarios import paper_sweep, simulate_dataset
+
+runner = CliRunner()
+
+
+@pytest.fixture(scope="module")
+def sweep(tmp_path_factory):
+    """The small sweep of DESIGN.md's contract: a reference frame and 4 loaded frames (D = 50 mm)."""
+    out = tmp_path_factory.mktemp("cli") / "sweep"
+    from softjig.config import default_jig
+
+    specs = list(paper_sweep(diameters_mm=(50,), alphas_deg=(10,), theta_step_deg=90))
+    simulate_dataset(out, specs, default_jig(), seed=2, workers=1, progress=False)
+    return Dataset.open(out)
+
+
+def _pair_args(sweep, k=1):
+    frame = sweep[k]
+    return [str(frame.left_path), str(frame.right_path), "--config", str(sweep.root / "rig.toml")]
+
+
+def test_pair_json_has_the_contract_keys(sweep):
+    result = runner.invoke(app, ["estimate", *_pair_args(sweep), "--part-diameter", "50", "--json"])
+    assert result.exit_code == 0, result.output
+    data = json.loads(result.stdout)
+    for key in ("normal", "tilt_x_deg", "tilt_y_deg", "push_depth_mm", "n_points", "rms_residual_mm",
+                "frame_source", "warnings"):
+        assert key in data
+    assert data["frame_source"] == "fiducials" and data["n_points"] > 20
+    assert data["normal"][2] > 0.9
+
+
+def test_pair_table_and_overlay(sweep, tmp_path):
+    overlay = tmp_path / "overlay.png"
+    result = runner.invoke(app, ["estimate", *_pair_args(sweep), "--part-diameter", "50",
+                                 "--overlay", str(overlay)])
+    assert result.exit_code == 0, result.output
+    assert "tilt Ax / Ay" in result.stdout and "fiducials" in result.stdout
+    picture = cv2.imread(str(overlay))
+    assert picture.shape == (720, 2560, 3)
+    assert (picture[..., 0] != picture[..., 1]).any()  # something was drawn in colour
+
+
+def test_pair_calibration_is_applied(sweep, tmp_path):
+    cal = tmp_path / "cal.json"
+    cal.write_text(json.dumps({"offset_x_deg": 0.0, "offset_y_deg": 0.0, "scale": 2.0}))
+    plain = json.loads(runner.invoke(app, ["estimate", *_pair_args(sweep), "--part-diameter", "50",
+                                           "--json"]).stdout)
+    scaled = json.loads(runner.invoke(app, ["estimate", *_pair_args(sweep), "--part-diameter", "50",
+                                            "--json", "--calibration", str(cal)]).stdout)
+    assert scaled["calibrated"] and scaled["tilt_x_deg"] == pytest.approx(2 * plain["tilt_x_deg"])
+
+
+def test_dataset_jsonl_and_csv(sweep, tmp_path):
+    out = tmp_path / "results.jsonl"
+    result = runner.invoke(app, ["estimate", str(sweep.root), "--out", str(out), "--workers", "2",
+                                 "--no-progress"])
+    assert result.exit_code == 0, result.output
+    rows = [json.loads(line) for line in out.read_text().splitlines()]
+    assert [row["index"] for row in rows] == [frame.index for frame in sweep]
+    assert rows[0]["exit_code"] == 2 and "--part-diameter" in rows[0]["error"]  # the reference frame
+    assert all("normal" in row for row in rows[1:])
+    assert "1 frames gave no estimate" in result.output
+    csv_out = tmp_path / "results.csv"
+    result = runner.invoke(app, ["estimate", str(sweep.root), "--out", str(csv_out), "--workers", "1",
+                                 "--part-diameter", "50", "--no-progress"])
+    assert result.exit_code == 0, result.output
+    lines = csv_out.read_text().splitlines()
+    assert lines[0].startswith("index,normal_x") and len(lines) == 1 + len(sweep)
+
+
+def test_workers_give_identical_results(sweep, tmp_path):
+    outs = []
+    for workers in ("1", "2"):
+        out = tmp_path / f"r{workers}.jsonl"
+        runner.invoke(app, ["estimate", str(sweep.root), "--out", str(out), "--workers", workers,
+                            "--no-progress"])
+        outs.append(out.read_text())
+    assert outs[0] == outs[1]
+
+
+@pytest.mark.parametrize(
+    ("extra", "code", "message"),
+    [
+        (["--part-diameter", "8"], 3, "sensing.min_points"),
+        ([], 2, "--part-diameter"),
+        (["--part-diameter", "50", "--method", "magic"], 2, "unknown method"),
+        (["--part-diameter", "50", "--calibration", "/nonexistent.json"], 2, "does not exist"),
+        (["--part-diameter", "50", "--workers", "2"], 2, "DATASET"),
+    ],
+)
+def test_pair_errors_and_exit_codes(sweep, extra, code, message):
+    result = runner.invoke(app, ["estimate", *_pair_args(sweep), *extra])
+    assert result.exit_code == code
+    assert message in result.output
+    assert "Traceback" not in result.output
+
+
+def test_bad_files(sweep, tmp_path):
+    left = sweep[1].left_path
+    result = runner.invoke(app, ["estimate", str(left), str(tmp_path / "none.png"), "--config",
+                                 str(sweep.root / "rig.toml"), "--part-diameter", "50"])
+    assert result.exit_code == 2 and "does not exist" in result.output
+    corrupt = tmp_path / "corrupt.png"
+    corrupt.write_bytes(b"\x89PNG not really")
+    result = runner.invoke(app, ["estimate", str(left), str(corrupt), "--config",
+                                 str(sweep.root / "rig.toml"), "--part-diameter", "50"])
+    assert result.exit_code == 2
+    small = tmp_path / "small.png"
+    cv2.imwrite(str(small), np.zeros((100, 100), np.uint8))
+    result = runner.invoke(app, ["estimate", str(left), str(small), "--config",
+                                 str(sweep.root / "rig.toml"), "--part-diameter", "50"])
+    assert result.exit_code == 2 and "right one is 100x100" in result.output
+    result = runner.invoke(app, ["estimate", str(left), str(left), "--part-diameter", "50"])
+    assert result.exit_code == 2 and "--config" in result.output
+
+
+def test_fiducials_required_but_hidden_exit_3(sweep, tmp_path):
+    strict = tmp_path / "strict.toml"
+    strict.write_text(dumps_jig(sweep.jig).replace('extrinsics = "auto"', 'extrinsics = "fiducials"'))
+    left = cv2.imread(str(sweep[1].left_path), cv2.IMREAD_UNCHANGED)
+    left[:, :] = np.where(np.arange(1280) < 420, 25, left).astype(left.dtype)  # hide two fiducials
+    left[:, 1000:] = 25
+    hidden = tmp_path / "hidden.png"
+    cv2.imwrite(str(hidden), left)
+    result = runner.invoke(app, ["estimate", str(hidden), str(sweep[1].right_path), "--config", str(strict),
+                                 "--part-diameter", "50"])
+    assert result.exit_code == 3 and "fiducials" in result.output
