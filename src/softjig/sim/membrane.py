@@ -68,7 +68,7 @@ __all__ = [
     "rest_outer_height_mm",
 ]
 
-_CONTACT_SAMPLE_SPACING_MM = 2.0  # inside the face: the envelope is smooth at this scale (lambda is mm)
+_CONTACT_SAMPLE_SPACING_MM = 3.0  # inside the face: the envelope is smooth at this scale (lambda >= 5 mm)
 _RIM_SAMPLE_SPACING_MM = 0.5  # along the face's edge, where the membrane drapes off it: dense, so the
 # surface just outside the edge starts from the indentation at the edge (no step)
 _CONTACT_TOLERANCE_MM = 1e-4  # the envelope is computed in float32: ignore its round-off

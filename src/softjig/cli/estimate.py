@@ -1,0 +1,146 @@
+"""`softjig estimate`: a stereo pair or a whole dataset to estimates."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.console import Console
+
+from softjig.cli.app import app, handle_errors, load_config, stderr_console, warn
+from softjig.errors import InputError
+
+
+def _print_estimate_table(estimate: dict) -> None:
+    from rich.table import Table
+
+    table = Table(title="softjig estimate", show_header=False)
+    nx, ny, nz = estimate["normal"]
+    rows = [
+        ("normal (J)", f"({nx:+.5f}, {ny:+.5f}, {nz:+.5f})"),
+        (
+            "tilt Ax / Ay",
+            f"{estimate['tilt_x_deg']:+.3f} deg / {estimate['tilt_y_deg']:+.3f} deg"
+            + ("" if estimate["calibrated"] else "  (uncalibrated)"),
+        ),
+        ("push depth", f"{estimate['push_depth_mm']:.3f} mm"),
+        ("points / rms residual", f"{estimate['n_points']} / {estimate['rms_residual_mm']:.3f} mm"),
+        (
+            "markers L / R / matched",
+            f"{estimate['n_markers_left']} / {estimate['n_markers_right']} / {estimate['n_matches']}",
+        ),
+        ("frame source", estimate["frame_source"]),
+        ("method", estimate["method"]),
+    ]
+    for name, value in rows:
+        table.add_row(name, value)
+    Console().print(table)
+    for message in estimate["warnings"]:
+        warn(message)
+
+
+@app.command()
+@handle_errors
+def estimate(
+    inputs: Annotated[
+        list[Path],
+        typer.Argument(
+            help="LEFT.png RIGHT.png (one stereo pair) or DATASET (a folder with frames.jsonl).",
+            show_default=False,
+        ),
+    ],
+    config: Annotated[
+        Path | None,
+        typer.Option(
+            help="The nominal jig (rig.toml); required for a pair, a dataset's own rig.toml by default."
+        ),
+    ] = None,
+    part_diameter: Annotated[
+        float | None,
+        typer.Option(
+            help="Diameter of the part's base in mm (the crop); a dataset's frames name their part."
+        ),
+    ] = None,
+    calibration: Annotated[
+        Path | None, typer.Option(help="Tilt calibration JSON (offset_x_deg, offset_y_deg, scale) to apply.")
+    ] = None,
+    method: Annotated[str, typer.Option(help="Estimation method: paper (as published).")] = "paper",
+    json_output: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+    overlay: Annotated[
+        Path | None, typer.Option(help="Write a PNG showing markers, matches, the crop and the normal.")
+    ] = None,
+    out: Annotated[
+        Path | None,
+        typer.Option(help="DATASET: results file (.jsonl, or .csv).", show_default="DATASET/estimates.jsonl"),
+    ] = None,
+    workers: Annotated[
+        int | None, typer.Option(min=1, help="DATASET: processes.", show_default="all CPUs")
+    ] = None,
+    progress: Annotated[bool, typer.Option(help="DATASET: show a progress bar on stderr.")] = True,
+) -> None:
+    """Estimate the part's principal normal, tilt angles and push depth from a stereo pair or a dataset."""
+    import json
+
+    from softjig.calibration.tilt import load_tilt_calibration
+
+    cal = load_tilt_calibration(calibration) if calibration else None
+    if len(inputs) == 1:
+        _estimate_dataset(inputs[0], config, part_diameter, cal, method, out, workers, progress)
+        return
+    if len(inputs) != 2:
+        raise InputError(f"give LEFT RIGHT (a stereo pair) or one DATASET folder, got {len(inputs)} paths")
+    if config is None:
+        raise InputError("estimating a stereo pair needs --config RIG.toml (the jig and its cameras)")
+    if part_diameter is None:
+        raise InputError("estimating a stereo pair needs --part-diameter MM (the part's base diameter)")
+    if out is not None or workers is not None:
+        raise InputError("--out and --workers apply to a DATASET, not to a stereo pair")
+    from softjig.io.dataset import load_image
+    from softjig.sensing.pipeline import estimate_pair
+
+    jig = load_config(config)
+    left, right = load_image(inputs[0]), load_image(inputs[1])
+    result = estimate_pair(left, right, jig, part_diameter_mm=part_diameter, calibration=cal, method=method)
+    if overlay is not None:
+        from softjig.io.dataset import encode_png
+        from softjig.io.files import write_bytes_atomic
+        from softjig.sensing.overlay import draw_overlay
+
+        picture = draw_overlay(left, right, result, jig.cameras.left.K)
+        write_bytes_atomic(overlay, encode_png(picture))
+    data = result.estimate.to_dict()
+    if json_output:
+        typer.echo(json.dumps(data))
+    else:
+        _print_estimate_table(data)
+
+
+def _estimate_dataset(path, config, part_diameter, cal, method, out, workers, progress) -> None:
+    from rich.progress import Progress
+
+    from softjig.io.dataset import Dataset
+    from softjig.sensing.batch import BatchSettings, estimate_dataset, write_rows
+
+    dataset = Dataset.open(path)
+    jig = load_config(config) if config else dataset.jig
+    settings = BatchSettings(jig=jig, part_diameter_mm=part_diameter, calibration=cal, method=method)
+    out = out or Path(path) / "estimates.jsonl"
+    t0 = time.perf_counter()
+    with Progress(console=stderr_console(), disable=not progress, transient=True) as bar:
+        task = bar.add_task("estimating", total=len(dataset))
+        rows = list(
+            estimate_dataset(dataset, settings, workers=workers, on_row=lambda _row: bar.advance(task))
+        )
+    write_rows(rows, out)
+    failed = [row for row in rows if "error" in row]
+    typer.echo(
+        f"estimated {len(rows) - len(failed)} of {len(rows)} frames in "
+        f"{time.perf_counter() - t0:.1f} s; wrote {out}"
+    )
+    if failed:
+        warn(
+            f"{len(failed)} frames gave no estimate (see their 'error' in {out}), e.g. frame "
+            f"{failed[0]['index']}: {failed[0]['error']}"
+        )

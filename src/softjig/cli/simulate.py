@@ -1,0 +1,112 @@
+"""`softjig simulate`: render a simulated dataset."""
+
+from __future__ import annotations
+
+import time
+from enum import StrEnum
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from softjig.cli.app import app, handle_errors, load_config, parse_numbers
+from softjig.errors import InputError
+
+
+class Scenario(StrEnum):
+    paper_sweep = "paper-sweep"
+    cube = "cube"
+    single = "single"
+
+
+@app.command()
+@handle_errors
+def simulate(
+    scenario: Annotated[Scenario, typer.Option(help="What to render.")] = Scenario.paper_sweep,
+    out: Annotated[
+        Path | None, typer.Option(help="Dataset folder to write.", show_default="out/sim-SCENARIO")
+    ] = None,
+    config: Annotated[
+        Path | None, typer.Option(help="The nominal jig (rig.toml).", show_default="the paper's jig")
+    ] = None,
+    seed: Annotated[int, typer.Option(min=0, help="Seed of the as-built jig and of every frame.")] = 0,
+    diameters: Annotated[
+        str | None,
+        typer.Option(help="paper-sweep: cylinder diameters in mm.", show_default="30,40,50,60,70,80"),
+    ] = None,
+    alphas: Annotated[
+        str | None, typer.Option(help="paper-sweep: tilts in degrees.", show_default="5,10,15,20")
+    ] = None,
+    theta_step: Annotated[
+        float | None, typer.Option(help="paper-sweep: azimuth step in degrees.", show_default="10")
+    ] = None,
+    push_depth: Annotated[float, typer.Option(help="Push depth of the part in mm.")] = 3.0,
+    part_diameter: Annotated[
+        float | None, typer.Option(help="single: the cylinder's diameter in mm.")
+    ] = None,
+    alpha: Annotated[float | None, typer.Option(help="single: tilt in degrees.", show_default="0")] = None,
+    theta: Annotated[
+        float | None, typer.Option(help="single: tilt azimuth in degrees.", show_default="0")
+    ] = None,
+    frames: Annotated[
+        int | None, typer.Option(help="cube: number of loaded frames.", show_default="60")
+    ] = None,
+    workers: Annotated[
+        int | None, typer.Option(min=1, help="Rendering processes.", show_default="all CPUs")
+    ] = None,
+    color: Annotated[bool, typer.Option(help="Render colour (RGB) images instead of gray.")] = False,
+    overwrite: Annotated[bool, typer.Option(help="Replace an existing dataset in --out.")] = False,
+    progress: Annotated[bool, typer.Option(help="Show a progress bar on stderr.")] = True,
+) -> None:
+    """Render a simulated dataset: the paper's tilt sweep, the cube experiment or a single frame."""
+    from softjig.config import CylinderPart
+    from softjig.sim import scenarios
+
+    given = {
+        "--diameters": diameters,
+        "--alphas": alphas,
+        "--theta-step": theta_step,
+        "--part-diameter": part_diameter,
+        "--alpha": alpha,
+        "--theta": theta,
+        "--frames": frames,
+    }
+    allowed = {
+        Scenario.paper_sweep: {"--diameters", "--alphas", "--theta-step"},
+        Scenario.cube: {"--frames"},
+        Scenario.single: {"--part-diameter", "--alpha", "--theta"},
+    }[scenario]
+    stray = [name for name, value in given.items() if value is not None and name not in allowed]
+    if stray:
+        raise InputError(
+            f"{', '.join(stray)} do(es) not apply to --scenario {scenario.value} "
+            f"(it takes {', '.join(sorted(allowed))})"
+        )
+    jig = load_config(config)
+    if scenario is Scenario.paper_sweep:
+        specs = list(
+            scenarios.paper_sweep(
+                diameters_mm=parse_numbers(diameters, "--diameters")
+                if diameters
+                else scenarios.PAPER_DIAMETERS_MM,
+                alphas_deg=parse_numbers(alphas, "--alphas") if alphas else scenarios.PAPER_ALPHAS_DEG,
+                theta_step_deg=10.0 if theta_step is None else theta_step,
+                push_depth_mm=push_depth,
+            )
+        )
+    elif scenario is Scenario.cube:
+        specs = scenarios.cube_experiment(
+            n_frames=60 if frames is None else frames, push_depth_mm=push_depth, rng=seed
+        )
+    else:
+        if part_diameter is None:
+            raise InputError("--scenario single needs --part-diameter MM (and optionally --alpha, --theta)")
+        specs = scenarios.single(
+            CylinderPart(diameter_mm=part_diameter), alpha or 0.0, theta or 0.0, push_depth
+        )
+    out = out or Path("out") / f"sim-{scenario.value}"
+    t0 = time.perf_counter()
+    scenarios.simulate_dataset(
+        out, specs, jig, seed=seed, workers=workers, progress=progress, overwrite=overwrite, color=color
+    )
+    typer.echo(f"wrote {len(specs)} frames to {out} in {time.perf_counter() - t0:.1f} s")
