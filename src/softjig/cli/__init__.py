@@ -1,6 +1,17 @@
 """The ``softjig`` command line: one module per command, all registered on :data:`app`."""
 
-from softjig.cli import config_cmd, estimate, simulate  # noqa: F401 - importing registers the commands
+from softjig.cli import (  # noqa: F401 - importing a command's module registers it on the app
+    calibrate,
+    calibrate_stereo,
+    config_cmd,
+    demo,
+    estimate,
+    fiducials_cmd,
+    jig_cmd,
+    live,
+    simulate,
+    sweep_plan,
+)
 from softjig.cli.app import EXIT_BAD_INPUT, EXIT_NO_ESTIMATE, EXIT_OK, app, error, handle_errors, warn
 
 __all__ = ["EXIT_BAD_INPUT", "EXIT_NO_ESTIMATE", "EXIT_OK", "app", "error", "handle_errors", "main", "warn"]

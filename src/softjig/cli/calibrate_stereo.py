@@ -1,0 +1,1 @@
+"""`softjig calibrate-stereo: stereo camera calibration from chessboard/ChArUco views (issue 7).`"""

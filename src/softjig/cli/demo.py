@@ -1,0 +1,1 @@
+"""`softjig demo: the paper's experiment on the simulated jig (issue 4).`"""

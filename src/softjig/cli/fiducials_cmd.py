@@ -1,0 +1,1 @@
+"""`softjig fiducials: print the fiducial layout and check it from a stereo pair (issue 7).`"""

@@ -1,0 +1,1 @@
+"""`softjig jig fix|release|status: jamming control (issue 8).`"""

@@ -1,0 +1,1 @@
+"""`softjig live: the live sensing loop (issue 8).`"""

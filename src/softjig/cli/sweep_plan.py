@@ -1,0 +1,1 @@
+"""`softjig sweep-plan: the robot's tilt-sweep poses (issue 7).`"""
