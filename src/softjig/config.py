@@ -87,6 +87,17 @@ class FiducialConfig:
 
 
 @dataclass(frozen=True)
+class AlignmentConfig:
+    """The four white circular markers on the jig that a robot's hand-eye camera sees to align the jig
+    with the robot (the paper's Fig. "Setup to jig coordinate calibration" (c)), on the plate's top face."""
+
+    __pydantic_config__ = _STRICT
+    circle_centers_mm: tuple[Vec2, ...] = ((-100.0, -100.0), (100.0, -100.0), (100.0, 100.0), (-100.0, 100.0))
+    circle_diameter_mm: float = 10.0
+    z_mm: float = 0.0
+
+
+@dataclass(frozen=True)
 class MediumConfig:
     """The filling: glass beads in index-matched oil, and how it degrades the image.
 
@@ -225,6 +236,7 @@ class JigConfig:
     membrane: MembraneConfig = field(default_factory=MembraneConfig)
     markers: MarkerConfig = field(default_factory=MarkerConfig)
     fiducials: FiducialConfig = field(default_factory=FiducialConfig)
+    alignment: AlignmentConfig = field(default_factory=AlignmentConfig)
     medium: MediumConfig = field(default_factory=MediumConfig)
     imaging: ImagingConfig = field(default_factory=ImagingConfig)
     cameras: StereoConfig = field(default_factory=StereoConfig)
@@ -410,6 +422,17 @@ def validate_jig(jig: JigConfig) -> None:
             "fiducials.dictionary",
             f"unknown ArUco dictionary {f.dictionary!r}; valid: {', '.join(aruco_dictionary_names())}",
         )
+    al = jig.alignment
+    if len(al.circle_centers_mm) < 4:
+        _fail("alignment.circle_centers_mm", f"PnP needs at least 4 circles, got {len(al.circle_centers_mm)}")
+    _positive(al.circle_diameter_mm, "alignment.circle_diameter_mm")
+    half_x, half_y = p.size_x_mm / 2.0, p.size_y_mm / 2.0
+    for k, (x, y) in enumerate(al.circle_centers_mm):
+        if abs(x) + al.circle_diameter_mm / 2 > half_x or abs(y) + al.circle_diameter_mm / 2 > half_y:
+            _fail(
+                f"alignment.circle_centers_mm[{k}]",
+                f"({x}, {y}) is not on the {p.size_x_mm} x {p.size_y_mm} mm plate",
+            )
     for name in ("oil_refractive_index", "bead_refractive_index"):
         if not 1.0 <= getattr(md, name) < 3.0:
             _fail(f"medium.{name}", f"must be a refractive index in [1, 3), got {getattr(md, name)}")
