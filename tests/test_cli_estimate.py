@@ -87,9 +87,11 @@ def test_workers_give_identical_results(sweep, tmp_path):
     outs = []
     for workers in ("1", "2"):
         out = tmp_path / f"r{workers}.jsonl"
-        runner.invoke(app, ["estimate", str(sweep.root), "--out", str(out), "--workers", workers,
-                            "--no-progress"])
+        result = runner.invoke(app, ["estimate", str(sweep.root), "--out", str(out), "--workers", workers,
+                                     "--no-progress"])
+        assert result.exit_code == 0, result.output
         outs.append(out.read_text())
+    assert len(outs[0].splitlines()) == len(sweep)
     assert outs[0] == outs[1]
 
 
@@ -140,3 +142,35 @@ def test_fiducials_required_but_hidden_exit_3(sweep, tmp_path):
     result = runner.invoke(app, ["estimate", str(hidden), str(sweep[1].right_path), "--config", str(strict),
                                  "--part-diameter", "50"])
     assert result.exit_code == 3 and "fiducials" in result.output
+
+
+def test_pair_tilt_agrees_with_the_truth(sweep):
+    """Uncalibrated, refraction compresses the tilt, but its signs and rough size follow the truth."""
+    from softjig.geometry import normal_from_tilt, tilt_angles
+
+    for k in (1, 2, 3, 4):
+        frame = sweep[k]
+        data = json.loads(runner.invoke(app, ["estimate", *_pair_args(sweep, k), "--part-diameter", "50",
+                                              "--json"]).stdout)
+        ax, ay = np.degrees(tilt_angles(normal_from_tilt(np.radians(frame.alpha_deg),
+                                                          np.radians(frame.theta_deg))))
+        for measured, true in ((data["tilt_x_deg"], ax), (data["tilt_y_deg"], ay)):
+            if abs(true) > 5:
+                assert np.sign(measured) == np.sign(true)
+                assert 0.3 * abs(true) < abs(measured) < 1.2 * abs(true)
+            else:
+                assert abs(measured) < 2.5
+
+
+def test_outputs_that_are_folders_exit_2(sweep, tmp_path):
+    result = runner.invoke(app, ["estimate", *_pair_args(sweep), "--part-diameter", "50",
+                                 "--overlay", str(tmp_path)])
+    assert result.exit_code == 2 and "is a folder" in result.output
+    result = runner.invoke(app, ["estimate", str(sweep.root), "--out", str(tmp_path), "--no-progress",
+                                 "--workers", "1"])
+    assert result.exit_code == 2 and "is a folder" in result.output
+
+
+def test_dataset_rejects_pair_only_options(sweep):
+    result = runner.invoke(app, ["estimate", str(sweep.root), "--json"])
+    assert result.exit_code == 2 and "stereo pair" in result.output

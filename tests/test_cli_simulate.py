@@ -154,3 +154,20 @@ def test_installed_console_script(tmp_path):
     bad = subprocess.run([str(script), "simulate", "--config", str(tmp_path / "none.toml"), "--out",
                           str(tmp_path / "y")], capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and "error:" in bad.stderr and "Traceback" not in bad.stderr
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--push-depth", "-1"], "positive"),
+        (["--push-depth", "40"], "into the plate"),
+        (["--scenario", "cube", "--frames", "0"], "at least one frame"),
+    ],
+)
+def test_impossible_simulations_exit_2(tmp_path, args, message):
+    base = ["simulate", "--out", str(tmp_path / "x"), "--no-progress", "--workers", "1"]
+    if "--scenario" not in args:
+        base += ["--scenario", "single", "--part-diameter", "50", "--alpha", "10"]
+    result = runner.invoke(app, [*base, *args])
+    assert result.exit_code == 2, result.output
+    assert message in _stderr(result)

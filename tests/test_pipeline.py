@@ -227,3 +227,35 @@ def test_points_on_a_line_define_no_plane():
     left, right = cv2.GaussianBlur(left, (0, 0), 2), cv2.GaussianBlur(right, (0, 0), 2)
     with pytest.raises(EstimationError, match="no plane"):
         estimate_pair(left, right, DEFAULT, part_diameter_mm=120)
+
+
+def test_unloaded_as_built_jig_reads_zero_push():
+    """An as-built stereo head (1 mm, 0.5 deg off) reads ~0 on the unloaded jig: through flat layers the
+    apparent height of the rest membrane in J does not depend on where the cameras are, and the markers
+    are moved into J with the measured pose (measured: |push| <= 0.23 mm over three as-built jigs).
+    Principal-point and focal errors are left out: they bias stereo depth itself (about 1 mm of push per
+    px of principal-point difference), which only a stereo calibration corrects."""
+    tolerances = replace(DEFAULT.tolerances, principal_point_px=0.0, focal_fraction=0.0)
+    as_built = draw_as_built(DEFAULT.replace(tolerances=tolerances), 11)
+    pair = render_pair(as_built, None, None, 4)
+    est = estimate_pair(pair.left, pair.right, DEFAULT, part_diameter_mm=40).estimate
+    assert est.frame_source == "fiducials"
+    assert est.push_depth_mm == pytest.approx(0.0, abs=0.3)
+
+
+def test_same_image_twice_is_refused(default_pair):
+    _, pair = default_pair
+    with pytest.raises(InputError, match="same image"):
+        estimate_pair(pair.left, pair.left.copy(), DEFAULT, part_diameter_mm=50)
+
+
+def test_a_moved_fiducial_is_not_trusted(default_pair):
+    """A fiducial 10 mm away from where the config says: the pose does not explain the corners, so the
+    estimate falls back to the config's extrinsics and says why."""
+    _, pair = default_pair
+    centers = list(DEFAULT.fiducials.centers_mm)
+    centers[0] = (centers[0][0] + 10.0, centers[0][1])
+    wrong = DEFAULT.replace(fiducials=replace(DEFAULT.fiducials, centers_mm=tuple(centers)))
+    est = estimate_pair(pair.left, pair.right, wrong, part_diameter_mm=50).estimate
+    assert est.frame_source == "config"
+    assert any("reprojecting" in w for w in est.warnings)

@@ -11,7 +11,7 @@ from softjig.config import CylinderPart, default_jig
 from softjig.errors import InputError
 from softjig.geometry import fit_plane_svd, normal_from_tilt
 from softjig.io.dataset import Dataset
-from softjig.sim.membrane import rest_inner_height_mm
+from softjig.jig_shape import rest_inner_height_mm
 from softjig.sim.parts import PartPose
 from softjig.sim.scenarios import (
     FrameSpec,

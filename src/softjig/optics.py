@@ -84,8 +84,7 @@ class FlatLayers:
             n = tuple(float(v) for v in self.refractive_indices)
         except (TypeError, ValueError) as exc:
             raise ValueError(
-                f"FlatLayers: interfaces_z_mm and refractive_indices must be sequences of numbers "
-                f"({exc})"
+                f"FlatLayers: interfaces_z_mm and refractive_indices must be sequences of numbers ({exc})"
             ) from exc
         if len(z) == 0:
             raise ValueError("FlatLayers: interfaces_z_mm must contain at least one interface")
@@ -137,9 +136,7 @@ class FlatLayers:
     def region_of_z(self, z_mm: ArrayLike) -> NDArray[np.intp]:
         """Index of the region containing height(s) ``z_mm`` (J, mm); a point on an interface
         belongs to the region below it."""
-        return np.searchsorted(
-            np.asarray(self.interfaces_z_mm), np.asarray(z_mm, dtype=float), side="left"
-        )
+        return np.searchsorted(np.asarray(self.interfaces_z_mm), np.asarray(z_mm, dtype=float), side="left")
 
 
 # --------------------------------------------------------------------------------------------------
@@ -305,8 +302,7 @@ def refract_directions(
     if np.any(sin2_t > 1.0):
         bad = int(np.count_nonzero(sin2_t > 1.0))
         raise ValueError(
-            f"refract_directions: total internal reflection for {bad} ray(s) going from n1={n1} "
-            f"to n2={n2}"
+            f"refract_directions: total internal reflection for {bad} ray(s) going from n1={n1} to n2={n2}"
         )
     cos_t = np.sqrt(1.0 - sin2_t)
     t = eta * d + ((cos_t - eta * cos_i) * sgn)[:, None] * nrm[None, :]
@@ -514,7 +510,7 @@ def project_points(
     K: ArrayLike,
     dist: ArrayLike | None,
     T_J_cam: ArrayLike,
-    layers: FlatLayers,
+    layers: FlatLayers | None,
 ) -> FloatArray:
     """Project points through the flat layers into a pinhole camera with OpenCV distortion.
 
@@ -529,8 +525,8 @@ def project_points(
         OpenCV distortion ``(k1, k2, p1, p2[, k3])``; None or zeros for none.
     T_J_cam : array_like, shape (4, 4)
         Camera pose in J; its centre must be below every interface.
-    layers : FlatLayers
-        The refracting interfaces.
+    layers : FlatLayers or None
+        The refracting interfaces; ``None`` for points seen in a straight line (plain pinhole).
 
     Returns
     -------
@@ -547,7 +543,7 @@ def project_points(
     Km = _check_K(K)
     d = _check_dist(dist)
     p, lead = _as_vectors(points_J, 3, "points_J")
-    dirs_J = refracted_ray_directions(T[:3, 3], p, layers)
+    dirs_J = p - T[:3, 3] if layers is None else refracted_ray_directions(T[:3, 3], p, layers)
     dirs_cam = dirs_J @ T[:3, :3]  # R^T d for each row
     zc = dirs_cam[:, 2]
     if np.any(zc <= 1e-12):
@@ -598,8 +594,7 @@ def trace_rays_through_layers(
     n_reg = layers.refractive_indices
     if np.any(o[:, 2] >= z_if[0]):
         raise ValueError(
-            "ray origins must lie in region 0, strictly below the lowest interface "
-            f"z = {z_if[0]} mm"
+            f"ray origins must lie in region 0, strictly below the lowest interface z = {z_if[0]} mm"
         )
     if np.any(d[:, 2] <= 0):
         raise ValueError(

@@ -66,7 +66,9 @@ def estimate(
     calibration: Annotated[
         Path | None, typer.Option(help="Tilt calibration JSON (offset_x_deg, offset_y_deg, scale) to apply.")
     ] = None,
-    method: Annotated[str, typer.Option(help="Estimation method: paper (as published).")] = "paper",
+    method: Annotated[
+        str, typer.Option(help="Estimation method: paper (the paper's method exactly as published).")
+    ] = "paper",
     json_output: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
     overlay: Annotated[
         Path | None, typer.Option(help="Write a PNG showing markers, matches, the crop and the normal.")
@@ -87,6 +89,8 @@ def estimate(
 
     cal = load_tilt_calibration(calibration) if calibration else None
     if len(inputs) == 1:
+        if json_output or overlay is not None:
+            raise InputError("--json and --overlay apply to a stereo pair; a DATASET's results go to --out")
         _estimate_dataset(inputs[0], config, part_diameter, cal, method, out, workers, progress)
         return
     if len(inputs) != 2:

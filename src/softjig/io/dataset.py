@@ -77,7 +77,13 @@ _DATASET_MEMBERS = (RIG_NAME, FRAMES_NAME, AS_BUILT_NAME, AS_BUILT_MARKERS_NAME,
 
 #: The arrays of a frame's truth ``.npz`` (each with one row per marker).
 TRUTH_MARKER_FIELDS = (
-    "xyz_mm", "axis", "in_contact", "left_px", "right_px", "visible_left", "visible_right",
+    "xyz_mm",
+    "axis",
+    "in_contact",
+    "left_px",
+    "right_px",
+    "visible_left",
+    "visible_right",
 )
 _TRUTH_EXTRA_FIELDS = ("fiducial_corners_left_px", "fiducial_corners_right_px")
 
@@ -104,8 +110,10 @@ def load_image(path: str | os.PathLike[str]) -> np.ndarray:
     """
     path = Path(path)
     if not path.exists():
-        raise InputError(f"image {path} does not exist: check the path (a dataset's frames.jsonl "
-                         "names its images relative to the dataset folder)")
+        raise InputError(
+            f"image {path} does not exist: check the path (a dataset's frames.jsonl "
+            "names its images relative to the dataset folder)"
+        )
     if not path.is_file():
         raise InputError(f"image {path} is not a file")
     try:
@@ -114,8 +122,10 @@ def load_image(path: str | os.PathLike[str]) -> np.ndarray:
         raise InputError(f"cannot read image {path}: {exc}") from None
     image = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
     if image is None:
-        raise InputError(f"cannot decode image {path}: the file is empty, truncated or not an image "
-                         "format OpenCV reads (use PNG); re-record or re-simulate that frame")
+        raise InputError(
+            f"cannot decode image {path}: the file is empty, truncated or not an image "
+            "format OpenCV reads (use PNG); re-record or re-simulate that frame"
+        )
     if image.dtype not in (np.uint8, np.uint16):
         raise InputError(f"image {path} has pixel type {image.dtype}; softjig reads 8- or 16-bit images")
     if image.ndim == 3:
@@ -150,11 +160,16 @@ def encode_png(image: np.ndarray, *, compression: int = PNG_COMPRESSION) -> byte
     image = _check_image(image, "the")
     if image.ndim == 3:
         image = cv2.cvtColor(image, cv2.COLOR_RGB2BGR)
-    params = [cv2.IMWRITE_PNG_COMPRESSION, compression,
-              # For noisy sensor images, the "average" filter plus Huffman coding alone is both faster
-              # (~2x) and smaller than zlib's default strategy; still lossless.
-              cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_HUFFMAN_ONLY,
-              cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_AVG]
+    params = [
+        cv2.IMWRITE_PNG_COMPRESSION,
+        compression,
+        # For noisy sensor images, the "average" filter plus Huffman coding alone is both faster
+        # (~2x) and smaller than zlib's default strategy; still lossless.
+        cv2.IMWRITE_PNG_STRATEGY,
+        cv2.IMWRITE_PNG_STRATEGY_HUFFMAN_ONLY,
+        cv2.IMWRITE_PNG_FILTER,
+        cv2.IMWRITE_PNG_FILTER_AVG,
+    ]
     ok, buf = cv2.imencode(".png", np.ascontiguousarray(image), params)
     if not ok:  # pragma: no cover - OpenCV encodes any valid uint8/uint16 array
         raise InputError(f"OpenCV could not encode an image of shape {image.shape} as PNG")
@@ -239,12 +254,15 @@ class Frame:
             If the frame has no truth markers (a recording) or the ``.npz`` is missing or unreadable.
         """
         if self.truth is None or self.truth.markers is None:
-            raise InputError(f"frame {self.index} of {self.root} has no truth markers: only simulated "
-                             "datasets have them")
+            raise InputError(
+                f"frame {self.index} of {self.root} has no truth markers: only simulated datasets have them"
+            )
         path = self.root / self.truth.markers
         if not path.is_file():
-            raise InputError(f"truth file {path} of frame {self.index} does not exist: the dataset is "
-                             "incomplete; re-simulate it")
+            raise InputError(
+                f"truth file {path} of frame {self.index} does not exist: the dataset is "
+                "incomplete; re-simulate it"
+            )
         try:
             with np.load(path, allow_pickle=False) as npz:
                 return {name: npz[name] for name in npz.files}
@@ -258,15 +276,17 @@ def _frame_from_json(root: Path, obj: Any, where: str) -> Frame:
         raise InputError(f"{where}: expected a JSON object, got {type(obj).__name__}")
     missing = [k for k in _RESERVED_KEYS if k not in obj]
     if missing:
-        raise InputError(f"{where}: the frame lacks {', '.join(missing)} (every frame needs index, left "
-                         "and right)")
+        raise InputError(
+            f"{where}: the frame lacks {', '.join(missing)} (every frame needs index, left and right)"
+        )
     index = obj["index"]
     if not isinstance(index, int) or isinstance(index, bool) or index < 0:
         raise InputError(f"{where}: index must be a non-negative integer, got {index!r}")
     for side in ("left", "right"):
         if not isinstance(obj[side], str) or not obj[side]:
-            raise InputError(f"{where}: {side} must be an image path relative to the dataset, "
-                             f"got {obj[side]!r}")
+            raise InputError(
+                f"{where}: {side} must be an image path relative to the dataset, got {obj[side]!r}"
+            )
 
     def number(key: str) -> float | None:
         value = obj.get(key)
@@ -279,8 +299,9 @@ def _frame_from_json(root: Path, obj: Any, where: str) -> Frame:
     part = None
     if obj.get("part") is not None:
         if not isinstance(obj["part"], dict):
-            raise InputError(f"{where}: part must be an object like "
-                             '{"kind": "cylinder", "diameter_mm": 50}')
+            raise InputError(
+                f'{where}: part must be an object like {{"kind": "cylinder", "diameter_mm": 50}}'
+            )
         try:
             part = part_from_dict(obj["part"])
         except ConfigError as exc:
@@ -344,8 +365,9 @@ class Dataset:
     ``ds[i]`` is the ``i``-th frame in file order (``frame.index`` for datasets softjig wrote).
     """
 
-    def __init__(self, root: Path, jig: JigConfig, frames: list[Frame],
-                 warnings_: list[str] | None = None) -> None:
+    def __init__(
+        self, root: Path, jig: JigConfig, frames: list[Frame], warnings_: list[str] | None = None
+    ) -> None:
         self.root = root
         self.jig = jig  #: the nominal jig of ``rig.toml``
         self._frames = frames
@@ -366,23 +388,31 @@ class Dataset:
         """
         root = Path(path)
         if not root.exists():
-            raise InputError(f"dataset folder {root} does not exist: give the folder written by "
-                             "`softjig simulate` or a recorder")
+            raise InputError(
+                f"dataset folder {root} does not exist: give the folder written by "
+                "`softjig simulate` or a recorder"
+            )
         if not root.is_dir():
-            raise InputError(f"{root} is not a folder: a dataset is a folder holding {RIG_NAME}, "
-                             f"{FRAMES_NAME}, left/ and right/")
+            raise InputError(
+                f"{root} is not a folder: a dataset is a folder holding {RIG_NAME}, "
+                f"{FRAMES_NAME}, left/ and right/"
+            )
         rig = root / RIG_NAME
         if not rig.is_file():
-            raise InputError(f"{rig} does not exist: {root} is not a softjig dataset (a dataset folder "
-                             f"holds {RIG_NAME}, {FRAMES_NAME}, left/ and right/)")
+            raise InputError(
+                f"{rig} does not exist: {root} is not a softjig dataset (a dataset folder "
+                f"holds {RIG_NAME}, {FRAMES_NAME}, left/ and right/)"
+            )
         try:
             jig = load_jig(rig)
         except ConfigError as exc:
             raise ConfigError(f"{rig}: {exc}" if str(rig) not in str(exc) else str(exc)) from None
         frames_path = root / FRAMES_NAME
         if not frames_path.is_file():
-            raise InputError(f"{frames_path} does not exist: {root} is not a complete softjig dataset "
-                             f"(a dataset folder holds {RIG_NAME} and {FRAMES_NAME})")
+            raise InputError(
+                f"{frames_path} does not exist: {root} is not a complete softjig dataset "
+                f"(a dataset folder holds {RIG_NAME} and {FRAMES_NAME})"
+            )
         frames, notes = _read_frames(root, frames_path)
         return cls(root, jig, frames, notes)
 
@@ -421,8 +451,9 @@ class Dataset:
 
         toml_path, npz_path = self.root / AS_BUILT_NAME, self.root / AS_BUILT_MARKERS_NAME
         if not toml_path.is_file():
-            raise InputError(f"{self.root} has no {AS_BUILT_NAME}: only simulated datasets store the "
-                             "as-built jig")
+            raise InputError(
+                f"{self.root} has no {AS_BUILT_NAME}: only simulated datasets store the as-built jig"
+            )
         try:
             text = toml_path.read_text(encoding="utf-8")
         except (OSError, UnicodeDecodeError) as exc:
@@ -453,8 +484,10 @@ def _read_frames(root: Path, frames_path: Path) -> tuple[list[Frame], list[str]]
             obj = json.loads(line.decode("utf-8"))
         except (UnicodeDecodeError, json.JSONDecodeError) as exc:
             if k == len(numbered) - 1:
-                note = (f"{where}: the last line is cut short ({exc}), probably by a recorder killed "
-                        f"mid-write; skipped it and kept the {len(frames)} complete frames")
+                note = (
+                    f"{where}: the last line is cut short ({exc}), probably by a recorder killed "
+                    f"mid-write; skipped it and kept the {len(frames)} complete frames"
+                )
                 warnings.warn(note, DatasetTruncationWarning, stacklevel=3)
                 notes.append(note)
                 break
@@ -482,8 +515,11 @@ def _truth_arrays(truth_markers: Any) -> dict[str, np.ndarray]:
     if isinstance(truth_markers, Mapping):
         arrays = {k: np.asarray(v) for k, v in truth_markers.items()}
     else:
-        arrays = {k: np.asarray(getattr(truth_markers, k)) for k in names
-                  if getattr(truth_markers, k, None) is not None}
+        arrays = {
+            k: np.asarray(getattr(truth_markers, k))
+            for k in names
+            if getattr(truth_markers, k, None) is not None
+        }
     missing = [k for k in TRUTH_MARKER_FIELDS if k not in arrays]
     if missing:
         raise InputError(f"truth markers lack {', '.join(missing)}")
@@ -510,8 +546,15 @@ class DatasetWriter:
     ...     writer.add_frame(left, right, {"time_s": 0.0})
     """
 
-    def __init__(self, path: str | os.PathLike[str], jig: JigConfig, *, as_built: AsBuiltJig | None = None,
-                 overwrite: bool = False, png_compression: int = PNG_COMPRESSION) -> None:
+    def __init__(
+        self,
+        path: str | os.PathLike[str],
+        jig: JigConfig,
+        *,
+        as_built: AsBuiltJig | None = None,
+        overwrite: bool = False,
+        png_compression: int = PNG_COMPRESSION,
+    ) -> None:
         self.root = Path(path)
         self.jig = jig
         self.as_built = as_built
@@ -531,11 +574,14 @@ class DatasetWriter:
         if root.is_dir() and any(root.iterdir()):
             is_dataset = (root / FRAMES_NAME).exists() or (root / RIG_NAME).exists()
             if not is_dataset:
-                raise InputError(f"{root} is not empty and is not a softjig dataset: choose an empty or "
-                                 "new output folder")
+                raise InputError(
+                    f"{root} is not empty and is not a softjig dataset: choose an empty or new output folder"
+                )
             if not self.overwrite:
-                raise InputError(f"{root} already holds a dataset: choose another output folder or "
-                                 "overwrite it (--overwrite, or overwrite=True)")
+                raise InputError(
+                    f"{root} already holds a dataset: choose another output folder or "
+                    "overwrite it (--overwrite, or overwrite=True)"
+                )
             for name in _DATASET_MEMBERS:
                 member = root / name
                 if member.is_dir():
@@ -572,8 +618,13 @@ class DatasetWriter:
         return self._next_index
 
     # -- frames
-    def add_frame(self, left: np.ndarray | bytes, right: np.ndarray | bytes,
-                  meta: dict[str, Any] | None = None, truth_markers: Any = None) -> int:
+    def add_frame(
+        self,
+        left: np.ndarray | bytes,
+        right: np.ndarray | bytes,
+        meta: dict[str, Any] | None = None,
+        truth_markers: Any = None,
+    ) -> int:
         """Write one stereo frame and return its index.
 
         Parameters

@@ -40,9 +40,7 @@ def frame_part_diameter_mm(frame: Frame, settings: BatchSettings) -> float:
     if settings.part_diameter_mm is not None:
         return settings.part_diameter_mm
     if frame.part is None:
-        raise InputError(
-            "the frame names no part (e.g. an unloaded reference frame): pass --part-diameter"
-        )
+        raise InputError("the frame names no part (e.g. an unloaded reference frame): pass --part-diameter")
     return float(frame.part.diameter_mm)  # a box's is its inscribed circle's
 
 

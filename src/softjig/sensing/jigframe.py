@@ -22,9 +22,11 @@ from scipy.optimize import least_squares
 from softjig.config import CameraConfig, JigConfig
 from softjig.errors import EstimationError
 from softjig.geometry import invert_pose, pose_from_rotvec_translation
+from softjig.optics import project_points
 from softjig.sensing.fiducials import detect_fiducials, fiducial_corners_J
 
 MIN_FIDUCIALS_PER_IMAGE = 2  # 8 corners: a well-conditioned planar PnP
+MAX_FIDUCIAL_RMS_PX = 2.0  # above this, a corner was misread or a fiducial moved: the pose is rejected
 
 
 @dataclass(frozen=True)
@@ -91,16 +93,15 @@ def inside_fiducials(xy_px: np.ndarray, quads_px: np.ndarray, *, quiet_zone: flo
 
 def _project(camera: CameraConfig, T_cam_J: np.ndarray, points_J: np.ndarray) -> np.ndarray:
     """Pinhole projection (with the camera's distortion) of points in J into a camera at ``T_cam_J``."""
-    rvec, _ = cv2.Rodrigues(T_cam_J[:3, :3])
-    px, _ = cv2.projectPoints(points_J, rvec, T_cam_J[:3, 3], camera.K, np.asarray(camera.distortion, float))
-    return px.reshape(-1, 2)
+    return project_points(points_J, camera.K, camera.distortion, invert_pose(T_cam_J), None)
 
 
 def jig_frame_from_fiducials(left_u8: np.ndarray, right_u8: np.ndarray, jig: JigConfig) -> JigFrame | None:
     """Measure the stereo head's pose in J from the fiducials seen in an 8-bit gray stereo pair.
 
     Returns ``None`` when fewer than :data:`MIN_FIDUCIALS_PER_IMAGE` configured fiducials are found in
-    either image.
+    either image, or when the fitted pose does not explain the corners (the fit did not converge or the
+    RMS reprojection error exceeds :data:`MAX_FIDUCIAL_RMS_PX`).
     """
     fid = jig.fiducials
     corners_J = dict(zip(fid.ids, fiducial_corners_J(fid), strict=True))
@@ -134,9 +135,11 @@ def jig_frame_from_fiducials(left_u8: np.ndarray, right_u8: np.ndarray, jig: Jig
         )
 
     fit = least_squares(residuals, np.concatenate([rvec.ravel(), tvec.ravel()]), method="lm")
+    rms = float(np.sqrt(np.mean(fit.fun**2)))
+    if not fit.success or not np.isfinite(rms) or rms > MAX_FIDUCIAL_RMS_PX:
+        return None  # a misread corner or a moved fiducial: do not trust this pose
     T_left_J = pose_from_rotvec_translation(fit.x[:3], fit.x[3:])
     T_J_left = invert_pose(T_left_J)
-    rms = float(np.sqrt(np.mean(fit.fun**2)))
     both = tuple(sorted(set(found[0]) & set(found[1])))
     quads = [np.array(list(f.values())).reshape(-1, 4, 2) for f in found]
     return JigFrame(T_J_left, T_J_left @ T_left_right, "fiducials", rms, both, quads[0], quads[1])
@@ -162,8 +165,8 @@ def resolve_jig_frame(
     if frame is not None:
         return frame, []
     message = (
-        f"fewer than {MIN_FIDUCIALS_PER_IMAGE} of the fiducials {list(jig.fiducials.ids)} were found "
-        "in each image"
+        f"the fiducials {list(jig.fiducials.ids)} were not found (at least {MIN_FIDUCIALS_PER_IMAGE} in each "
+        f"image, reprojecting within {MAX_FIDUCIAL_RMS_PX} px)"
     )
     if mode == "fiducials":
         raise EstimationError(

@@ -7,7 +7,8 @@ of blurred markers, detections are circled; colours say what became of each mark
 - green circle: matched (the same colour in both images);
 - yellow dot: matched and inside the crop, i.e. used in the plane fit;
 - cyan ellipse: the crop (the part's base radius around the jig axis, at the fitted plane's height);
-- magenta arrow: the principal normal, 20 mm long, from the plane on the jig axis.
+- magenta arrow: the fitted plane's normal (before any tilt calibration), 20 mm long, from the plane on
+  the jig axis, in the same space as the crop.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from softjig.geometry import invert_pose
+from softjig.optics import project_points
 from softjig.sensing.detect import to_gray_float
 from softjig.sensing.pipeline import SensingResult
 
@@ -37,10 +38,7 @@ def _rgb8(image: np.ndarray) -> np.ndarray:
 
 def _project_left(points_J: np.ndarray, result: SensingResult, K: np.ndarray) -> np.ndarray:
     """Pinhole projection into the left image (the same model the paper's triangulation assumes)."""
-    T_left_J = invert_pose(result.frame.T_J_left)
-    p = points_J @ T_left_J[:3, :3].T + T_left_J[:3, 3]
-    uv = p[:, :2] / p[:, 2:3]
-    return uv * [K[0, 0], K[1, 1]] + [K[0, 2], K[1, 2]]
+    return project_points(points_J, K, None, result.frame.T_J_left, None)
 
 
 def _pt(xy: np.ndarray) -> tuple[int, int]:
@@ -90,7 +88,7 @@ def draw_overlay(
     ring_px = _project_left(ring, result, K_left)
     cv2.polylines(canvas_left, [np.round(ring_px).astype(np.int32)], True, CYAN, 1, cv2.LINE_AA)
     base = np.array([0.0, 0.0, z0])
-    arrow = _project_left(np.array([base, base + NORMAL_LENGTH_MM * np.asarray(est.normal)]), result, K_left)
+    arrow = _project_left(np.array([base, base + NORMAL_LENGTH_MM * plane.normal]), result, K_left)
     cv2.arrowedLine(canvas_left, _pt(arrow[0]), _pt(arrow[1]), MAGENTA, 2, cv2.LINE_AA, tipLength=0.2)
     text = (
         f"Ax {est.tilt_x_deg:+.2f} deg  Ay {est.tilt_y_deg:+.2f} deg  push {est.push_depth_mm:.2f} mm  "

@@ -126,7 +126,10 @@ class SensingSetup:
     sigma_px : LoG scale matched to a marker at the membrane's apex, blur included (px).
     threshold : detection threshold on the scale-normalised LoG response.
     min_disparity_px, max_disparity_px : the disparity window of markers anywhere on the membrane.
-    rest_apex_z_mm : height of the rest membrane on the jig axis as the pinhole triangulation sees it.
+    rest_apex_z_mm : height in J of the rest membrane's apex as the pinhole triangulation sees it: the
+        push depth's zero. Refraction through flat layers puts a point of the oil at an apparent height in
+        J (paraxially ``-t + t / n_plate + z / n_oil``) that does not depend on where the cameras are,
+        so it is computed once, from the nominal geometry.
     """
 
     sigma_px: float
@@ -165,8 +168,7 @@ def _sensing_setup_cached(jig: JigConfig) -> SensingSetup:
     # The rest apex as the pinhole triangulation sees it: the reference of the push depth.
     pl = project_points(apex, left.K, left.distortion, left.T_J_cam, layers)
     pr = project_points(apex, right.K, right.distortion, right.T_J_cam, layers)
-    apex_cam = _triangulate(pl, pr, jig)
-    apex_J = transform_points(left.T_J_cam, apex_cam)
+    apex_J = transform_points(left.T_J_cam, _triangulate(pl, pr, jig))
     return SensingSetup(
         sigma_px=float(sigma),
         threshold=jig.sensing.detection_threshold,
@@ -210,6 +212,8 @@ def _checked_pair(left: np.ndarray, right: np.ndarray, jig: JigConfig) -> tuple[
         )
     for name, gray in zip(("left", "right"), grays, strict=True):
         check_image_content(gray, name=f"the {name} image")
+    if np.array_equal(grays[0], grays[1]):
+        raise InputError("the left and right images are the same image: pass the two views of a stereo pair")
     return grays[0], grays[1]
 
 

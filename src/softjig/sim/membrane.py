@@ -48,25 +48,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from softjig.config import BoxPart, CylinderPart, JigConfig, Part
-from softjig.jig_shape import (
-    marker_layout_xy,
-    rest_inner_height_mm,
-    rest_outer_height_mm,
-)
+from softjig.jig_shape import rest_inner_height_mm, rest_outer_height_mm
 from softjig.sim.parts import (
     bottom_face_rim,
     bottom_face_samples,
     bottom_plane_height_mm,
     under_bottom_face,
 )
-
-__all__ = [
-    "MembraneState",
-    "deform",
-    "marker_layout_xy",
-    "rest_inner_height_mm",
-    "rest_outer_height_mm",
-]
 
 _CONTACT_SAMPLE_SPACING_MM = 3.0  # inside the face: the envelope is smooth at this scale (lambda >= 5 mm)
 _RIM_SAMPLE_SPACING_MM = 0.5  # along the face's edge, where the membrane drapes off it: dense, so the

@@ -177,9 +177,7 @@ class RenderedPair:
 # ---------------------------------------------------------------------------------------- public API
 
 
-def idealised(
-    jig: JigConfig, *, refraction: bool = True, blur: bool = True, noise: bool = True
-) -> JigConfig:
+def idealised(jig: JigConfig, *, refraction: bool = True, blur: bool = True, noise: bool = True) -> JigConfig:
     """The same jig with some image effects switched off, for exact tests.
 
     Each flag says whether that effect is **kept**; pass ``False`` to remove it.
@@ -335,9 +333,7 @@ def _render_pair(
     )
     timer.lap("deform")
     left, left_px, vis_left, fid_left = _render_view(jig, jig.cameras.left, state, rng, color, timer)
-    right, right_px, vis_right, fid_right = _render_view(
-        jig, jig.cameras.right, state, rng, color, timer
-    )
+    right, right_px, vis_right, fid_right = _render_view(jig, jig.cameras.right, state, rng, color, timer)
     truth = MarkerTruth(
         xyz_mm=state.marker_xyz_mm,
         axis=state.marker_axis,
@@ -377,8 +373,9 @@ def _marker_optics(
     px = project_points(P, K, dist, T, layers)
     if margin_px is None:
         margin_px = 0.1 * max(camera.width_px, camera.height_px)
-    near = np.all((px > -margin_px) & (px < [camera.width_px + margin_px,
-                                              camera.height_px + margin_px]), axis=1)
+    near = np.all(
+        (px > -margin_px) & (px < [camera.width_px + margin_px, camera.height_px + margin_px]), axis=1
+    )
     quad, lin = np.full((len(P), 3), np.nan), np.full((len(P), 2), np.nan)
     cos_axis, radius, scale, oil_path = (np.full(len(P), np.nan) for _ in range(4))
     if near.any():
@@ -506,9 +503,7 @@ def _fiducial_texture(dictionary: str, marker_id: int, cell_px: int) -> np.ndarr
     return tex
 
 
-def _draw_fiducials(
-    image: np.ndarray, jig: JigConfig, corners_px: np.ndarray
-) -> list[np.ndarray]:
+def _draw_fiducials(image: np.ndarray, jig: JigConfig, corners_px: np.ndarray) -> list[np.ndarray]:
     """Composite every fiducial over ``image`` (in place); return each one's quiet-zone quad (px)."""
     fid = jig.fiducials
     cells = aruco_dictionary(fid.dictionary).markerSize + 2
@@ -533,8 +528,12 @@ def _draw_fiducials(
             continue
         shift = np.array([[1.0, 0.0, -x0], [0.0, 1.0, -y0], [0.0, 0.0, 1.0]])
         warped = cv2.warpPerspective(
-            tex, shift @ H, (x1 - x0, y1 - y0), flags=cv2.INTER_LINEAR,
-            borderMode=cv2.BORDER_CONSTANT, borderValue=0,
+            tex,
+            shift @ H,
+            (x1 - x0, y1 - y0),
+            flags=cv2.INTER_LINEAR,
+            borderMode=cv2.BORDER_CONSTANT,
+            borderValue=0,
         )
         roi = image[y0:y1, x0:x1]
         roi *= 1.0 - warped[..., 1]
@@ -647,9 +646,7 @@ def _standard_normal(
     return out
 
 
-def _speckle(
-    rng: np.random.Generator, shape: tuple[int, int], corr_px: float, std: float
-) -> np.ndarray:
+def _speckle(rng: np.random.Generator, shape: tuple[int, int], corr_px: float, std: float) -> np.ndarray:
     """A zero-mean Gaussian texture of standard deviation ``std`` and correlation length about
     ``corr_px`` px, float32 ``(h, w)`` (a view of a reused buffer)."""
     h, w = shape
@@ -689,9 +686,9 @@ def _render_view(
     optics = _marker_optics(jig, camera, state)
     layers = flat_layers(jig)
     corners_J = fiducial_corners_J(jig.fiducials)
-    corners_px = project_points(
-        corners_J, camera.K, distortion_of(camera), camera.T_J_cam, layers
-    ).reshape((*corners_J.shape[:2], 2))
+    corners_px = project_points(corners_J, camera.K, distortion_of(camera), camera.T_J_cam, layers).reshape(
+        (*corners_J.shape[:2], 2)
+    )
     timer.lap("geometry")
 
     image = _WORKSPACE.get("image", (h, w))
@@ -706,8 +703,10 @@ def _render_view(
         # Only markers whose blurred patch touches the image are cast.
         reach = half + pad
         on = optics.near & (
-            (centre[:, 0] + reach >= 0) & (centre[:, 0] - reach < w)
-            & (centre[:, 1] + reach >= 0) & (centre[:, 1] - reach < h)
+            (centre[:, 0] + reach >= 0)
+            & (centre[:, 0] - reach < w)
+            & (centre[:, 1] + reach >= 0)
+            & (centre[:, 1] - reach < h)
         )
         idx = np.flatnonzero(on)
         origin = centre[idx] - half
@@ -733,8 +732,10 @@ def _render_view(
     quads = _draw_fiducials(image, jig, corners_px)
     r = optics.radius_px
     inside = (
-        (optics.px[:, 0] - r >= -0.5) & (optics.px[:, 0] + r <= w - 0.5)
-        & (optics.px[:, 1] - r >= -0.5) & (optics.px[:, 1] + r <= h - 0.5)
+        (optics.px[:, 0] - r >= -0.5)
+        & (optics.px[:, 0] + r <= w - 0.5)
+        & (optics.px[:, 1] - r >= -0.5)
+        & (optics.px[:, 1] + r <= h - 0.5)
     )
     visible = inside & ~_hidden_by_quads(optics.px, r, quads)
     timer.lap("fiducials")

@@ -42,9 +42,9 @@ import numpy as np
 from softjig.config import CylinderPart, JigConfig, Part, cube, part_to_dict, validate_jig, validate_part
 from softjig.errors import InputError
 from softjig.io.dataset import DatasetWriter, encode_png
+from softjig.jig_shape import rest_inner_height_mm
 from softjig.sim.asbuilt import AsBuiltJig, draw_as_built
-from softjig.sim.membrane import rest_inner_height_mm
-from softjig.sim.parts import PartPose, bottom_plane_height_mm
+from softjig.sim.parts import PartPose, bottom_face_rim, bottom_plane_height_mm
 
 __all__ = [
     "FrameSpec",
@@ -98,8 +98,33 @@ def _check_alpha(alpha_deg: float) -> None:
 
 
 def _check_push(push_depth_mm: float) -> None:
-    if not math.isfinite(push_depth_mm):
-        raise InputError(f"the push depth must be a finite number of mm, got {push_depth_mm}")
+    if not (math.isfinite(push_depth_mm) and push_depth_mm > 0):
+        raise InputError(
+            f"the push depth must be a positive number of mm (the part must touch the membrane), "
+            f"got {push_depth_mm}"
+        )
+
+
+MIN_FACE_HEIGHT_MM = 2.0  # the membrane and its markers need this much room above the plate
+
+
+def check_reachable(jig: JigConfig, spec: FrameSpec) -> None:
+    """Raise :class:`InputError` if a spec's part would push its bottom face down into the plate.
+
+    The lowest point of the face's edge must stay :data:`MIN_FACE_HEIGHT_MM` above the plate's top face
+    (the membrane and its hemispherical markers lie between them).
+    """
+    if spec.part is None or spec.pose is None:
+        return
+    T = spec.pose.T_J_part(jig)
+    lowest = float(bottom_face_rim(spec.part, T, 2.0)[:, 2].min())
+    if lowest < MIN_FACE_HEIGHT_MM:
+        raise InputError(
+            f"a {spec.part.kind} of {spec.part.diameter_mm:g} mm tilted by "
+            f"{math.degrees(spec.pose.alpha_rad):g} deg and pushed {spec.pose.push_depth_mm:g} mm would "
+            f"reach z = {lowest:.1f} mm, into the plate (the membrane needs {MIN_FACE_HEIGHT_MM:g} mm): "
+            "reduce the push depth or the tilt"
+        )
 
 
 def theta_values_deg(theta_step_deg: float) -> list[float]:
@@ -148,8 +173,9 @@ def paper_sweep(
         part = CylinderPart(diameter_mm=d, height_mm=CYLINDER_HEIGHT_MM)
         for a in alphas:
             for t in thetas:
-                pose = PartPose(alpha_rad=math.radians(a), theta_rad=math.radians(t),
-                                push_depth_mm=float(push_depth_mm))
+                pose = PartPose(
+                    alpha_rad=math.radians(a), theta_rad=math.radians(t), push_depth_mm=float(push_depth_mm)
+                )
                 yield _loaded(part, pose)
 
 
@@ -171,8 +197,8 @@ def cube_experiment(
     uniform in the disc of radius ``max_offset_mm``; the push depth is ``push_depth_mm``. The unloaded
     reference frame comes first if ``reference`` (so ``n_frames + 1`` frames).
     """
-    if n_frames < 0:
-        raise InputError(f"the number of cube frames must be zero or more, got {n_frames}")
+    if n_frames < 1:
+        raise InputError(f"the cube experiment needs at least one frame, got {n_frames}")
     _check_alpha(max_alpha_deg)
     _check_push(push_depth_mm)
     if not (math.isfinite(max_offset_mm) and max_offset_mm >= 0):
@@ -187,21 +213,30 @@ def cube_experiment(
         yaw = rng.uniform(0.0, math.pi / 2)
         radius = max_offset_mm * math.sqrt(rng.uniform())
         phi = rng.uniform(0.0, 2 * math.pi)
-        pose = PartPose(alpha_rad=float(alpha), theta_rad=float(theta), push_depth_mm=float(push_depth_mm),
-                        center_xy_mm=(radius * math.cos(phi), radius * math.sin(phi)), yaw_rad=float(yaw))
+        pose = PartPose(
+            alpha_rad=float(alpha),
+            theta_rad=float(theta),
+            push_depth_mm=float(push_depth_mm),
+            center_xy_mm=(radius * math.cos(phi), radius * math.sin(phi)),
+            yaw_rad=float(yaw),
+        )
         specs.append(_loaded(part, pose))
     return specs
 
 
-def single(part: Part, alpha_deg: float, theta_deg: float, push_depth_mm: float = 3.0,
-           *, reference: bool = False) -> list[FrameSpec]:
+def single(
+    part: Part, alpha_deg: float, theta_deg: float, push_depth_mm: float = 3.0, *, reference: bool = False
+) -> list[FrameSpec]:
     """One part, centred on the jig axis, tilted by ``alpha_deg`` towards ``theta_deg`` (one frame; the
     unloaded reference frame first if ``reference``)."""
     _check_alpha(float(alpha_deg))
     _check_push(push_depth_mm)
     validate_part(part)
-    pose = PartPose(alpha_rad=math.radians(alpha_deg), theta_rad=math.radians(theta_deg),
-                    push_depth_mm=float(push_depth_mm))
+    pose = PartPose(
+        alpha_rad=math.radians(alpha_deg),
+        theta_rad=math.radians(theta_deg),
+        push_depth_mm=float(push_depth_mm),
+    )
     return [*([_reference()] if reference else []), _loaded(part, pose)]
 
 
@@ -239,8 +274,9 @@ def _frame_seed(seed: int, index: int) -> np.random.SeedSequence:
     return np.random.SeedSequence(seed, spawn_key=(1, index))
 
 
-def _render_one(as_built: AsBuiltJig, spec: FrameSpec, seed: int, index: int,
-                color: bool) -> tuple[bytes, bytes, dict[str, np.ndarray]]:
+def _render_one(
+    as_built: AsBuiltJig, spec: FrameSpec, seed: int, index: int, color: bool
+) -> tuple[bytes, bytes, dict[str, np.ndarray]]:
     """Render one frame and encode it: (left PNG, right PNG, truth arrays)."""
     from softjig.sim.render import render_pair
 
@@ -248,17 +284,22 @@ def _render_one(as_built: AsBuiltJig, spec: FrameSpec, seed: int, index: int,
     pair = render_pair(as_built, spec.part, spec.pose, rng, color=color)
     m = pair.markers
     truth = {
-        "xyz_mm": m.xyz_mm, "axis": m.axis, "in_contact": m.in_contact,
-        "left_px": m.left_px, "right_px": m.right_px,
-        "visible_left": m.visible_left, "visible_right": m.visible_right,
+        "xyz_mm": m.xyz_mm,
+        "axis": m.axis,
+        "in_contact": m.in_contact,
+        "left_px": m.left_px,
+        "right_px": m.right_px,
+        "visible_left": m.visible_left,
+        "visible_right": m.visible_right,
         "fiducial_corners_left_px": pair.fiducial_corners_left_px,
         "fiducial_corners_right_px": pair.fiducial_corners_right_px,
     }
     return encode_png(pair.left), encode_png(pair.right), {k: np.asarray(v) for k, v in truth.items()}
 
 
-def _render_in_worker(spec: FrameSpec, seed: int, index: int,
-                      color: bool) -> tuple[bytes, bytes, dict[str, np.ndarray]]:
+def _render_in_worker(
+    spec: FrameSpec, seed: int, index: int, color: bool
+) -> tuple[bytes, bytes, dict[str, np.ndarray]]:
     assert _WORKER_AS_BUILT is not None, "worker not initialised"
     return _render_one(_WORKER_AS_BUILT, spec, seed, index, color)
 
@@ -311,6 +352,7 @@ def simulate_dataset(
     for spec in specs:
         if spec.part is not None:
             validate_part(spec.part, nominal_jig)
+            check_reachable(nominal_jig, spec)
     n_workers = (os.cpu_count() or 1) if workers is None else int(workers)
     if n_workers < 1:
         raise InputError(f"the number of workers must be at least 1, got {workers}")
@@ -323,8 +365,9 @@ def simulate_dataset(
         writer = stack.enter_context(DatasetWriter(out, nominal_jig, as_built=as_built, overwrite=overwrite))
         pool = None
         if n_workers > 1:
-            pool = stack.enter_context(ProcessPoolExecutor(
-                max_workers=n_workers, initializer=_init_worker, initargs=(as_built,)))
+            pool = stack.enter_context(
+                ProcessPoolExecutor(max_workers=n_workers, initializer=_init_worker, initargs=(as_built,))
+            )
             stack.callback(pool.shutdown, wait=True, cancel_futures=True)  # on error: drop the queue
             # Start every worker before the progress bar's thread exists (workers are forked).
             for f in [pool.submit(_warm_up) for _ in range(n_workers)]:
@@ -342,8 +385,14 @@ def simulate_dataset(
     return out
 
 
-def _rendered(as_built: AsBuiltJig, specs: list[FrameSpec], seed: int, pool: ProcessPoolExecutor | None,
-              n_workers: int, color: bool) -> Iterator[tuple[bytes, bytes, dict[str, np.ndarray]]]:
+def _rendered(
+    as_built: AsBuiltJig,
+    specs: list[FrameSpec],
+    seed: int,
+    pool: ProcessPoolExecutor | None,
+    n_workers: int,
+    color: bool,
+) -> Iterator[tuple[bytes, bytes, dict[str, np.ndarray]]]:
     """The rendered frames, in order; in a pool, a bounded window of frames is in flight."""
     if pool is None:
         for index, spec in enumerate(specs):
@@ -388,8 +437,13 @@ class _progress_bar:
         )
 
         self._progress = Progress(
-            TextColumn("rendering"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-            TimeRemainingColumn(), console=Console(stderr=True), transient=False,
+            TextColumn("rendering"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TimeElapsedColumn(),
+            TimeRemainingColumn(),
+            console=Console(stderr=True),
+            transient=False,
         )
         self._progress.start()
         self._task = self._progress.add_task("render", total=self.total)
