@@ -198,8 +198,9 @@ class ToleranceConfig:
     __pydantic_config__ = _STRICT
     camera_position_mm: float = 1.0  # the stereo head's placement under the plate
     camera_rotation_deg: float = 0.5  # the stereo head's orientation
-    focal_fraction: float = 0.002  # relative focal length error of each camera
-    principal_point_px: float = 1.0
+    # A rectified pair's intrinsics come from a stereo calibration: what remains are its residual errors.
+    focal_fraction: float = 0.001  # relative focal length error of each camera
+    principal_point_px: float = 0.3
     refractive_index: float = 0.005  # of the plate and of the oil
     marker_placement_mm: float = 0.2  # where the mould put each marker
     membrane_ripple_mm: float = 0.1  # beads pressing through the membrane where it is in contact

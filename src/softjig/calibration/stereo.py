@@ -20,7 +20,7 @@ Boards
 ------
 A *chessboard* is named by its **inner** corners as OpenCV counts them, ``cols x rows`` (a board of
 7 x 10 squares has 6 x 9 inner corners); corners are found with ``cv2.findChessboardCornersSB`` (sector
-based, sub-pixel accurate), falling back to ``cv2.findChessboardCorners`` + ``cv2.cornerSubPix``. A
+based), falling back to ``cv2.findChessboardCorners``, then refined by ``cv2.cornerSubPix``. A
 chessboard's corner order is ambiguous up to a 180° turn of the board, and the two cameras of a pair
 may pick different orders; a pair's right corners are reversed when their first-to-last direction
 opposes the left's (the two cameras of a stereo head look the same way, so the board turns by far less
@@ -145,7 +145,10 @@ def _charuco_board(board: Board) -> cv2.aruco.CharucoBoard:
         if board.dictionary not in aruco_dictionary_names():
             raise InputError(f"unknown ArUco dictionary {board.dictionary!r}")
         _CHARUCO_CACHE[board] = cv2.aruco.CharucoBoard(
-            (board.cols, board.rows), board.square_mm, board.marker_side_mm, aruco_dictionary(board.dictionary)
+            (board.cols, board.rows),
+            board.square_mm,
+            board.marker_side_mm,
+            aruco_dictionary(board.dictionary),
         )
     return _CHARUCO_CACHE[board]
 
@@ -204,15 +207,20 @@ def detect_board(image: np.ndarray, board: Board, *, name: str = "image") -> Boa
     size = (board.cols, board.rows)
     ok, corners = cv2.findChessboardCornersSB(gray, size, flags=0)
     if not ok:
-        ok, corners = cv2.findChessboardCornersSB(gray, size, flags=cv2.CALIB_CB_EXHAUSTIVE)
-    if not ok:
         flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
         ok, corners = cv2.findChessboardCorners(gray, size, flags=flags)
-        if ok:
-            crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-3)
-            corners = cv2.cornerSubPix(gray, corners, (5, 5), (-1, -1), crit)
     if not ok:
         return None
+    # Refine with the saddle-point search of cornerSubPix, its window scaled to the squares' size in the
+    # image: on rendered boards (known truth) it halves the sector-based detector's error (to ~0.05 px).
+    grid = corners.reshape(board.rows, board.cols, 2)
+    step = min(
+        np.linalg.norm(np.diff(grid, axis=0), axis=2).min(),
+        np.linalg.norm(np.diff(grid, axis=1), axis=2).min(),
+    )
+    half = int(np.clip(0.35 * step, 2, 11))
+    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-4)
+    corners = cv2.cornerSubPix(gray, corners.astype(np.float32), (half, half), (-1, -1), crit)
     return BoardView(corners.reshape(-1, 2).astype(float), np.arange(board.n_corners))
 
 
@@ -322,23 +330,43 @@ class StereoCalibration:
             "right_in_left_position_mm": pos.tolist(),
             "right_in_left_rotation_deg": rot.tolist(),
             "views": [
-                {"name": n, "rms_px": float(a), "rms_left_px": float(b), "rms_right_px": float(c),
-                 "outlier": k in self.outliers}
+                {
+                    "name": n,
+                    "rms_px": float(a),
+                    "rms_left_px": float(b),
+                    "rms_right_px": float(c),
+                    "outlier": k in self.outliers,
+                }
                 for k, (n, a, b, c) in enumerate(
-                    zip(self.view_names, self.view_rms_px, self.view_rms_left_px, self.view_rms_right_px,
-                        strict=True)
+                    zip(
+                        self.view_names,
+                        self.view_rms_px,
+                        self.view_rms_left_px,
+                        self.view_rms_right_px,
+                        strict=True,
+                    )
                 )
             ],
             "skipped": list(self.skipped),
-            "rectification": {"R1": self.R1.tolist(), "R2": self.R2.tolist(), "P1": self.P1.tolist(),
-                              "P2": self.P2.tolist(), "Q": self.Q.tolist()},
+            "rectification": {
+                "R1": self.R1.tolist(),
+                "R2": self.R2.tolist(),
+                "P1": self.P1.tolist(),
+                "P2": self.P2.tolist(),
+                "Q": self.Q.tolist(),
+            },
             "warnings": self.warnings(),
         }
 
 
 def _camera_dict(K: np.ndarray, dist: np.ndarray) -> dict:
-    return {"fx_px": float(K[0, 0]), "fy_px": float(K[1, 1]), "cx_px": float(K[0, 2]),
-            "cy_px": float(K[1, 2]), "distortion": [float(d) for d in dist]}
+    return {
+        "fx_px": float(K[0, 0]),
+        "fy_px": float(K[1, 1]),
+        "cx_px": float(K[0, 2]),
+        "cy_px": float(K[1, 2]),
+        "distortion": [float(d) for d in dist],
+    }
 
 
 def calibrate_stereo(
@@ -378,7 +406,8 @@ def calibrate_stereo(
     """
     if len(left_images) != len(right_images):
         raise InputError(
-            f"{len(left_images)} left images but {len(right_images)} right ones: give one right image per left"
+            f"{len(left_images)} left images but {len(right_images)} right ones: "
+            "give one right image per left"
         )
     names = list(names) if names is not None else [f"pair {k}" for k in range(len(left_images))]
     sizes = {np.asarray(im).shape[:2] for im in (*left_images, *right_images)}
@@ -388,12 +417,18 @@ def calibrate_stereo(
         raise InputError("no images given")
     h, w = sizes.pop()
     with ThreadPoolExecutor(max(1, workers)) as pool:
-        found_l = list(pool.map(lambda a: detect_board(a[0], board, name=a[1]), zip(left_images, names)))
-        found_r = list(pool.map(lambda a: detect_board(a[0], board, name=a[1]), zip(right_images, names)))
+        found_l = list(
+            pool.map(lambda a: detect_board(a[0], board, name=a[1]), zip(left_images, names, strict=True))
+        )
+        found_r = list(
+            pool.map(lambda a: detect_board(a[0], board, name=a[1]), zip(right_images, names, strict=True))
+        )
     obj, img_l, img_r, used, skipped = [], [], [], [], []
     for name, fl, fr in zip(names, found_l, found_r, strict=True):
         if fl is None or fr is None:
-            where = "either image" if fl is None and fr is None else ("the left" if fl is None else "the right")
+            where = (
+                "either image" if fl is None and fr is None else ("the left" if fl is None else "the right")
+            )
             skipped.append(f"{name}: board not found in {where} image")
             continue
         o, a, b = _pair_views(fl, fr, board)
@@ -406,7 +441,8 @@ def calibrate_stereo(
         used.append(name)
     if len(used) < MIN_VIEWS:
         what = (
-            f"{board.cols}x{board.rows} inner corners" if board.kind == "chessboard"
+            f"{board.cols}x{board.rows} inner corners"
+            if board.kind == "chessboard"
             else f"a {board.cols}x{board.rows}-square ChArUco board"
         )
         raise InputError(
@@ -419,8 +455,12 @@ def calibrate_stereo(
         keep = [k for k in range(len(used)) if k not in cal.outliers]
         dropped = [f"{used[k]}: outlier ({cal.view_rms_px[k]:.3f} px), dropped" for k in cal.outliers]
         cal = _calibrate(
-            [obj[k] for k in keep], [img_l[k] for k in keep], [img_r[k] for k in keep], (w, h),
-            [used[k] for k in keep], fix_k3,
+            [obj[k] for k in keep],
+            [img_l[k] for k in keep],
+            [img_r[k] for k in keep],
+            (w, h),
+            [used[k] for k in keep],
+            fix_k3,
         )
         skipped += dropped
     return _with_skipped(cal, tuple(skipped))
@@ -439,8 +479,18 @@ def _calibrate(obj, img_l, img_r, size, names, fix_k3) -> StereoCalibration:
         _, K1, d1, _, _ = cv2.calibrateCamera(obj, img_l, size, None, None, flags=flags, criteria=crit)
         _, K2, d2, _, _ = cv2.calibrateCamera(obj, img_r, size, None, None, flags=flags, criteria=crit)
         out = cv2.stereoCalibrateExtended(
-            obj, img_l, img_r, K1, d1, K2, d2, size, None, None,
-            flags=flags | cv2.CALIB_USE_INTRINSIC_GUESS, criteria=crit,
+            obj,
+            img_l,
+            img_r,
+            K1,
+            d1,
+            K2,
+            d2,
+            size,
+            None,
+            None,
+            flags=flags | cv2.CALIB_USE_INTRINSIC_GUESS,
+            criteria=crit,
         )
     except cv2.error as exc:
         raise EstimationError(
@@ -450,33 +500,55 @@ def _calibrate(obj, img_l, img_r, size, names, fix_k3) -> StereoCalibration:
     rms, K1, d1, K2, d2, R, T = out[:7]
     per_view = np.asarray(out[-1], dtype=float).reshape(-1, 2)
     if not np.isfinite(rms) or not np.all(np.isfinite(K1)) or not np.all(np.isfinite(K2)):
-        raise EstimationError("the calibration did not converge: take more views, tilted in different directions")
+        raise EstimationError(
+            "the calibration did not converge: take more views, tilted in different directions"
+        )
     view_rms = np.sqrt(np.mean(per_view**2, axis=1))
     med = float(np.median(view_rms))
     outliers = tuple(
-        int(k) for k in np.flatnonzero((view_rms > OUTLIER_FACTOR * med) & (view_rms > med + OUTLIER_FLOOR_PX))
+        int(k)
+        for k in np.flatnonzero((view_rms > OUTLIER_FACTOR * med) & (view_rms > med + OUTLIER_FLOOR_PX))
     )
     R1, R2, P1, P2, Q, _, _ = cv2.stereoRectify(
         K1, d1, K2, d2, size, R, T, flags=cv2.CALIB_ZERO_DISPARITY, alpha=0
     )
     return StereoCalibration(
         image_size=(int(size[0]), int(size[1])),
-        K_left=K1, dist_left=np.asarray(d1, float).ravel()[:5], K_right=K2,
-        dist_right=np.asarray(d2, float).ravel()[:5], R=R, T_mm=np.asarray(T, float).ravel(),
-        rms_px=float(rms), view_names=tuple(names), view_rms_px=view_rms,
-        view_rms_left_px=per_view[:, 0], view_rms_right_px=per_view[:, 1], outliers=outliers, skipped=(),
-        R1=R1, R2=R2, P1=P1, P2=P2, Q=Q,
+        K_left=K1,
+        dist_left=np.asarray(d1, float).ravel()[:5],
+        K_right=K2,
+        dist_right=np.asarray(d2, float).ravel()[:5],
+        R=R,
+        T_mm=np.asarray(T, float).ravel(),
+        rms_px=float(rms),
+        view_names=tuple(names),
+        view_rms_px=view_rms,
+        view_rms_left_px=per_view[:, 0],
+        view_rms_right_px=per_view[:, 1],
+        outliers=outliers,
+        skipped=(),
+        R1=R1,
+        R2=R2,
+        P1=P1,
+        P2=P2,
+        Q=Q,
     )
 
 
 # --------------------------------------------------------------------------------------- rig config
 
 
-def _camera_config(K: np.ndarray, dist: np.ndarray, size: tuple[int, int], T_J_cam: np.ndarray) -> CameraConfig:
+def _camera_config(
+    K: np.ndarray, dist: np.ndarray, size: tuple[int, int], T_J_cam: np.ndarray
+) -> CameraConfig:
     rot = Rotation.from_matrix(T_J_cam[:3, :3]).as_rotvec(degrees=True)
     return CameraConfig(
-        width_px=int(size[0]), height_px=int(size[1]),
-        fx_px=float(K[0, 0]), fy_px=float(K[1, 1]), cx_px=float(K[0, 2]), cy_px=float(K[1, 2]),
+        width_px=int(size[0]),
+        height_px=int(size[1]),
+        fx_px=float(K[0, 0]),
+        fy_px=float(K[1, 1]),
+        cx_px=float(K[0, 2]),
+        cy_px=float(K[1, 2]),
         distortion=tuple(float(d) for d in dist),  # type: ignore[arg-type]
         position_mm=tuple(float(x) for x in T_J_cam[:3, 3]),  # type: ignore[arg-type]
         rotation_deg=tuple(float(x) for x in rot),  # type: ignore[arg-type]

@@ -415,7 +415,9 @@ def load_sweep_calibration(path: str | os.PathLike[str]) -> SweepCalibration:
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
-        raise InputError(f"calibration file {path} does not exist (make one with `softjig calibrate`)") from None
+        raise InputError(
+            f"calibration file {path} does not exist (make one with `softjig calibrate`)"
+        ) from None
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise InputError(f"cannot read calibration file {path}: {exc}") from None
     pooled = tilt_calibration_from_dict(data, where=str(path))

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from enum import StrEnum
 from pathlib import Path
 from typing import Annotated
 
@@ -11,6 +12,15 @@ from rich.console import Console
 
 from softjig.cli.app import app, handle_errors, load_config, stderr_console, warn
 from softjig.errors import InputError
+from softjig.sensing.pipeline import DEFAULT_METHOD
+
+
+class Method(StrEnum):
+    paper = "paper"
+    refractive = "refractive"
+
+
+DEFAULT_METHOD_CHOICE = Method(DEFAULT_METHOD)
 
 
 def _print_estimate_table(estimate: dict) -> None:
@@ -32,6 +42,23 @@ def _print_estimate_table(estimate: dict) -> None:
             f"{estimate['n_markers_left']} / {estimate['n_markers_right']} / {estimate['n_matches']}",
         ),
         ("frame source", estimate["frame_source"]),
+        *(
+            [
+                (
+                    "tilt 1-sigma x / y",
+                    f"{estimate['tilt_sigma_x_deg']:.3f} deg / {estimate['tilt_sigma_y_deg']:.3f} deg",
+                ),
+                ("contact centroid", "({:+.2f}, {:+.2f}) mm".format(*estimate["contact_centroid_xy_mm"])),
+                (
+                    "contact area",
+                    f"{estimate['contact_area_mm2']:.0f} mm^2"
+                    + ("  (partial)" if estimate["contact_partial"] else ""),
+                ),
+                ("indentations against", estimate["reference"]),
+            ]
+            if estimate.get("tilt_sigma_x_deg") is not None
+            else []
+        ),
         ("method", estimate["method"]),
     ]
     for name, value in rows:
@@ -60,15 +87,38 @@ def estimate(
     part_diameter: Annotated[
         float | None,
         typer.Option(
-            help="Diameter of the part's base in mm (the crop); a dataset's frames name their part."
+            help="Diameter of the part's base in mm: the paper's crop (--method paper needs it); the "
+            "refractive method finds the contact itself and uses it only to judge partial contact. A "
+            "dataset's frames name their part."
         ),
     ] = None,
     calibration: Annotated[
         Path | None, typer.Option(help="Tilt calibration JSON (offset_x_deg, offset_y_deg, scale) to apply.")
     ] = None,
     method: Annotated[
-        str, typer.Option(help="Estimation method: paper (the paper's method exactly as published).")
-    ] = "paper",
+        Method,
+        typer.Option(
+            help="paper: the paper's method exactly as published; refractive: ours (refraction-aware, "
+            "automatic contact, robust plane, uncertainty, position; needs no tilt calibration)."
+        ),
+    ] = DEFAULT_METHOD_CHOICE,
+    reference_left: Annotated[
+        Path | None, typer.Option(help="PAIR: left image of the unloaded jig (a reference frame).")
+    ] = None,
+    reference_right: Annotated[
+        Path | None, typer.Option(help="PAIR: right image of the unloaded jig (a reference frame).")
+    ] = None,
+    use_reference: Annotated[
+        bool,
+        typer.Option(
+            "--reference/--no-reference",
+            help="DATASET: measure indentations against its unloaded reference frame (else the rest shape).",
+        ),
+    ] = True,
+    displacements: Annotated[
+        Path | None,
+        typer.Option(help="PAIR: write every marker's id, position and 3-D displacement (.csv or .npz)."),
+    ] = None,
     json_output: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
     overlay: Annotated[
         Path | None, typer.Option(help="Write a PNG showing markers, matches, the crop and the normal.")
@@ -88,32 +138,57 @@ def estimate(
     from softjig.calibration.tilt import load_tilt_calibration
 
     cal = load_tilt_calibration(calibration) if calibration else None
+    method_name = method.value
     if len(inputs) == 1:
-        if json_output or overlay is not None:
-            raise InputError("--json and --overlay apply to a stereo pair; a DATASET's results go to --out")
-        _estimate_dataset(inputs[0], config, part_diameter, cal, method, out, workers, progress)
+        pair_only = {
+            "--json": json_output,
+            "--overlay": overlay,
+            "--reference-left": reference_left,
+            "--reference-right": reference_right,
+            "--displacements": displacements,
+        }
+        given = [name for name, value in pair_only.items() if value]
+        if given:
+            raise InputError(f"{', '.join(given)} apply to a stereo pair; a DATASET's results go to --out")
+        _estimate_dataset(
+            inputs[0], config, part_diameter, cal, method_name, out, workers, progress, use_reference
+        )
         return
     if len(inputs) != 2:
         raise InputError(f"give LEFT RIGHT (a stereo pair) or one DATASET folder, got {len(inputs)} paths")
     if config is None:
         raise InputError("estimating a stereo pair needs --config RIG.toml (the jig and its cameras)")
-    if part_diameter is None:
-        raise InputError("estimating a stereo pair needs --part-diameter MM (the part's base diameter)")
+    if (reference_left is None) != (reference_right is None):
+        raise InputError("give both --reference-left and --reference-right (one unloaded stereo pair)")
     if out is not None or workers is not None:
         raise InputError("--out and --workers apply to a DATASET, not to a stereo pair")
     from softjig.io.dataset import load_image
-    from softjig.sensing.pipeline import estimate_pair
+    from softjig.sensing.pipeline import estimate_pair, reference_from_pair
 
     jig = load_config(config)
     left, right = load_image(inputs[0]), load_image(inputs[1])
-    result = estimate_pair(left, right, jig, part_diameter_mm=part_diameter, calibration=cal, method=method)
+    reference = None
+    if reference_left is not None and reference_right is not None:
+        reference = reference_from_pair(load_image(reference_left), load_image(reference_right), jig)
+    result = estimate_pair(
+        left,
+        right,
+        jig,
+        part_diameter_mm=part_diameter,
+        calibration=cal,
+        method=method_name,
+        reference=reference,
+    )
     if overlay is not None:
         from softjig.io.dataset import encode_png
         from softjig.io.files import write_bytes_atomic
         from softjig.sensing.overlay import draw_overlay
 
-        picture = draw_overlay(left, right, result, jig.cameras.left.K)
-        write_bytes_atomic(overlay, encode_png(picture))
+        write_bytes_atomic(overlay, encode_png(draw_overlay(left, right, result, jig)))
+    if displacements is not None:
+        from softjig.sensing.export import write_displacements
+
+        write_displacements(result, displacements)
     data = result.estimate.to_dict()
     if json_output:
         typer.echo(json.dumps(data))
@@ -121,15 +196,20 @@ def estimate(
         _print_estimate_table(data)
 
 
-def _estimate_dataset(path, config, part_diameter, cal, method, out, workers, progress) -> None:
+def _estimate_dataset(
+    path, config, part_diameter, cal, method, out, workers, progress, use_reference
+) -> None:
     from rich.progress import Progress
 
     from softjig.io.dataset import Dataset
-    from softjig.sensing.batch import BatchSettings, estimate_dataset, write_rows
+    from softjig.sensing.batch import BatchSettings, dataset_reference, estimate_dataset, write_rows
 
     dataset = Dataset.open(path)
     jig = load_config(config) if config else dataset.jig
-    settings = BatchSettings(jig=jig, part_diameter_mm=part_diameter, calibration=cal, method=method)
+    reference = dataset_reference(dataset, jig) if use_reference and method == "refractive" else None
+    settings = BatchSettings(
+        jig=jig, part_diameter_mm=part_diameter, calibration=cal, method=method, reference=reference
+    )
     out = out or Path(path) / "estimates.jsonl"
     t0 = time.perf_counter()
     with Progress(console=stderr_console(), disable=not progress, transient=True) as bar:
@@ -139,9 +219,12 @@ def _estimate_dataset(path, config, part_diameter, cal, method, out, workers, pr
         )
     write_rows(rows, out)
     failed = [row for row in rows if "error" in row]
+    loaded = [row for row in rows if not row.get("reference")]
     typer.echo(
-        f"estimated {len(rows) - len(failed)} of {len(rows)} frames in "
-        f"{time.perf_counter() - t0:.1f} s; wrote {out}"
+        f"estimated {len(loaded) - len(failed)} of {len(loaded)} loaded frames in "
+        f"{time.perf_counter() - t0:.1f} s ({method}"
+        + (", indentations against the reference frame" if reference is not None else "")
+        + f"); wrote {out}"
     )
     if failed:
         warn(

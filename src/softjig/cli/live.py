@@ -1,1 +1,196 @@
-"""`softjig live: the live sensing loop (issue 8).`"""
+"""`softjig live`: the live sensing loop on cameras or a replay, publishing to a robot (``docs/live.md``)."""
+
+from __future__ import annotations
+
+import signal
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from softjig.cli.app import EXIT_BAD_INPUT, EXIT_NO_ESTIMATE, app, error, handle_errors, load_config, warn
+from softjig.errors import InputError
+
+
+@app.command()
+@handle_errors
+def live(
+    replay: Annotated[
+        Path | None, typer.Option(help="Replay this dataset as if it were the cameras.", show_default=False)
+    ] = None,
+    source: Annotated[
+        str | None,
+        typer.Option(
+            help="Cameras: realsense, realsense:LEFT_SERIAL,RIGHT_SERIAL, or opencv:LEFT,RIGHT "
+            "(device numbers, /dev paths or video files).",
+            show_default=False,
+        ),
+    ] = None,
+    publish: Annotated[
+        str | None,
+        typer.Option(
+            help="Publish estimates and health on this ZeroMQ endpoint, e.g. tcp://127.0.0.1:5555.",
+            show_default=False,
+        ),
+    ] = None,
+    record: Annotated[
+        Path | None,
+        typer.Option(help="Record every captured pair to this dataset folder.", show_default=False),
+    ] = None,
+    overwrite: Annotated[
+        bool, typer.Option(help="Replace an existing --record dataset or --mcap file.")
+    ] = False,
+    max_frames: Annotated[
+        int | None, typer.Option(min=1, help="Stop after this many captured pairs.", show_default="no limit")
+    ] = None,
+    config: Annotated[
+        Path | None,
+        typer.Option(
+            help="The nominal jig (rig.toml).", show_default="the replay's rig.toml, else the default jig"
+        ),
+    ] = None,
+    part_diameter: Annotated[
+        float | None,
+        typer.Option(
+            help="Diameter of the part's base in mm (the crop).", show_default="each replayed frame's part"
+        ),
+    ] = None,
+    calibration: Annotated[
+        Path | None, typer.Option(help="Tilt calibration JSON to apply.", show_default=False)
+    ] = None,
+    method: Annotated[
+        str | None,
+        typer.Option(
+            help="Estimation method: refractive (ours) or paper (as published).",
+            show_default="the estimator's default",
+        ),
+    ] = None,
+    rate: Annotated[
+        str,
+        typer.Option(
+            help="Replay: 'recorded' (its own rate; busy frames are dropped, as with cameras) or "
+            "'fast' (every frame, as fast as possible)."
+        ),
+    ] = "recorded",
+    fps: Annotated[
+        float,
+        typer.Option(min=0.1, help="Camera frame rate; a replay's rate for frames without time_s (Hz)."),
+    ] = 30.0,
+    mcap: Annotated[
+        Path | None,
+        typer.Option(
+            help="Log images, markers, points, plane, normal and estimates to this MCAP file "
+            "(Foxglove, ROS 2).",
+            show_default=False,
+        ),
+    ] = None,
+    view: Annotated[
+        bool, typer.Option(help="Serve a live 3-D view to the Foxglove app (WebSocket).")
+    ] = False,
+    view_port: Annotated[int, typer.Option(min=0, max=65535, help="Port of the live view.")] = 8765,
+    allow_remote: Annotated[
+        bool,
+        typer.Option(help="Allow --publish and --view on a non-loopback address (trusted networks only)."),
+    ] = False,
+    health_period: Annotated[float, typer.Option(min=0.05, help="Seconds between health messages.")] = 1.0,
+    jsonl: Annotated[bool, typer.Option("--jsonl", help="Print each estimate message on stdout.")] = False,
+) -> None:
+    """Capture, estimate and publish at camera rate until the replay ends, --max-frames, or Ctrl-C."""
+    from softjig.calibration.tilt import load_tilt_calibration
+    from softjig.config import CylinderPart, part_to_dict
+    from softjig.io.cameras import ReplaySource, open_source
+    from softjig.io.stream import TOPIC_ESTIMATE, encode_message
+    from softjig.live.loop import LiveLoop, LiveSettings, PublisherSink, Recorder
+
+    if (replay is None) == (source is None):
+        raise InputError("give either --replay DATASET or --source CAMERAS (e.g. --source opencv:0,1)")
+    cal = load_tilt_calibration(calibration) if calibration else None
+    if replay is not None:
+        cameras = ReplaySource(replay, rate=rate, fps=fps)
+        jig = load_config(config) if config else cameras.dataset.jig
+    else:
+        if rate != "recorded":
+            raise InputError("--rate applies to --replay, not to cameras")
+        if config is None:
+            warn("no --config: using the default (the paper's) jig; pass the rig.toml of your cameras")
+        jig = load_config(config)
+        if part_diameter is None and method == "paper":
+            raise InputError(
+                "--method paper on live cameras needs --part-diameter MM (the part's base diameter)"
+            )
+        cam = jig.cameras.left
+        cameras = open_source(source, width_px=cam.width_px, height_px=cam.height_px, fps=fps)
+    settings = LiveSettings(
+        jig=jig,
+        part_diameter_mm=part_diameter,
+        calibration=cal,
+        method=method,
+        max_frames=max_frames,
+        health_period_s=health_period,
+    )
+    sinks: list = []
+    recorder = None
+    try:
+        if publish is not None:
+            from softjig.io.stream import Publisher
+
+            publisher = Publisher(publish, allow_remote=allow_remote)
+            sinks.append(PublisherSink(publisher))
+            typer.echo(f"publishing on {publisher.endpoint}", err=True)
+        if mcap is not None or view:
+            from softjig.live.viewer import FoxgloveViewer
+
+            viewer = FoxgloveViewer(
+                mcap_path=mcap,
+                serve=view,
+                port=view_port,
+                allow_remote=allow_remote,
+                host="0.0.0.0" if allow_remote else "127.0.0.1",
+                overwrite=overwrite,
+            )
+            sinks.append(viewer)
+            if view:
+                typer.echo(f"live view: open ws://127.0.0.1:{viewer.port} in the Foxglove app", err=True)
+        if record is not None:
+            default_part = part_to_dict(CylinderPart(part_diameter)) if part_diameter else None
+            recorder = Recorder(record, jig, default_part=default_part, overwrite=overwrite)
+    except BaseException:
+        for sink in sinks:
+            sink.close()
+        raise
+
+    def on_outcome(_outcome, message) -> None:
+        if jsonl:  # exactly what goes on the wire: with schema and version
+            typer.echo(encode_message(TOPIC_ESTIMATE, message)[1].decode("utf-8"))
+
+    loop = LiveLoop(cameras, settings, sinks=sinks, recorder=recorder, on_outcome=on_outcome)
+
+    def on_sigterm(_signum, _frame) -> None:
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, on_sigterm)
+    try:
+        summary = loop.run()
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    median = "-" if summary.latency_median_s is None else f"{1000 * summary.latency_median_s:.0f} ms"
+    p95 = "-" if summary.latency_p95_s is None else f"{1000 * summary.latency_p95_s:.0f} ms"
+    typer.echo(
+        f"{'stopped' if summary.interrupted else 'done'}: {summary.captured} pairs captured, "
+        f"{summary.processed} estimated ({summary.estimated} with an estimate, {summary.failed} without), "
+        f"{summary.dropped} dropped while busy, latency median {median} / p95 {p95}, "
+        f"{summary.throughput_hz:.1f} frames/s"
+        + (f", {summary.recorded} recorded to {record}" if record else "")
+        + (f" ({summary.not_recorded} not recorded)" if summary.not_recorded else "")
+        + (f", {summary.camera_errors} camera errors" if summary.camera_errors else ""),
+        err=True,
+    )
+    for note in summary.sink_errors:
+        warn(note)
+    if summary.processed and not summary.estimated:
+        message = f"no frame gave an estimate; the last: {summary.last_error}"
+        if summary.interrupted:  # stopped by the user: a clean stop, not a failure of this run
+            warn(message)
+            return
+        code = EXIT_BAD_INPUT if summary.last_exit_code == EXIT_BAD_INPUT else EXIT_NO_ESTIMATE
+        error(message, code)

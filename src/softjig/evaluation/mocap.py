@@ -15,7 +15,7 @@ Motive's CSV export (I/O)
 -------------------------
 As documented by OptiTrack ("Data Export: CSV") and written by Motive 2.x/3.x with the header enabled::
 
-    Format Version,1.23,Take Name,...,Rotation Type,Quaternion,Length Units,Millimeters,Coordinate Space,Global
+    Format Version,1.23,Take Name,...,Rotation Type,Quaternion,Length Units,Millimeters,...
     <blank line>
     ,Type,Rigid Body,Rigid Body,...          asset types (also Rigid Body Marker, Marker, Bone, ...)
     ,Name,jig,jig,...                         asset names
@@ -51,11 +51,11 @@ __all__ = [
     "RigidBodyTrack",
     "mocap_normals",
     "motive_csv_text",
+    "normals_at",
     "parse_motive_csv",
     "pose_from_quaternion_xyzw",
     "read_motive_csv",
     "relative_poses",
-    "normals_at",
     "write_motive_csv",
 ]
 
@@ -236,14 +236,18 @@ def parse_motive_csv(text: str, *, source: str = "Motive CSV") -> MotiveTake:
         )
     units = metadata.get("Length Units", "Meters")
     if units.lower() not in _UNITS_TO_MM:
-        raise InputError(f"{source}: unknown Length Units {units!r} (expected Meters, Centimeters, Millimeters)")
+        raise InputError(
+            f"{source}: unknown Length Units {units!r} (expected Meters, Centimeters, Millimeters)"
+        )
     to_mm = _UNITS_TO_MM[units.lower()]
     try:
         axis_row = next(k for k, row in enumerate(lines) if row and row[0].strip() == "Frame")
     except StopIteration:
-        raise InputError(f"{source}: no 'Frame,Time (Seconds),...' row: is this a Motive CSV export?") from None
+        raise InputError(
+            f"{source}: no 'Frame,Time (Seconds),...' row: is this a Motive CSV export?"
+        ) from None
     labelled: dict[str, list[str]] = {}
-    for row in lines[1:axis_row - 1]:
+    for row in lines[1 : axis_row - 1]:
         label = (row[0].strip() or (row[1].strip() if len(row) > 1 else "")) if row else ""
         if label in _HEADER_LABELS:
             labelled[label] = row
@@ -263,7 +267,7 @@ def parse_motive_csv(text: str, *, source: str = "Motive CSV") -> MotiveTake:
         name = cell(labelled["Name"], k)
         entry = columns.setdefault(name, {"id": cell(labelled.get("ID", []), k)})
         entry[(cell(component, k), cell(axes, k))] = k
-    data = [row for row in lines[axis_row + 1:] if row and any(c.strip() for c in row)]
+    data = [row for row in lines[axis_row + 1 :] if row and any(c.strip() for c in row)]
     n = len(data)
     frame = np.zeros(n, dtype=int)
     time_s = np.full(n, np.nan)
@@ -324,10 +328,12 @@ def motive_csv_text(
     n = len(arrays[0]) if arrays else 0
     if any(len(a) != n for a in arrays):
         raise InputError("every rigid body needs one pose per frame")
-    head = (f"Format Version,1.23,Take Name,{take_name},Capture Frame Rate,{frame_rate_hz:.6f},"
-            f"Export Frame Rate,{frame_rate_hz:.6f},Capture Start Time,2024-01-01 12.00.00.000 PM,"
-            f"Total Frames in Take,{n},Total Exported Frames,{n},Rotation Type,Quaternion,"
-            f"Length Units,{units},Coordinate Space,Global")
+    head = (
+        f"Format Version,1.23,Take Name,{take_name},Capture Frame Rate,{frame_rate_hz:.6f},"
+        f"Export Frame Rate,{frame_rate_hz:.6f},Capture Start Time,2024-01-01 12.00.00.000 PM,"
+        f"Total Frames in Take,{n},Total Exported Frames,{n},Rotation Type,Quaternion,"
+        f"Length Units,{units},Coordinate Space,Global"
+    )
     types, labels, ids, comps, axes = [",Type"], [",Name"], [",ID"], [","], ["Frame,Time (Seconds)"]
     for k, name in enumerate(names):
         types.append(",".join(["Rigid Body"] * 8))
@@ -405,5 +411,7 @@ def normals_at(
     out = np.full((len(rows), 3), np.nan)
     ok = rows >= 0
     if ok.any():
-        out[ok] = mocap_normals(T_j[rows[ok]], T_o[rows[ok]], T_jigbody_J=T_jigbody_J, object_axis=object_axis)
+        out[ok] = mocap_normals(
+            T_j[rows[ok]], T_o[rows[ok]], T_jigbody_J=T_jigbody_J, object_axis=object_axis
+        )
     return out

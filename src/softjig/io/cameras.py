@@ -32,6 +32,7 @@ the live loop's latency) and the wall-clock time (:attr:`StereoFrame.wall_time_s
 from __future__ import annotations
 
 import abc
+import contextlib
 import time
 from collections import deque
 from collections.abc import Mapping
@@ -65,7 +66,7 @@ class CameraError(InputError):
     """A camera could not be opened or stopped delivering; the message names it and what to check."""
 
 
-class SourceExhausted(Exception):  # noqa: N818 - like StopIteration: an end, not an error
+class SourceExhausted(Exception):
     """A finite source (a replay) has delivered its last frame."""
 
 
@@ -176,7 +177,8 @@ class FramePairer:
             raise InputError(f"max_skew_s must be positive, got {max_skew_s}")
         self.max_skew_s = float(max_skew_s)
         self._sides: dict[str, deque[tuple[float, Any]]] = {
-            "left": deque(maxlen=max_pending), "right": deque(maxlen=max_pending)
+            "left": deque(maxlen=max_pending),
+            "right": deque(maxlen=max_pending),
         }
         self.dropped = 0
 
@@ -277,8 +279,16 @@ class ReplaySource(StereoSource):
             left, right = frame.load_left(), frame.load_right()
         except InputError as exc:
             raise CameraError(f"{self.name}, frame {frame.index}: {exc}") from None
-        return StereoFrame(left=left, right=right, t_left_s=t_left, t_right_s=t_right, seq=i,
-                           received_s=time.monotonic(), wall_time_s=time.time(), meta=dict(frame.meta))
+        return StereoFrame(
+            left=left,
+            right=right,
+            t_left_s=t_left,
+            t_right_s=t_right,
+            seq=i,
+            received_s=time.monotonic(),
+            wall_time_s=time.time(),
+            meta=dict(frame.meta),
+        )
 
     def close(self) -> None:
         pass
@@ -318,8 +328,15 @@ class OpenCVStereoSource(StereoSource):
     :class:`CameraError` (the camera stopped delivering, or a video file ended).
     """
 
-    def __init__(self, left: int | str, right: int | str, *, width_px: int | None = None,
-                 height_px: int | None = None, fps: float | None = None) -> None:
+    def __init__(
+        self,
+        left: int | str,
+        right: int | str,
+        *,
+        width_px: int | None = None,
+        height_px: int | None = None,
+        fps: float | None = None,
+    ) -> None:
         self.devices = (left, right)
         self.width_px, self.height_px, self.fps = width_px, height_px, fps
         self.name = f"opencv:{left},{right}"
@@ -334,11 +351,16 @@ class OpenCVStereoSource(StereoSource):
         if not cap.isOpened():
             cap.release()
             what = f"camera {device}" if isinstance(device, int) else f"{device}"
-            raise CameraError(f"cannot open {what}: check that it is plugged in, not used by another "
-                              "program (v4l2-ctl --list-devices lists cameras) and that you may read it")
+            raise CameraError(
+                f"cannot open {what}: check that it is plugged in, not used by another "
+                "program (v4l2-ctl --list-devices lists cameras) and that you may read it"
+            )
         cap.set(cv2.CAP_PROP_BUFFERSIZE, 1)
-        for prop, value in ((cv2.CAP_PROP_FRAME_WIDTH, self.width_px),
-                            (cv2.CAP_PROP_FRAME_HEIGHT, self.height_px), (cv2.CAP_PROP_FPS, self.fps)):
+        for prop, value in (
+            (cv2.CAP_PROP_FRAME_WIDTH, self.width_px),
+            (cv2.CAP_PROP_FRAME_HEIGHT, self.height_px),
+            (cv2.CAP_PROP_FPS, self.fps),
+        ):
             if value is not None:
                 cap.set(prop, float(value))
         return cap
@@ -362,19 +384,29 @@ class OpenCVStereoSource(StereoSource):
         times = []
         for device, cap in zip(self.devices, self._caps, strict=True):
             if not cap.grab():
-                raise CameraError(f"camera {device} of {self.name} delivered no image (unplugged, stopped "
-                                  "streaming, or the end of a video file)")
+                raise CameraError(
+                    f"camera {device} of {self.name} delivered no image (unplugged, stopped "
+                    "streaming, or the end of a video file)"
+                )
             times.append(time.monotonic())
         images = []
         for device, cap in zip(self.devices, self._caps, strict=True):
             ok, image = cap.retrieve()
             if not ok or image is None:
-                raise CameraError(f"camera {device} of {self.name}: an image was grabbed but could not be "
-                                  "decoded")
+                raise CameraError(
+                    f"camera {device} of {self.name}: an image was grabbed but could not be decoded"
+                )
             images.append(_to_rgb(image))
         seq, self._seq = self._seq, self._seq + 1
-        return StereoFrame(left=images[0], right=images[1], t_left_s=times[0], t_right_s=times[1], seq=seq,
-                           received_s=time.monotonic(), wall_time_s=time.time())
+        return StereoFrame(
+            left=images[0],
+            right=images[1],
+            t_left_s=times[0],
+            t_right_s=times[1],
+            seq=seq,
+            received_s=time.monotonic(),
+            wall_time_s=time.time(),
+        )
 
     def close(self) -> None:
         for cap in self._caps:
@@ -404,9 +436,16 @@ class RealSenseStereoSource(StereoSource):
     suite (no camera on the test machines).
     """
 
-    def __init__(self, serial_left: str | None = None, serial_right: str | None = None, *,
-                 width_px: int = 1280, height_px: int = 720, fps: int = 30,
-                 max_skew_s: float | None = None) -> None:
+    def __init__(
+        self,
+        serial_left: str | None = None,
+        serial_right: str | None = None,
+        *,
+        width_px: int = 1280,
+        height_px: int = 720,
+        fps: int = 30,
+        max_skew_s: float | None = None,
+    ) -> None:
         if (serial_left is None) != (serial_right is None):
             raise InputError("give both RealSense serial numbers (left and right) or neither")
         self.serials = (serial_left, serial_right)
@@ -423,7 +462,9 @@ class RealSenseStereoSource(StereoSource):
         try:
             import pyrealsense2 as rs
         except ImportError:
-            raise CameraError("RealSense cameras need pyrealsense2: pip install 'softjig[realsense]'") from None
+            raise CameraError(
+                "RealSense cameras need pyrealsense2: pip install 'softjig[realsense]'"
+            ) from None
         return rs
 
     def open(self) -> None:
@@ -434,13 +475,17 @@ class RealSenseStereoSource(StereoSource):
         serials = self.serials
         if serials[0] is None:
             if len(connected) != 2:
-                raise CameraError(f"found {len(connected)} RealSense cameras ({', '.join(connected) or 'none'}); "
-                                  "name the two to use: --source realsense:LEFT_SERIAL,RIGHT_SERIAL")
+                raise CameraError(
+                    f"found {len(connected)} RealSense cameras ({', '.join(connected) or 'none'}); "
+                    "name the two to use: --source realsense:LEFT_SERIAL,RIGHT_SERIAL"
+                )
             serials = (connected[0], connected[1])
         missing = [s for s in serials if s not in connected]
         if missing:
-            raise CameraError(f"RealSense camera {', '.join(missing)} not found; connected: "
-                              f"{', '.join(connected) or 'none'} (check the cable and the serial numbers)")
+            raise CameraError(
+                f"RealSense camera {', '.join(missing)} not found; connected: "
+                f"{', '.join(connected) or 'none'} (check the cable and the serial numbers)"
+            )
         pipes = []
         try:
             for serial in serials:
@@ -475,18 +520,23 @@ class RealSenseStereoSource(StereoSource):
             if pair is not None:
                 (tl, left), (tr, right) = pair
                 seq, self._seq = self._seq, self._seq + 1
-                return StereoFrame(left=left, right=right, t_left_s=tl, t_right_s=tr, seq=seq,
-                                   received_s=time.monotonic(), wall_time_s=time.time())
+                return StereoFrame(
+                    left=left,
+                    right=right,
+                    t_left_s=tl,
+                    t_right_s=tr,
+                    seq=seq,
+                    received_s=time.monotonic(),
+                    wall_time_s=time.time(),
+                )
             if time.monotonic() >= deadline:
                 return None
             time.sleep(0.002)
 
     def close(self) -> None:
         for pipe in self._pipes:
-            try:
+            with contextlib.suppress(RuntimeError):  # already stopped or unplugged
                 pipe.stop()
-            except RuntimeError:  # pragma: no cover - already stopped or unplugged
-                pass
         self._pipes = []
 
 
@@ -511,8 +561,10 @@ def parse_source_spec(text: str) -> SourceSpec:
     InputError
         Any other form, with the valid ones.
     """
-    usage = ("--source must be opencv:LEFT,RIGHT (e.g. opencv:0,1 or opencv:/dev/video0,/dev/video2), "
-             f"realsense, or realsense:LEFT_SERIAL,RIGHT_SERIAL; got {text!r}")
+    usage = (
+        "--source must be opencv:LEFT,RIGHT (e.g. opencv:0,1 or opencv:/dev/video0,/dev/video2), "
+        f"realsense, or realsense:LEFT_SERIAL,RIGHT_SERIAL; got {text!r}"
+    )
     kind, _, rest = text.strip().partition(":")
     kind = kind.lower()
     if kind == "realsense" and not rest:
@@ -528,21 +580,27 @@ def parse_source_spec(text: str) -> SourceSpec:
     return SourceSpec("opencv", devices[0], devices[1])
 
 
-def open_source(spec: str | SourceSpec, *, width_px: int | None = None, height_px: int | None = None,
-                fps: float | None = None) -> StereoSource:
+def open_source(
+    spec: str | SourceSpec,
+    *,
+    width_px: int | None = None,
+    height_px: int | None = None,
+    fps: float | None = None,
+) -> StereoSource:
     """A (not yet opened) source for a ``--source`` value (:func:`parse_source_spec`)."""
     spec = parse_source_spec(spec) if isinstance(spec, str) else spec
     if spec.kind == "realsense":
         kwargs = {k: v for k, v in (("width_px", width_px), ("height_px", height_px)) if v is not None}
         if fps is not None:
-            kwargs["fps"] = int(round(fps))
+            kwargs["fps"] = round(fps)
         left = None if spec.left is None else str(spec.left)
         right = None if spec.right is None else str(spec.right)
         return RealSenseStereoSource(left, right, **kwargs)
     for device in (spec.left, spec.right):
         if isinstance(device, str) and not device.startswith("/dev/") and not Path(device).exists():
-            raise InputError(f"--source opencv: {device} is neither a device number, a /dev path nor an "
-                             "existing video file")
+            raise InputError(
+                f"--source opencv: {device} is neither a device number, a /dev path nor an "
+                "existing video file"
+            )
     assert spec.left is not None and spec.right is not None
     return OpenCVStereoSource(spec.left, spec.right, width_px=width_px, height_px=height_px, fps=fps)
-

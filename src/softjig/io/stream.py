@@ -95,11 +95,16 @@ def decode_message(frames: list[bytes]) -> tuple[str, dict[str, Any]]:
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise InputError(f"{topic}: the payload is not JSON ({exc})") from None
     if not isinstance(payload, dict) or payload.get("schema") != topic:
-        raise InputError(f"{topic}: not a softjig message (schema {payload.get('schema')!r})"
-                         if isinstance(payload, dict) else f"{topic}: the payload is not a JSON object")
+        raise InputError(
+            f"{topic}: not a softjig message (schema {payload.get('schema')!r})"
+            if isinstance(payload, dict)
+            else f"{topic}: the payload is not a JSON object"
+        )
     if payload.get("version") != SCHEMA_VERSION:
-        raise InputError(f"{topic}: schema version {payload.get('version')!r}, this softjig reads version "
-                         f"{SCHEMA_VERSION}; update the subscriber or the publisher")
+        raise InputError(
+            f"{topic}: schema version {payload.get('version')!r}, this softjig reads version "
+            f"{SCHEMA_VERSION}; update the subscriber or the publisher"
+        )
     return topic, payload
 
 
@@ -134,8 +139,10 @@ def check_endpoint(endpoint: str, *, allow_remote: bool = False) -> str:
     except ValueError:
         loopback = bare.lower() in _LOOPBACK_NAMES
     if not loopback and not allow_remote:
-        raise InputError(f"--publish {endpoint!r} would accept connections from other machines; bind to "
-                         "127.0.0.1, or pass --allow-remote if the robot is on a trusted network")
+        raise InputError(
+            f"--publish {endpoint!r} would accept connections from other machines; bind to "
+            "127.0.0.1, or pass --allow-remote if the robot is on a trusted network"
+        )
     return endpoint
 
 
@@ -175,8 +182,10 @@ class Publisher:
         except zmq.ZMQError as exc:
             self._socket.close(0)
             self._ctx.term()
-            raise InputError(f"cannot bind {endpoint}: {exc} (is another softjig or program using that "
-                             "port? choose another)") from None
+            raise InputError(
+                f"cannot bind {endpoint}: {exc} (is another softjig or program using that "
+                "port? choose another)"
+            ) from None
         self.endpoint = self._socket.getsockopt_string(zmq.LAST_ENDPOINT)
         self._sent = 0
         self._refused = 0

@@ -6,9 +6,14 @@ of blurred markers, detections are circled; colours say what became of each mark
 - red circle: detected, not matched between the images;
 - green circle: matched (the same colour in both images);
 - yellow dot: matched and inside the crop, i.e. used in the plane fit;
-- cyan ellipse: the crop (the part's base radius around the jig axis, at the fitted plane's height);
-- magenta arrow: the fitted plane's normal (before any tilt calibration), 20 mm long, from the plane on
-  the jig axis, in the same space as the crop.
+- cyan outline: what was fitted: the paper's crop (the part's base radius around the jig axis, at the
+  fitted plane's height), or the contact footprint found by the refractive method;
+- magenta arrow: the fitted plane's normal (before any tilt calibration), 20 mm long, from the plane at
+  the centre of the crop or of the contact.
+
+Points in J are drawn where the method's own camera model puts them: through the refracting layers for
+``refractive``, through air (the paper's pinhole model, the same space as its triangulated points) for
+``paper``.
 """
 
 from __future__ import annotations
@@ -16,7 +21,9 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from softjig.config import JigConfig
 from softjig.optics import project_points
+from softjig.rig import flat_layers
 from softjig.sensing.detect import to_gray_float
 from softjig.sensing.pipeline import SensingResult
 
@@ -36,25 +43,24 @@ def _rgb8(image: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(np.repeat(gray[:, :, None], 3, axis=2))
 
 
-def _project_left(points_J: np.ndarray, result: SensingResult, K: np.ndarray) -> np.ndarray:
-    """Pinhole projection into the left image (the same model the paper's triangulation assumes)."""
-    return project_points(points_J, K, None, result.frame.T_J_left, None)
+def _project_left(points_J: np.ndarray, result: SensingResult, jig: JigConfig) -> np.ndarray:
+    layers = flat_layers(jig) if result.estimate.method == "refractive" else None
+    left = jig.cameras.left
+    return project_points(points_J, left.K, left.distortion, result.frame.T_J_left, layers)
 
 
 def _pt(xy: np.ndarray) -> tuple[int, int]:
     return round(float(xy[0])), round(float(xy[1]))
 
 
-def draw_overlay(
-    left: np.ndarray, right: np.ndarray, result: SensingResult, K_left: np.ndarray
-) -> np.ndarray:
+def draw_overlay(left: np.ndarray, right: np.ndarray, result: SensingResult, jig: JigConfig) -> np.ndarray:
     """Draw the pipeline's result over the stereo pair, side by side (left | right).
 
     Parameters
     ----------
     left, right : the input images (any dtype :func:`~softjig.sensing.detect.to_gray_float` accepts).
     result : what :func:`~softjig.sensing.pipeline.estimate_pair` returned for them.
-    K_left : (3, 3) intrinsics of the left camera (px).
+    jig : the nominal jig the estimate used.
 
     Returns
     -------
@@ -78,17 +84,19 @@ def draw_overlay(
         cv2.circle(canvas_right, _pt(result.right.xy_px[result.matches.right_index[k]]), 2, YELLOW, -1)
 
     est, plane = result.estimate, result.plane
-    z0 = plane.z_at(0.0, 0.0)
-    angles = np.linspace(0, 2 * np.pi, 73)
-    crop_radius = est.part_diameter_mm / 2.0
-    ring = np.column_stack(
-        [crop_radius * np.cos(angles), crop_radius * np.sin(angles), np.zeros_like(angles)]
-    )
-    ring[:, 2] = [plane.z_at(x, y) for x, y in ring[:, :2]]
-    ring_px = _project_left(ring, result, K_left)
+    if result.contact is not None:
+        outline = np.asarray(result.contact.outline_xy_mm, dtype=float)
+        centre = np.asarray(result.contact.centroid_xy_mm, dtype=float)
+    else:
+        angles = np.linspace(0, 2 * np.pi, 73)
+        radius = (est.part_diameter_mm or 0.0) / 2.0
+        outline = radius * np.column_stack([np.cos(angles), np.sin(angles)])
+        centre = np.zeros(2)
+    ring = np.column_stack([outline, [plane.z_at(x, y) for x, y in outline]])
+    ring_px = _project_left(ring, result, jig)
     cv2.polylines(canvas_left, [np.round(ring_px).astype(np.int32)], True, CYAN, 1, cv2.LINE_AA)
-    base = np.array([0.0, 0.0, z0])
-    arrow = _project_left(np.array([base, base + NORMAL_LENGTH_MM * plane.normal]), result, K_left)
+    base = np.array([centre[0], centre[1], plane.z_at(*centre)])
+    arrow = _project_left(np.array([base, base + NORMAL_LENGTH_MM * plane.normal]), result, jig)
     cv2.arrowedLine(canvas_left, _pt(arrow[0]), _pt(arrow[1]), MAGENTA, 2, cv2.LINE_AA, tipLength=0.2)
     text = (
         f"Ax {est.tilt_x_deg:+.2f} deg  Ay {est.tilt_y_deg:+.2f} deg  push {est.push_depth_mm:.2f} mm  "

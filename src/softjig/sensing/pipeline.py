@@ -1,28 +1,38 @@
-"""The paper's optical sensing, end to end: a rectified stereo pair -> the part's principal normal.
+"""From a rectified stereo pair to the part's principal normal: the paper's method and ours.
 
-Stages (Sakuma et al., section "Optical Sensing"), each in its own module:
+Both methods share the front end, each stage in its own module:
 
 1. markers in each image: LoG at the scale implied by the markers' size in the image, local maxima,
    least-squares quadratic sub-pixel refinement (:mod:`softjig.sensing.detect`);
-2. stereo matching on rows within a tolerance and a disparity window implied by the jig's geometry, as
-   a one-to-one global assignment, and pinhole triangulation (:mod:`softjig.sensing.stereo`);
-3. the points moved into the jig frame J with the pose measured from the fiducials, or the fixed one of
-   the config (:mod:`softjig.sensing.jigframe`);
-4. the points within the part's base radius of the jig axis kept, and a plane fitted by SVD
-   (:func:`softjig.geometry.fit_plane_svd`): its normal is the principal normal, its tilt angles
-   ``Ax, Ay`` and push depth follow (``DESIGN.md`` §1); a tilt calibration ``(Ox, Oy, S)`` is applied
-   when given.
+2. the cameras' pose in J from the fiducials, or the config's (:mod:`softjig.sensing.jigframe`), and the
+   markers on the fiducials dropped;
+3. stereo matching on rows within a tolerance and a disparity window implied by the jig's geometry, as
+   a one-to-one global assignment (:mod:`softjig.sensing.stereo`).
 
-As in the paper, triangulation ignores refraction: depths come out compressed (by about the oil's index),
-which is what the paper's scale ``S`` absorbs. The push depth is measured from the rest membrane as the
-same triangulation sees it (the rest apex projected through the real layers and triangulated as a
-pinhole pair), so zero push reads zero; it stays compressed by the same factor.
+``method="paper"`` then does exactly what Sakuma et al. publish ("Optical Sensing"): pinhole
+triangulation as if the cameras looked through air, the points within the part's base radius of the jig
+axis, an SVD plane. Its depths come out compressed (by about the oil's index), which the paper's tilt
+calibration ``S`` absorbs; its push depth is measured from the rest membrane as the same triangulation
+sees it, so zero push reads zero, and stays compressed by the same factor.
+
+``method="refractive"`` fixes the paper's known weaknesses (opt-in until its contact search is robust
+for small parts at large tilts; ``DEFAULT_METHOD``):
+
+- each marker is triangulated through the plate and the oil by Snell's law
+  (:mod:`softjig.sensing.refractive`): metric depths, no robot calibration needed for the tilt;
+- the contact region is found from each marker's indentation against the unloaded jig (a reference
+  frame, or the nominal rest shape), not from a part size (:mod:`softjig.sensing.contact`);
+- the plane is fitted robustly, so markers where the part lifts off do not pull it
+  (:mod:`softjig.sensing.robust`), and partial contact is flagged;
+- the normal comes with its covariance and 1-sigma tilt errors (:mod:`softjig.sensing.uncertainty`);
+- the contact footprint gives the part's position (x, y) on the jig, and every marker an identity and a
+  3-D displacement (:mod:`softjig.sensing.identities`).
 """
 
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from functools import lru_cache
 
 import numpy as np
@@ -40,11 +50,37 @@ from softjig.geometry import (
 from softjig.jig_shape import marker_layout_xy, rest_inner_height_mm
 from softjig.optics import project_points, projection_jacobian
 from softjig.rig import flat_layers
+from softjig.sensing.contact import (
+    ContactRegion,
+    Indentation,
+    contact_candidates,
+    describe_contact,
+    grow_contact,
+    indentation,
+)
 from softjig.sensing.detect import Markers, check_image_content, detect_markers, log_sigma_px, to_gray_float
+from softjig.sensing.identities import (
+    MarkerIdentities,
+    ReferenceMarkers,
+    identify_markers,
+    rest_shape_reference,
+)
 from softjig.sensing.jigframe import JigFrame, inside_fiducials, resolve_jig_frame
+from softjig.sensing.refractive import triangulate_refracted
+from softjig.sensing.robust import fit_plane_robust
 from softjig.sensing.stereo import StereoMatches, match_rectified, triangulate_rectified
+from softjig.sensing.uncertainty import NormalUncertainty, normal_uncertainty
 
-METHODS = ("paper",)
+METHODS = ("paper", "refractive")
+# The refractive method is far more accurate than the paper's in most of the paper's grid, uncalibrated,
+# but still fails now and then where a small contact sits in a deep bowl (see issue 6's notes): until its
+# contact search is robust there, the paper's method (systematic errors, which its calibration removes)
+# stays the default.
+DEFAULT_METHOD = "paper"
+# Unmodelled, systematic errors of a triangulated marker (hemisphere seen obliquely, membrane ripple, the
+# as-built cameras): the residual scale used for the normal's uncertainty is at least this.
+UNCERTAINTY_FLOOR_MM = 0.05
+CONTACT_INLIER_SIGMAS = 2.5  # a marker within this many depth-noise sigmas of the contact plane is on it
 
 
 @dataclass(frozen=True)
@@ -60,11 +96,19 @@ class Estimate:
     rms_residual_mm : RMS distance of those markers to the plane (mm).
     frame_source : ``"fiducials"`` or ``"config"``: where the cameras' pose in J came from.
     warnings : things a user should know about this estimate.
-    method : the estimation method (``"paper"``).
+    method : ``"refractive"`` or ``"paper"``.
     calibrated : whether a tilt calibration was applied.
     raw_tilt_x_deg, raw_tilt_y_deg : tilt angles before calibration (deg).
-    part_diameter_mm : the crop diameter used.
+    part_diameter_mm : the part's base diameter given by the user (mm), or ``None``.
     n_markers_left, n_markers_right, n_matches : detections and stereo matches.
+    tilt_sigma_x_deg, tilt_sigma_y_deg : 1-sigma errors of the tilt angles (``refractive`` only).
+    tilt_sigma_deg : 1-sigma angle between the estimated and the true normal (``refractive`` only).
+    normal_covariance : (3, 3) covariance of the normal, as nested lists (``refractive`` only).
+    contact_area_mm2, contact_centroid_xy_mm, contact_outline_xy_mm : the contact footprint: area,
+        centroid ``(x, y)`` in J (the part's position on the jig) and outline (``refractive`` only).
+    contact_partial : whether the part lifts off on some side (``refractive`` only).
+    lift_azimuth_deg : towards which azimuth it lifts off, if it does.
+    reference : what the indentations were measured against (``"reference frame"`` or ``"rest shape"``).
     """
 
     normal: tuple[float, float, float]
@@ -79,17 +123,30 @@ class Estimate:
     calibrated: bool
     raw_tilt_x_deg: float
     raw_tilt_y_deg: float
-    part_diameter_mm: float
+    part_diameter_mm: float | None
     n_markers_left: int
     n_markers_right: int
     n_matches: int
+    tilt_sigma_x_deg: float | None = None
+    tilt_sigma_y_deg: float | None = None
+    tilt_sigma_deg: float | None = None
+    normal_covariance: tuple[tuple[float, ...], ...] | None = None
+    contact_area_mm2: float | None = None
+    contact_centroid_xy_mm: tuple[float, float] | None = None
+    contact_outline_xy_mm: tuple[tuple[float, float], ...] | None = None
+    contact_partial: bool | None = None
+    lift_azimuth_deg: float | None = None
+    reference: str | None = None
 
     def to_dict(self) -> dict:
         """The JSON form (``DESIGN.md``'s command-line contract): plain floats, lists and strings."""
-        data = asdict(self)
-        data["normal"] = list(self.normal)
-        data["warnings"] = list(self.warnings)
-        return data
+
+        def plain(value):
+            if isinstance(value, tuple | list):
+                return [plain(v) for v in value]
+            return value
+
+        return {key: plain(value) for key, value in asdict(self).items()}
 
 
 @dataclass(frozen=True)
@@ -99,12 +156,16 @@ class SensingResult:
     Attributes
     ----------
     estimate : the reported estimate.
-    left, right : the markers detected in each image.
+    left, right : the markers detected in each image (fiducials excluded).
     matches : the stereo matches (indices into ``left`` and ``right``).
     points_J : (M, 3) the triangulated matches in J (mm), one per match.
-    used : (M,) which of them lay within the crop and were fitted.
+    used : (M,) which of them were fitted (the paper's crop, or the contact found).
     plane : the fitted plane (uncalibrated).
     frame : the cameras' pose in J and its source.
+    identities : each point's reference marker and displacement (``refractive``).
+    indentation : each point's indentation (``refractive``).
+    contact : the contact footprint (``refractive``).
+    uncertainty : the normal's uncertainty (``refractive``).
     """
 
     estimate: Estimate
@@ -115,6 +176,10 @@ class SensingResult:
     used: np.ndarray
     plane: PlaneFit
     frame: JigFrame
+    identities: MarkerIdentities | None = None
+    indentation: Indentation | None = None
+    contact: ContactRegion | None = None
+    uncertainty: NormalUncertainty | None = None
 
 
 @dataclass(frozen=True)
@@ -217,14 +282,107 @@ def _checked_pair(left: np.ndarray, right: np.ndarray, jig: JigConfig) -> tuple[
     return grays[0], grays[1]
 
 
+@dataclass(frozen=True)
+class Observation:
+    """What both methods share: the detected markers, their matches and the cameras' pose.
+
+    Attributes
+    ----------
+    left, right : markers detected in each image, fiducials excluded.
+    matches : the stereo matches.
+    frame : the cameras' poses in J.
+    warnings : from the front end (e.g. fiducials not found).
+    """
+
+    left: Markers
+    right: Markers
+    matches: StereoMatches
+    frame: JigFrame
+    warnings: tuple[str, ...] = field(default=())
+
+    @property
+    def left_xy_px(self) -> np.ndarray:
+        """(M, 2) matched centres in the left image."""
+        return self.left.xy_px[self.matches.left_index]
+
+    @property
+    def right_xy_px(self) -> np.ndarray:
+        """(M, 2) matched centres in the right image."""
+        return self.right.xy_px[self.matches.right_index]
+
+
+def observe_pair(
+    left: np.ndarray, right: np.ndarray, jig: JigConfig, clock: _StageClock | None = None
+) -> Observation:
+    """Check a stereo pair, find the jig frame, detect and match the markers (both methods' front end).
+
+    Raises
+    ------
+    InputError
+        Bad images (size, dtype, blank or saturated, the same image twice) or an unrectified config.
+    EstimationError
+        Fiducials required (``sensing.extrinsics = "fiducials"``) but not found.
+    """
+    clock = clock or _StageClock(None)
+    if not jig.cameras.rectified:
+        raise InputError(
+            "the config's cameras are not a rectified pair (cameras.rectified = false): rectify the images "
+            "first, with the stereo calibration of the cameras"
+        )
+    gray_left, gray_right = _checked_pair(left, right, jig)
+    setup = sensing_setup(jig)
+    clock.lap("checks")
+    frame, warnings = resolve_jig_frame(_to_u8(gray_left), _to_u8(gray_right), jig)
+    clock.lap("frame")
+    kwargs = {"sigma_px": setup.sigma_px}
+    if setup.threshold is not None:
+        kwargs["threshold"] = setup.threshold
+    markers_left = _off_fiducials(detect_markers(gray_left, **kwargs), frame.fiducial_quads_left_px)
+    markers_right = _off_fiducials(detect_markers(gray_right, **kwargs), frame.fiducial_quads_right_px)
+    clock.lap("detect")
+    matches = match_rectified(
+        markers_left.xy_px,
+        markers_right.xy_px,
+        row_tolerance_px=jig.sensing.row_tolerance_px,
+        min_disparity_px=setup.min_disparity_px,
+        max_disparity_px=setup.max_disparity_px,
+    )
+    if len(matches) < 0.5 * min(len(markers_left), len(markers_right)):
+        warnings = [
+            *warnings,
+            f"only {len(matches)} of {min(len(markers_left), len(markers_right))} markers were matched "
+            "between the images: check the rectification and sensing.row_tolerance_px",
+        ]
+    clock.lap("match")
+    return Observation(markers_left, markers_right, matches, frame, tuple(warnings))
+
+
+def reference_from_pair(left: np.ndarray, right: np.ndarray, jig: JigConfig) -> ReferenceMarkers:
+    """Triangulate a stereo pair of the unloaded jig into the reference for indentations and identities.
+
+    Raises
+    ------
+    EstimationError
+        Fewer markers than ``sensing.min_points`` were matched.
+    """
+    observation = observe_pair(left, right, jig)
+    points = triangulate_refracted(observation.left_xy_px, observation.right_xy_px, jig, observation.frame)
+    if len(points.points_J) < jig.sensing.min_points:
+        raise EstimationError(
+            f"the reference pair gave only {len(points.points_J)} markers: is it a pair of the unloaded jig?"
+        )
+    return ReferenceMarkers(points.points_J, "reference frame")
+
+
 def estimate_pair(
     left: np.ndarray,
     right: np.ndarray,
     jig: JigConfig,
     *,
-    part_diameter_mm: float,
+    part_diameter_mm: float | None = None,
     calibration: TiltCalibration | None = None,
-    method: str = "paper",
+    method: str = DEFAULT_METHOD,
+    reference: ReferenceMarkers | None = None,
     timings: dict[str, float] | None = None,
 ) -> SensingResult:
     """Estimate the principal normal of the part on the jig from one rectified stereo pair.
@@ -233,10 +391,12 @@ def estimate_pair(
     ----------
     left, right : (H, W) or (H, W, 3) uint8 or uint16 images of the nominal jig's cameras (RGB).
     jig : the nominal jig (the estimator never knows the as-built one).
-    part_diameter_mm : diameter of the part's base (the paper's crop: markers within half of it from the
-        jig axis are fitted).
+    part_diameter_mm : diameter of the part's base (mm). The paper's method needs it (markers within half
+        of it from the jig axis are fitted); ours does not, and uses it only to judge partial contact.
     calibration : the paper's tilt calibration to apply, if any.
-    method : ``"paper"``: the method exactly as published.
+    method : ``"paper"`` (the default: exactly as published) or ``"refractive"`` (ours).
+    reference : the unloaded jig's markers (:func:`reference_from_pair`), for ``"refractive"``; the
+        nominal rest shape when ``None``.
     timings : if given, filled with each stage's wall time in seconds (``checks``, ``frame``,
         ``detect``, ``match``, ``triangulate``, ``fit``).
 
@@ -250,47 +410,81 @@ def estimate_pair(
     InputError
         Bad images (size, dtype, blank or saturated), an unrectified config, a bad diameter or method.
     EstimationError
-        Too few markers in the crop (fewer than ``sensing.min_points``), points that do not define a
-        plane, or fiducials required but not found.
+        No contact or too few markers in it (fewer than ``sensing.min_points``), points that do not
+        define a plane, or fiducials required but not found.
     """
     if method not in METHODS:
         raise InputError(f"unknown method {method!r}; valid: {', '.join(METHODS)}")
-    if not (np.isfinite(part_diameter_mm) and part_diameter_mm > 0):
+    if part_diameter_mm is not None and not (np.isfinite(part_diameter_mm) and part_diameter_mm > 0):
         raise InputError(f"the part diameter must be a positive number of mm, got {part_diameter_mm}")
-    if not jig.cameras.rectified:
-        raise InputError(
-            "the config's cameras are not a rectified pair (cameras.rectified = false): the paper's method "
-            "needs rectified images"
-        )
+    if method == "paper" and part_diameter_mm is None:
+        raise InputError("the paper's method needs the part's base diameter (--part-diameter MM)")
     clock = _StageClock(timings)
-    gray_left, gray_right = _checked_pair(left, right, jig)
+    observation = observe_pair(left, right, jig, clock)
+    if method == "paper":
+        result = _paper_estimate(observation, jig, part_diameter_mm, calibration, clock)
+    else:
+        result = _refractive_estimate(observation, jig, part_diameter_mm, calibration, reference, clock)
+    clock.lap("fit")
+    return result
+
+
+def _calibrated(
+    plane: PlaneFit, calibration: TiltCalibration | None
+) -> tuple[float, float, float, float, np.ndarray]:
+    """Raw and calibrated tilt angles (rad) and the calibrated normal."""
+    raw_ax, raw_ay = (float(v) for v in tilt_angles(plane.normal))
+    if calibration is None or calibration.is_identity():
+        return raw_ax, raw_ay, raw_ax, raw_ay, plane.normal
+    ax, ay = (float(v) for v in calibration.apply(raw_ax, raw_ay))
+    return raw_ax, raw_ay, ax, ay, normal_from_tilt_angles(ax, ay)
+
+
+def _common_fields(
+    observation: Observation,
+    plane: PlaneFit,
+    calibration,
+    method,
+    part_diameter_mm,
+    n_used: int,
+    warnings: list[str],
+) -> dict:
+    raw_ax, raw_ay, ax, ay, normal = _calibrated(plane, calibration)
+    return {
+        "normal": tuple(float(v) for v in normal),
+        "tilt_x_deg": float(np.degrees(ax)),
+        "tilt_y_deg": float(np.degrees(ay)),
+        "n_points": n_used,
+        "rms_residual_mm": plane.rms_residual_mm,
+        "frame_source": observation.frame.source,
+        "warnings": tuple(warnings),
+        "method": method,
+        "calibrated": calibration is not None and not calibration.is_identity(),
+        "raw_tilt_x_deg": float(np.degrees(raw_ax)),
+        "raw_tilt_y_deg": float(np.degrees(raw_ay)),
+        "part_diameter_mm": None if part_diameter_mm is None else float(part_diameter_mm),
+        "n_markers_left": len(observation.left),
+        "n_markers_right": len(observation.right),
+        "n_matches": len(observation.matches),
+    }
+
+
+def _paper_estimate(
+    observation: Observation,
+    jig: JigConfig,
+    part_diameter_mm: float,
+    calibration: TiltCalibration | None,
+    clock: _StageClock,
+) -> SensingResult:
     setup = sensing_setup(jig)
-    clock.lap("checks")
-    warnings: list[str] = []
-
-    kwargs = {"sigma_px": setup.sigma_px}
-    if setup.threshold is not None:
-        kwargs["threshold"] = setup.threshold
-    frame, frame_warnings = resolve_jig_frame(_to_u8(gray_left), _to_u8(gray_right), jig)
-    warnings += frame_warnings
-    clock.lap("frame")
-    markers_left = _off_fiducials(detect_markers(gray_left, **kwargs), frame.fiducial_quads_left_px)
-    markers_right = _off_fiducials(detect_markers(gray_right, **kwargs), frame.fiducial_quads_right_px)
-    clock.lap("detect")
-    matches = match_rectified(
-        markers_left.xy_px,
-        markers_right.xy_px,
-        row_tolerance_px=jig.sensing.row_tolerance_px,
-        min_disparity_px=setup.min_disparity_px,
-        max_disparity_px=setup.max_disparity_px,
+    matches = observation.matches
+    points_cam = (
+        _triangulate(observation.left_xy_px, observation.right_xy_px, jig)
+        if len(matches)
+        else np.zeros((0, 3))
     )
-    clock.lap("match")
-    xy_left = markers_left.xy_px[matches.left_index]
-    xy_right = markers_right.xy_px[matches.right_index]
-    points_cam = _triangulate(xy_left, xy_right, jig) if len(matches) else np.zeros((0, 3))
-    points_J = transform_points(frame.T_J_left, points_cam)
+    points_J = transform_points(observation.frame.T_J_left, points_cam)
     clock.lap("triangulate")
-
     radius = part_diameter_mm / 2.0
     used = np.hypot(points_J[:, 0], points_J[:, 1]) < radius
     n_used = int(used.sum())
@@ -298,48 +492,140 @@ def estimate_pair(
     if n_used < minimum:
         raise EstimationError(
             f"only {n_used} markers lie within {radius:g} mm of the jig axis (the part's base radius); at "
-            f"least {minimum} are needed (sensing.min_points). Detected {len(markers_left)} left / "
-            f"{len(markers_right)} right, matched {len(matches)}: is a part on the jig, centred, and is the "
-            "part diameter right?"
+            f"least {minimum} are needed (sensing.min_points). Detected {len(observation.left)} left / "
+            f"{len(observation.right)} right, matched {len(matches)}: is a part on the jig, centred, and is "
+            "the part diameter right?"
         )
+    plane = _fit_or_fail(points_J[used], minimum)
+    warnings = list(observation.warnings)
+    if n_used < 2 * minimum:
+        warnings.append(f"only {n_used} markers under the part: the estimate is noisy")
+    estimate = Estimate(
+        push_depth_mm=setup.rest_apex_z_mm - plane.z_at(0.0, 0.0),
+        **_common_fields(observation, plane, calibration, "paper", part_diameter_mm, n_used, warnings),
+    )
+    return SensingResult(
+        estimate, observation.left, observation.right, matches, points_J, used, plane, observation.frame
+    )
+
+
+def _fit_or_fail(points: np.ndarray, minimum: int) -> PlaneFit:
     try:
-        plane = fit_plane_svd(points_J[used], min_points=minimum)
+        return fit_plane_svd(points, min_points=minimum)
     except InputError as exc:
         raise EstimationError(f"no plane could be fitted: {exc}") from None
 
-    raw_ax, raw_ay = tilt_angles(plane.normal)
-    if calibration is not None and not calibration.is_identity():
-        ax, ay = calibration.apply(raw_ax, raw_ay)
-        normal = normal_from_tilt_angles(float(ax), float(ay))
-    else:
-        ax, ay, normal = raw_ax, raw_ay, plane.normal
-    if n_used < 2 * minimum:
-        warnings.append(f"only {n_used} markers under the part: the estimate is noisy")
-    if len(matches) < 0.5 * min(len(markers_left), len(markers_right)):
-        warnings.append(
-            f"only {len(matches)} of {min(len(markers_left), len(markers_right))} markers were matched "
-            "between the images: check the rectification and sensing.row_tolerance_px"
-        )
-    estimate = Estimate(
-        normal=tuple(float(v) for v in normal),
-        tilt_x_deg=float(np.degrees(ax)),
-        tilt_y_deg=float(np.degrees(ay)),
-        push_depth_mm=setup.rest_apex_z_mm - plane.z_at(0.0, 0.0),
-        n_points=n_used,
-        rms_residual_mm=plane.rms_residual_mm,
-        frame_source=frame.source,
-        warnings=tuple(warnings),
-        method=method,
-        calibrated=calibration is not None and not calibration.is_identity(),
-        raw_tilt_x_deg=float(np.degrees(raw_ax)),
-        raw_tilt_y_deg=float(np.degrees(raw_ay)),
-        part_diameter_mm=float(part_diameter_mm),
-        n_markers_left=len(markers_left),
-        n_markers_right=len(markers_right),
-        n_matches=len(matches),
+
+def _reference_height_at_axis(reference: ReferenceMarkers, pitch_mm: float) -> float:
+    """Height of the reference membrane on the jig axis: a quadratic surface through its nearest markers."""
+    xyz = reference.xyz_mm
+    near = np.hypot(xyz[:, 0], xyz[:, 1]) < 2.5 * pitch_mm
+    if near.sum() < 6:
+        return float(xyz[np.argmin(np.hypot(xyz[:, 0], xyz[:, 1])), 2])
+    x, y, z = xyz[near].T
+    design = np.column_stack([np.ones_like(x), x, y, x * x, x * y, y * y])
+    return float(np.linalg.lstsq(design, z, rcond=None)[0][0])
+
+
+def _refractive_estimate(
+    observation: Observation,
+    jig: JigConfig,
+    part_diameter_mm: float | None,
+    calibration: TiltCalibration | None,
+    reference: ReferenceMarkers | None,
+    clock: _StageClock,
+) -> SensingResult:
+    matches = observation.matches
+    triangulated = triangulate_refracted(
+        observation.left_xy_px, observation.right_xy_px, jig, observation.frame
     )
-    clock.lap("fit")
-    return SensingResult(estimate, markers_left, markers_right, matches, points_J, used, plane, frame)
+    points_J = triangulated.points_J
+    clock.lap("triangulate")
+    reference = reference or rest_shape_reference(jig)
+    identities = identify_markers(points_J, reference, max_lateral_mm=jig.markers.pitch_mm / 2.0)
+    known = identities.ids >= 0
+    reference_z = np.where(
+        known,
+        reference.xyz_mm[np.maximum(identities.ids, 0), 2],
+        rest_inner_height_mm(jig, points_J[:, 0], points_J[:, 1]),
+    )
+    dent = indentation(points_J, reference_z)
+    candidates = contact_candidates(dent)
+    minimum = jig.sensing.min_points
+    if candidates.sum() < minimum:
+        raise EstimationError(
+            f"no contact: only {int(candidates.sum())} markers are pushed in beyond the noise "
+            f"({dent.noise_mm:.2f} mm); at least {minimum} are needed (sensing.min_points). Is a part "
+            "pressed onto the jig?"
+        )
+    # Contact: grown from the deepest pushed-in markers over the neighbours on their plane, each plane
+    # fitted robustly; the inlier distance is set by the markers' own depth noise.
+    threshold = CONTACT_INLIER_SIGMAS * max(dent.noise_mm, UNCERTAINTY_FLOOR_MM)
+
+    def fit(points: np.ndarray) -> tuple[np.ndarray, PlaneFit]:
+        try:
+            robust = fit_plane_robust(points, threshold_mm=threshold, min_inliers=min(minimum, len(points)))
+        except InputError as exc:
+            raise EstimationError(f"no plane could be fitted to the pushed-in markers: {exc}") from None
+        return robust.inliers, robust.plane
+
+    used, plane = grow_contact(
+        points_J,
+        dent,
+        candidates,
+        pitch_mm=jig.markers.pitch_mm,
+        fit_plane=fit,
+        threshold_mm=threshold,
+        min_points=minimum,
+    )
+    if used.sum() < minimum:
+        raise EstimationError(
+            f"only {int(used.sum())} markers are in contact; at least {minimum} are needed "
+            "(sensing.min_points)"
+        )
+    plane = _fit_or_fail(points_J[used], minimum)
+    uncertainty = normal_uncertainty(points_J[used], plane, floor_mm=UNCERTAINTY_FLOOR_MM)
+    contact = describe_contact(
+        points_J[used, :2], plane, jig, noise_mm=dent.noise_mm, part_diameter_mm=part_diameter_mm
+    )
+    warnings = list(observation.warnings)
+    n_used = int(used.sum())
+    if n_used < 2 * minimum:
+        warnings.append(f"only {n_used} markers in contact: the estimate is noisy")
+    if contact.partial:
+        warnings.append(
+            f"partial contact: the part lifts off towards azimuth {contact.lift_azimuth_deg:.0f} deg; only "
+            "the markers in contact were fitted"
+        )
+    push = _reference_height_at_axis(reference, jig.markers.pitch_mm) - dent.zero_mm - plane.z_at(0.0, 0.0)
+    estimate = Estimate(
+        push_depth_mm=float(push),
+        tilt_sigma_x_deg=float(np.degrees(uncertainty.tilt_sigma_x_rad)),
+        tilt_sigma_y_deg=float(np.degrees(uncertainty.tilt_sigma_y_rad)),
+        tilt_sigma_deg=float(np.degrees(uncertainty.tilt_sigma_rad)),
+        normal_covariance=tuple(tuple(float(v) for v in row) for row in uncertainty.covariance),
+        contact_area_mm2=contact.area_mm2,
+        contact_centroid_xy_mm=contact.centroid_xy_mm,
+        contact_outline_xy_mm=tuple((float(x), float(y)) for x, y in contact.outline_xy_mm),
+        contact_partial=contact.partial,
+        lift_azimuth_deg=contact.lift_azimuth_deg,
+        reference=reference.source,
+        **_common_fields(observation, plane, calibration, "refractive", part_diameter_mm, n_used, warnings),
+    )
+    return SensingResult(
+        estimate,
+        observation.left,
+        observation.right,
+        matches,
+        points_J,
+        used,
+        plane,
+        observation.frame,
+        identities,
+        dent,
+        contact,
+        uncertainty,
+    )
 
 
 class _StageClock:

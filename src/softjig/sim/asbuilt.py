@@ -7,8 +7,10 @@ is the standard deviation of a zero-mean normal error, drawn independently per a
 
 - the stereo head (both cameras, rigidly) is moved by ``camera_position_mm`` per axis and rotated about
   its centre by ``camera_rotation_deg`` per axis (how it sits under the plate);
-- each camera's focal lengths are scaled by ``1 + focal_fraction`` error and its principal point moved
-  by ``principal_point_px`` (per axis): the pair is then no longer perfectly rectified;
+- the focal lengths are scaled by ``1 + focal_fraction`` error and the principal point moved by
+  ``principal_point_px`` (per axis), the same for both cameras: a rectified pair's images are resampled
+  to one shared intrinsic matrix, so the stereo calibration's residual error is common to both views
+  (the pair stays rectified; its depth scale and the image centre are off);
 - the plate's and the oil's refractive indices are off by ``refractive_index``;
 - each marker sits ``marker_placement_mm`` (per axis) away from its place on the mould's grid.
 
@@ -33,8 +35,7 @@ class AsBuiltJig:
 
     Attributes
     ----------
-    jig : the perturbed config (cameras, refractive indices); ``cameras.rectified`` is false when the
-        intrinsics were perturbed.
+    jig : the perturbed config (cameras, refractive indices).
     marker_xy_mm : (N, 2) each marker's real ``(x, y)`` on the rest membrane, in J (mm).
     """
 
@@ -62,11 +63,12 @@ def draw_as_built(nominal: JigConfig, rng: np.random.Generator | int | None = No
     head_rotation = Rotation.from_rotvec(np.radians(rng.normal(0.0, tol.camera_rotation_deg, 3)))
     head_shift = rng.normal(0.0, tol.camera_position_mm, 3)
 
+    focal = 1.0 + rng.normal(0.0, tol.focal_fraction)
+    principal = rng.normal(0.0, tol.principal_point_px, 2)
+
     def perturb(cam: CameraConfig) -> CameraConfig:
         position = head_center + head_rotation.apply(np.asarray(cam.position_mm) - head_center)
         rotation = head_rotation * Rotation.from_rotvec(np.radians(cam.rotation_deg))
-        focal = 1.0 + rng.normal(0.0, tol.focal_fraction)
-        principal = rng.normal(0.0, tol.principal_point_px, 2)
         return replace(
             cam,
             position_mm=tuple(float(v) for v in position + head_shift),
@@ -80,7 +82,7 @@ def draw_as_built(nominal: JigConfig, rng: np.random.Generator | int | None = No
     cameras = StereoConfig(
         left=perturb(left),
         right=perturb(right),
-        rectified=nominal.cameras.rectified and tol.focal_fraction == 0 and tol.principal_point_px == 0,
+        rectified=nominal.cameras.rectified,
     )
     plate = replace(
         nominal.plate, refractive_index=nominal.plate.refractive_index + rng.normal(0.0, tol.refractive_index)

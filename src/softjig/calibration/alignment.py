@@ -1,0 +1,250 @@
+"""Jig-to-robot alignment: the jig's pose in the robot's base frame from a hand-eye camera's image.
+
+The paper aligns the jig with the robot by viewing four white circular markers on the jig with a
+hand-eye camera and solving a perspective-n-point problem (Sakuma et al., "Jig Coordinate Calibration",
+Fig. "Setup to jig coordinate calibration"). Here:
+
+1. **Circles**: the image is thresholded (Otsu; then a few fixed levels if that fails); every bright
+   blob whose contour an ellipse fits (``cv2.fitEllipse``; area ratio and mean contour residual) is a
+   candidate; the ``n`` candidates of most similar size are kept (``n`` = the configured circles).
+2. **Ordering**: the configured circles (``alignment.circle_centers_mm``, in J) and the detections are
+   each sorted by angle about their centroid; of the ``2 n`` cyclic assignments (both turning
+   directions), each is solved by PnP (``cv2.SOLVEPNP_IPPE`` then Levenberg-Marquardt); solutions with
+   the camera below the plate are rejected (the camera views the top face), and among those whose
+   reprojection error is within ``max(0.5 px, 2 x best)`` of the best one the solution whose
+   ``T_robot_jig`` rotation is closest to the prior (``R_robot_jig_prior``, default identity: the jig's
+   axes roughly parallel to the robot base's) wins. The default layout is a square, symmetric under
+   turns of 90°: the image alone cannot tell its circles apart, so **the prior decides, and the ordering
+   is unambiguous whenever the prior's rotation is within 45° of the truth**; an asymmetric layout is
+   decided by the image alone.
+3. **Perspective bias**: the centre of a circle's image (an ellipse) is not the image of its centre. With
+   the first pose, each circle's outline is projected and fitted exactly as the image was; the offset of
+   that ellipse's centre from the projected centre is subtracted from the detection and PnP is solved
+   again (twice).
+4. ``T_robot_jig = T_robot_flange @ T_flange_cam @ T_cam_jig`` (``DESIGN.md`` §1 naming): the flange's
+   pose from the robot's kinematics, the camera's on the flange from a hand-eye calibration.
+
+Units: mm, pixels ``(u, v)`` OpenCV's.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from softjig.config import CameraConfig, JigConfig
+from softjig.errors import EstimationError, InputError
+from softjig.geometry import invert_pose, pose_from_rotvec_translation
+
+__all__ = ["Alignment", "align_jig_to_robot", "detect_circles"]
+
+
+@dataclass(frozen=True)
+class Alignment:
+    """The jig's pose in the robot's base frame and how it was found.
+
+    Attributes
+    ----------
+    T_robot_jig : (4, 4) J in the robot base frame (mm).
+    T_cam_jig : (4, 4) J in the hand-eye camera's frame (mm).
+    circles_px : (n, 2) the circles' bias-corrected image centres, in the config's order (px).
+    reprojection_rms_px : RMS reprojection error of the circles' centres (px).
+    ambiguous_orders : how many circle orders fitted the image as well as the chosen one (1 for an
+        asymmetric layout; 4 for the default square, decided by the prior).
+    warnings : what a user should know.
+    """
+
+    T_robot_jig: np.ndarray
+    T_cam_jig: np.ndarray
+    circles_px: np.ndarray
+    reprojection_rms_px: float
+    ambiguous_orders: int
+    warnings: tuple[str, ...]
+
+    def to_dict(self) -> dict:
+        """JSON form."""
+        return {
+            "T_robot_jig": self.T_robot_jig.tolist(),
+            "T_cam_jig": self.T_cam_jig.tolist(),
+            "circles_px": self.circles_px.tolist(),
+            "reprojection_rms_px": self.reprojection_rms_px,
+            "ambiguous_orders": self.ambiguous_orders,
+            "warnings": list(self.warnings),
+        }
+
+
+def _gray_u8(image: np.ndarray) -> np.ndarray:
+    img = np.asarray(image)
+    if img.ndim == 3 and img.shape[2] == 3:
+        img = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)
+    if img.ndim != 2 or img.dtype not in (np.uint8, np.uint16):
+        raise InputError(
+            f"the hand-eye image must be (H, W) or (H, W, 3) uint8/uint16, got {img.shape} {img.dtype}"
+        )
+    return (img >> 8).astype(np.uint8) if img.dtype == np.uint16 else img
+
+
+def _ellipse_candidates(binary: np.ndarray, min_area_px: float) -> list[tuple[np.ndarray, float]]:
+    contours, _ = cv2.findContours(binary, cv2.RETR_LIST, cv2.CHAIN_APPROX_NONE)
+    out = []
+    for c in contours:
+        if len(c) < 8:
+            continue
+        area = cv2.contourArea(c)
+        if area < min_area_px:
+            continue
+        (cx, cy), (a, b), _ = cv2.fitEllipse(c)
+        ellipse_area = np.pi * a * b / 4
+        if not 0.8 < area / max(ellipse_area, 1e-9) < 1.2 or min(a, b) < 0.3 * max(a, b):
+            continue
+        out.append((np.array([cx, cy]), float(ellipse_area)))
+    return out
+
+
+def detect_circles(image: np.ndarray, n: int = 4, *, min_area_px: float = 12.0) -> np.ndarray:
+    """The centres ``(n, 2)`` (px) of the ``n`` bright elliptical blobs of most similar size.
+
+    The ellipse is fitted to the blob's contour at the threshold (sub-pixel through the fit over many
+    contour points). Raises :class:`EstimationError` when fewer than ``n`` are found.
+    """
+    gray = _gray_u8(image)
+    otsu, _ = cv2.threshold(gray, 0, 255, cv2.THRESH_BINARY | cv2.THRESH_OTSU)
+    best: list[tuple[np.ndarray, float]] = []
+    for level in (otsu, 128, 160, 200, 100):
+        _, binary = cv2.threshold(gray, level, 255, cv2.THRESH_BINARY)
+        cands = _ellipse_candidates(binary, min_area_px)
+        if len(cands) >= n:
+            best = cands
+            break
+        if len(cands) > len(best):
+            best = cands
+    if len(best) < n:
+        raise EstimationError(
+            f"found {len(best)} of the {n} white alignment circles in the hand-eye image: make all of them "
+            "visible, evenly lit and in focus (bright on a dark plate)"
+        )
+    areas = np.log([a for _, a in best])
+    order = np.argsort(areas)
+    # the window of n consecutive sizes (in log) with the smallest spread
+    spreads = [areas[order[k + n - 1]] - areas[order[k]] for k in range(len(best) - n + 1)]
+    k = int(np.argmin(spreads))
+    return np.array([best[i][0] for i in order[k : k + n]])
+
+
+def _angle_order(points: np.ndarray) -> np.ndarray:
+    c = points.mean(axis=0)
+    return np.argsort(np.arctan2(points[:, 1] - c[1], points[:, 0] - c[0]))
+
+
+def _solve(obj: np.ndarray, img: np.ndarray, K: np.ndarray, dist: np.ndarray) -> list[np.ndarray]:
+    """Every IPPE solution ``T_cam_jig``, refined by LM."""
+    _, rvecs, tvecs, _ = cv2.solvePnPGeneric(obj, img, K, dist, flags=cv2.SOLVEPNP_IPPE)
+    out = []
+    for r, t in zip(rvecs, tvecs, strict=True):
+        r, t = cv2.solvePnPRefineLM(obj, img, K, dist, r.copy(), t.copy())
+        out.append(pose_from_rotvec_translation(r.ravel(), t.ravel()))
+    return out
+
+
+def _project(T_cam_jig: np.ndarray, pts: np.ndarray, K: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    rvec, _ = cv2.Rodrigues(T_cam_jig[:3, :3])
+    px, _ = cv2.projectPoints(pts, rvec, T_cam_jig[:3, 3], K, dist)
+    return px.reshape(-1, 2)
+
+
+def _rotation_angle(Ra: np.ndarray, Rb: np.ndarray) -> float:
+    return float(np.arccos(np.clip((np.trace(Ra.T @ Rb) - 1) / 2, -1.0, 1.0)))
+
+
+def align_jig_to_robot(
+    image: np.ndarray,
+    jig: JigConfig,
+    camera: CameraConfig,
+    T_robot_flange: np.ndarray,
+    T_flange_cam: np.ndarray,
+    *,
+    R_robot_jig_prior: np.ndarray | None = None,
+) -> Alignment:
+    """Find ``T_robot_jig`` from one hand-eye image of the jig's alignment circles (module docstring).
+
+    Parameters
+    ----------
+    image : the hand-eye camera's image (gray or RGB, uint8/uint16), raw (with its lens distortion).
+    jig : the jig (``alignment``: circle centres in J, diameter, ``z_mm``).
+    camera : the hand-eye camera's intrinsics and distortion (pose fields unused).
+    T_robot_flange : (4, 4) the flange's pose in the robot base frame when the image was taken (mm).
+    T_flange_cam : (4, 4) the camera's pose on the flange (hand-eye calibration, mm).
+    R_robot_jig_prior : (3, 3) roughly how the jig is turned in the robot frame (default: identity);
+        decides between the orders a symmetric layout leaves open (must be within 45° for a square).
+
+    Raises
+    ------
+    EstimationError
+        Too few circles found, or no pose puts the camera above the plate.
+    """
+    al = jig.alignment
+    n = len(al.circle_centers_mm)
+    K, dist = camera.K, np.asarray(camera.distortion, float)
+    detected = detect_circles(image, n)
+    obj = np.column_stack([np.asarray(al.circle_centers_mm, float), np.full(n, al.z_mm)])
+    obj_sorted = obj[_angle_order(obj[:, :2])]
+    det_order = _angle_order(detected)
+    T_robot_cam = np.asarray(T_robot_flange, float) @ np.asarray(T_flange_cam, float)
+    prior = np.eye(3) if R_robot_jig_prior is None else np.asarray(R_robot_jig_prior, float)
+    candidates = []
+    for direction in (1, -1):
+        for shift in range(n):
+            idx = np.roll(det_order[::direction], shift)
+            img = detected[idx]
+            for T_cam_jig in _solve(obj_sorted, img, K, dist):
+                cam_in_J = invert_pose(T_cam_jig)[:3, 3]
+                if cam_in_J[2] <= al.z_mm:
+                    continue
+                rms = float(
+                    np.sqrt(np.mean(np.sum((_project(T_cam_jig, obj_sorted, K, dist) - img) ** 2, 1)))
+                )
+                candidates.append((rms, T_cam_jig, img, (direction, shift)))
+    if not candidates:
+        raise EstimationError(
+            "no pose of the jig puts the hand-eye camera above the plate: check the circles"
+        )
+    best_rms = min(c[0] for c in candidates)
+    good = [c for c in candidates if c[0] <= best_rms + max(0.5, 2 * best_rms)]
+    rms, T_cam_jig, img, _ = min(good, key=lambda c: _rotation_angle((T_robot_cam @ c[1])[:3, :3], prior))
+    # Perspective bias of the ellipse centres, corrected with the pose found.
+    outline = np.linspace(0, 2 * np.pi, 72, endpoint=False)
+    r = al.circle_diameter_mm / 2
+    corrected = img
+    for _ in range(2):
+        offsets = []
+        for p in obj_sorted:
+            ring = p + r * np.column_stack([np.cos(outline), np.sin(outline), np.zeros_like(outline)])
+            (ex, ey), _, _ = cv2.fitEllipse(_project(T_cam_jig, ring, K, dist).astype(np.float32))
+            offsets.append(np.array([ex, ey]) - _project(T_cam_jig, p[None], K, dist)[0])
+        corrected = img - np.array(offsets)
+        sols = _solve(obj_sorted, corrected, K, dist)
+        T_cam_jig = min(sols, key=lambda T: _rotation_angle(T[:3, :3], T_cam_jig[:3, :3]))
+    res = _project(T_cam_jig, obj_sorted, K, dist) - corrected
+    rms = float(np.sqrt(np.mean(np.sum(res**2, axis=1))))
+    # back to the config's order
+    sorted_idx = _angle_order(obj[:, :2])
+    circles = np.empty_like(corrected)
+    circles[sorted_idx] = corrected
+    T_robot_jig = T_robot_cam @ T_cam_jig
+    warnings = []
+    if rms > 1.0:
+        warnings.append(
+            f"the circles' reprojection error is {rms:.2f} px: check the hand-eye camera's intrinsics and "
+            "alignment.circle_centers_mm"
+        )
+    angle = np.degrees(_rotation_angle(T_robot_jig[:3, :3], prior))
+    n_orders = len({c[3] for c in good})
+    if n_orders > 1 and angle > 30:
+        warnings.append(
+            f"the circles' layout is symmetric and the chosen jig rotation is {angle:.0f} deg from the "
+            "prior: "
+            "give a prior rotation closer to the truth (within 45 deg) or the order may be wrong"
+        )
+    return Alignment(T_robot_jig, T_cam_jig, circles, rms, n_orders, tuple(warnings))

@@ -1,0 +1,319 @@
+"""The live loop on replays: every frame when fast, drops when busy, a failing camera, stop, Ctrl-C, CLI."""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+
+import pytest
+from typer.testing import CliRunner
+
+from softjig.cli import app
+from softjig.config import default_jig
+from softjig.io.cameras import CameraError, ReplaySource, StereoSource
+from softjig.io.dataset import Dataset
+from softjig.io.stream import TOPIC_ESTIMATE, TOPIC_HEALTH, Publisher, Subscriber
+from softjig.live.loop import HealthSnapshot, LiveLoop, LiveSettings, PublisherSink, health_status
+from softjig.sim.scenarios import paper_sweep, simulate_dataset
+
+runner = CliRunner()
+
+
+@pytest.fixture(scope="module")
+def sweep(tmp_path_factory):
+    """A reference frame and 4 loaded frames (D = 50 mm, alpha = 10 deg)."""
+    out = tmp_path_factory.mktemp("live") / "sweep"
+    specs = list(paper_sweep(diameters_mm=(50,), alphas_deg=(10,), theta_step_deg=90))
+    simulate_dataset(out, specs, default_jig(), seed=4, workers=1, progress=False)
+    return Dataset.open(out)
+
+
+def _free_port():
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _collect(sub, timeout_s=20.0):
+    """Messages until the final health message (status "stopped")."""
+    return sub.receive_until(lambda t, p: t == TOPIC_HEALTH and p["status"] == "stopped", timeout_s)
+
+
+def _connected_pair():
+    pub = Publisher("tcp://127.0.0.1:*")
+    sub = Subscriber(pub.endpoint)
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline:  # ZeroMQ's slow joiner: wait until the subscription is live
+        pub.publish(TOPIC_HEALTH, {"seq": -1, "status": "probe"})
+        if sub.receive(0.05) is not None:
+            break
+    while sub.receive(0.05) is not None:
+        pass
+    return pub, sub
+
+
+def test_fast_replay_estimates_every_frame_and_publishes_it(sweep):
+    pub, sub = _connected_pair()
+    with sub:
+        summary = LiveLoop(
+            ReplaySource(sweep, rate="fast"),
+            LiveSettings(jig=sweep.jig, method="paper"),  # the paper's method needs the frame's part
+            sinks=[PublisherSink(pub)],
+        ).run()
+        messages = _collect(sub)
+    assert (summary.captured, summary.processed, summary.dropped) == (5, 5, 0)
+    assert summary.exhausted and not summary.interrupted
+    assert (summary.estimated, summary.failed) == (4, 1)  # the reference frame names no part
+    estimates = [p for t, p in messages if t == TOPIC_ESTIMATE]
+    assert [p["seq"] for p in estimates] == [0, 1, 2, 3, 4]
+    assert [p["frame"]["index"] for p in estimates] == [0, 1, 2, 3, 4]
+    first, loaded = estimates[0], estimates[1]
+    assert (first["ok"], first["exit_code"], first["estimate"]) == (False, 2, None)
+    assert "part" in first["error"]
+    assert loaded["ok"] and loaded["exit_code"] == 0 and loaded["error"] is None
+    for key in ("normal", "tilt_x_deg", "tilt_y_deg", "push_depth_mm", "n_points"):
+        assert key in loaded["estimate"]
+    assert loaded["latency_ms"] > 0 and loaded["frame"]["skew_ms"] == 0.0
+    healths = [p for t, p in messages if t == TOPIC_HEALTH]
+    assert healths[-1]["status"] == "stopped"
+    assert healths[-1]["frames"] == {
+        "captured": 5,
+        "processed": 5,
+        "dropped": 0,
+        "estimated": 4,
+        "failed": 1,
+        "recorded": 0,
+        "not_recorded": 0,
+    }
+    assert healths[-1]["latency_ms"]["median"] > 0
+
+
+def test_a_busy_estimator_drops_camera_rate_frames_and_counts_them(sweep):
+    # 1000 Hz replay: far faster than the ~0.1 s estimate, so frames arrive while the estimator is busy
+    outcomes = []
+    summary = LiveLoop(
+        ReplaySource(sweep, rate="recorded", fps=1000.0),
+        LiveSettings(jig=sweep.jig, part_diameter_mm=50.0),
+        on_outcome=lambda o, m: outcomes.append(m),
+    ).run()
+    assert summary.captured == 5
+    assert summary.dropped >= 1
+    assert summary.processed + summary.dropped == summary.captured
+    assert [m["dropped_frames"] for m in outcomes] == sorted(m["dropped_frames"] for m in outcomes)
+    assert outcomes[-1]["frame"]["index"] == 4  # the newest frame is never the one dropped
+
+
+class _FlakySource(StereoSource):
+    """A replay whose camera fails: an error on the 2nd read, then silence, then frames again."""
+
+    def __init__(self, dataset, script):
+        self.inner = ReplaySource(dataset, rate="fast")
+        self.name, self.realtime = "flaky", True
+        self.script = list(script)  # per read: "ok", "error" or "silent"
+        self.opens = 0
+
+    def open(self):
+        self.opens += 1
+
+    def read(self, timeout_s):
+        action = self.script.pop(0) if self.script else "ok"
+        if action == "error":
+            raise CameraError("camera 1 stopped streaming")
+        if action == "silent":
+            time.sleep(timeout_s)
+            return None
+        return self.inner.read(timeout_s)
+
+    def close(self):
+        pass
+
+
+def test_a_failing_camera_is_retried_and_reported_unhealthy(sweep):
+    source = _FlakySource(sweep, ["ok", "error", "silent", "silent", "ok", "error"])
+    settings = LiveSettings(
+        jig=sweep.jig,
+        part_diameter_mm=50.0,
+        read_timeout_s=0.05,
+        reopen_after_timeouts=2,
+        retry_delay_s=0.01,
+        retry_delay_max_s=0.05,
+        health_period_s=5.0,
+    )
+    pub, sub = _connected_pair()
+    with sub:
+        summary = LiveLoop(source, settings, sinks=[PublisherSink(pub)]).run()
+        messages = _collect(sub)
+    assert summary.captured == 5 and summary.exhausted  # every frame got through in the end
+    assert summary.camera_errors == 3  # two errors and one re-open after silence
+    assert summary.reopens == 3 and source.opens == 4
+    statuses = [p["status"] for t, p in messages if t == TOPIC_HEALTH]
+    assert "unhealthy" in statuses
+    unhealthy = next(p for t, p in messages if t == TOPIC_HEALTH and p["status"] == "unhealthy")
+    assert not unhealthy["camera"]["healthy"] and unhealthy["camera"]["message"]
+    assert statuses[-1] == "stopped"
+
+
+class _Endless(StereoSource):
+    name, realtime = "endless", True
+
+    def __init__(self, dataset):
+        self.dataset = dataset
+
+    def open(self):
+        pass
+
+    def read(self, timeout_s):
+        source = ReplaySource(self.dataset, rate="fast")
+        frame = source.read(timeout_s)
+        time.sleep(0.01)
+        return frame
+
+    def close(self):
+        pass
+
+
+def test_stop_ends_an_endless_loop_cleanly(sweep):
+    loop = LiveLoop(_Endless(sweep), LiveSettings(jig=sweep.jig, part_diameter_mm=50.0))
+    timer = threading.Timer(1.0, loop.stop)
+    timer.start()
+    summary = loop.run()
+    timer.cancel()
+    assert summary.interrupted and not summary.exhausted
+    assert summary.captured >= 1
+
+
+def test_max_frames_limits_the_captured_pairs(sweep):
+    summary = LiveLoop(
+        ReplaySource(sweep, rate="fast"), LiveSettings(jig=sweep.jig, part_diameter_mm=50.0, max_frames=2)
+    ).run()
+    assert (summary.captured, summary.processed) == (2, 2)
+
+
+def test_health_status_words():
+    base = dict(
+        source="s",
+        camera_healthy=True,
+        camera_message=None,
+        last_frame_age_s=0.0,
+        camera_errors=0,
+        reopens=0,
+        captured=1,
+        processed=1,
+        dropped=0,
+        estimated=1,
+        failed=0,
+        recorded=0,
+        not_recorded=0,
+        last_ok=True,
+        latency_last_s=0.1,
+        latency_median_s=0.1,
+        latency_p95_s=0.1,
+        rate_hz=10.0,
+    )
+    assert health_status(HealthSnapshot(**base)) == "ok"
+    assert health_status(HealthSnapshot(**{**base, "last_ok": False})) == "no_estimate"
+    assert health_status(HealthSnapshot(**{**base, "last_ok": None})) == "starting"
+    assert health_status(HealthSnapshot(**{**base, "camera_healthy": False})) == "unhealthy"
+    assert health_status(HealthSnapshot(**base, stopped=True)) == "stopped"
+
+
+# --------------------------------------------------------------------------------------------- CLI
+
+
+def test_cli_live_replay_publishes(sweep):
+    port = _free_port()
+    endpoint = f"tcp://127.0.0.1:{port}"
+    result = runner.invoke(
+        app,
+        [
+            "live",
+            "--replay",
+            str(sweep.root),
+            "--publish",
+            endpoint,
+            "--rate",
+            "fast",
+            "--max-frames",
+            "3",
+            "--part-diameter",
+            "50",
+            "--jsonl",
+            "--method",
+            "paper",
+        ],
+    )
+    assert result.exit_code == 0, result.output
+    assert "3 pairs captured" in result.output
+    assert result.stdout.count('"schema":"softjig.estimate"') == 3
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--source", "opencv:0,1"], "either --replay"),
+        (["--publish", "tcp://0.0.0.0:5555"], "--allow-remote"),
+        (["--max-frames", "0"], "max-frames"),
+    ],
+)
+def test_cli_live_bad_usage_exits_2(sweep, args, message):
+    result = runner.invoke(app, ["live", "--replay", str(sweep.root), *args])
+    assert result.exit_code == 2
+    assert message in result.output
+
+
+@pytest.mark.parametrize(
+    ("args", "code"),
+    [
+        (["--method", "paper"], 2),  # the reference frame names no part: the paper's crop is unknown
+        (["--method", "paper", "--part-diameter", "1"], 3),  # valid, but too few markers in a 1 mm crop
+    ],
+)
+def test_cli_live_without_any_estimate_exits_with_the_frames_code(sweep, args, code):
+    result = runner.invoke(
+        app, ["live", "--replay", str(sweep.root), "--rate", "fast", "--max-frames", "1", *args]
+    )
+    assert result.exit_code == code, result.output
+    assert "no frame gave an estimate" in result.output
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_ctrl_c_stops_the_live_command_cleanly(sweep, sig):
+    port = _free_port()
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            "from softjig.cli import main; main()",
+            "live",
+            "--replay",
+            str(sweep.root),
+            "--fps",
+            "0.5",
+            "--part-diameter",
+            "50",
+            "--publish",
+            f"tcp://127.0.0.1:{port}",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "COLUMNS": "200"},
+    )
+    try:
+        with Subscriber(f"tcp://127.0.0.1:{port}") as sub:
+            first = sub.receive(timeout_s=30.0)  # the loop is running: a health or estimate message
+            assert first is not None
+        proc.send_signal(sig)
+        _out, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0, err
+    assert "stopped:" in err and "Traceback" not in err

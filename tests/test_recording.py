@@ -1,0 +1,110 @@
+"""Recording while sensing: the dataset format as it goes, lossless, and readable after a SIGKILL."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+import warnings
+
+import numpy as np
+import pytest
+
+from softjig.config import default_jig
+from softjig.errors import InputError
+from softjig.io.cameras import ReplaySource
+from softjig.io.dataset import Dataset, DatasetTruncationWarning
+from softjig.live.loop import LiveLoop, LiveSettings, Recorder
+from softjig.sim.scenarios import paper_sweep, simulate_dataset
+
+
+@pytest.fixture(scope="module")
+def sweep(tmp_path_factory):
+    out = tmp_path_factory.mktemp("rec") / "sweep"
+    specs = list(paper_sweep(diameters_mm=(50,), alphas_deg=(10,), theta_step_deg=90))
+    simulate_dataset(out, specs, default_jig(), seed=5, workers=1, progress=False)
+    return Dataset.open(out)
+
+
+def test_recording_a_replay_is_a_lossless_dataset(sweep, tmp_path):
+    recorder = Recorder(tmp_path / "rec", sweep.jig)
+    summary = LiveLoop(ReplaySource(sweep, rate="fast"), LiveSettings(jig=sweep.jig), recorder=recorder).run()
+    assert (summary.recorded, summary.not_recorded) == (5, 0)
+    rec = Dataset.open(tmp_path / "rec")
+    assert len(rec) == 5 and rec.jig == sweep.jig
+    for original, copy in zip(sweep, rec, strict=True):
+        np.testing.assert_array_equal(copy.load_left(), original.load_left())
+        np.testing.assert_array_equal(copy.load_right(), original.load_right())
+        assert copy.meta["source_index"] == original.index
+        assert copy.part == original.part and copy.alpha_deg == original.alpha_deg
+        assert copy.reference == original.reference
+    assert [f.time_s for f in rec] == pytest.approx([k / 30 for k in range(5)], abs=1e-5)
+    assert rec[1].truth is not None and rec[1].truth.markers is None  # the truth's .npz is not copied
+    np.testing.assert_allclose(rec[1].truth.normal, sweep[1].truth.normal)
+    assert rec[0].meta["skew_ms"] == 0.0
+
+
+def test_a_recording_is_replayed_at_its_recorded_times(sweep, tmp_path):
+    LiveLoop(
+        ReplaySource(sweep, rate="fast"),
+        LiveSettings(jig=sweep.jig),
+        recorder=Recorder(tmp_path / "rec", sweep.jig),
+    ).run()
+    with ReplaySource(tmp_path / "rec", rate="fast") as replay:
+        times = [replay.read(1.0).time_s for _ in range(5)]
+    assert times == pytest.approx([k / 30 for k in range(5)], abs=1e-5)
+
+
+def test_recorder_refuses_a_folder_in_use(sweep, tmp_path):
+    (tmp_path / "busy").mkdir()
+    (tmp_path / "busy" / "notes.txt").write_text("mine")
+    with pytest.raises(InputError, match="not empty"):
+        Recorder(tmp_path / "busy", sweep.jig)
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
+def test_a_recorder_killed_mid_recording_leaves_every_completed_frame_readable(sweep, tmp_path):
+    out = tmp_path / "killed"
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            "from softjig.cli import main; main()",
+            "live",
+            "--replay",
+            str(sweep.root),
+            "--fps",
+            "3",
+            "--part-diameter",
+            "50",
+            "--record",
+            str(out),
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+    )
+    frames = out / "frames.jsonl"
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and proc.poll() is None:
+            if frames.exists() and frames.read_bytes().count(b"\n") >= 2:
+                break
+            time.sleep(0.01)
+        assert proc.poll() is None, "the recorder ended before it could be killed"
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == -signal.SIGKILL
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DatasetTruncationWarning)
+        rec = Dataset.open(out)
+    assert 2 <= len(rec) <= 5
+    for frame in rec:  # every frame frames.jsonl names is complete
+        original = sweep[frame.meta["source_index"]]
+        np.testing.assert_array_equal(frame.load_left(), original.load_left())
+        np.testing.assert_array_equal(frame.load_right(), original.load_right())

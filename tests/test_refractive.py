@@ -1,0 +1,108 @@
+"""Refractive triangulation, marker identities and the contact footprint, against analytic truth."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from softjig.config import exact_jig
+from softjig.geometry import fit_plane_svd, normal_from_tilt
+from softjig.jig_shape import marker_layout_xy, rest_inner_height_mm
+from softjig.optics import project_points
+from softjig.rig import flat_layers
+from softjig.sensing.contact import contact_candidates, describe_contact, indentation
+from softjig.sensing.identities import ReferenceMarkers, identify_markers, rest_shape_reference
+from softjig.sensing.jigframe import jig_frame_from_config
+from softjig.sensing.refractive import closest_points_of_rays, triangulate_refracted
+
+JIG = exact_jig()
+FRAME = jig_frame_from_config(JIG)
+
+
+def _project(points):
+    layers = flat_layers(JIG)
+    cams = JIG.cameras
+    return (project_points(points, cams.left.K, None, cams.left.T_J_cam, layers),
+            project_points(points, cams.right.K, None, cams.right.T_J_cam, layers))
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.floats(-50, 50), st.floats(-30, 30), st.floats(0.5, 35))
+def test_refracted_triangulation_inverts_the_exact_projection(x, y, z):
+    point = np.array([[x, y, z]])
+    left, right = _project(point)
+    result = triangulate_refracted(left, right, JIG, FRAME)
+    assert np.allclose(result.points_J, point, atol=1e-8)
+    assert result.ray_gap_mm[0] < 1e-8
+
+
+def test_refraction_matters():
+    """The pinhole model (the paper's) puts a point at 30 mm in oil near 18 mm; ours at 30 mm."""
+    from softjig.sensing.stereo import triangulate_rectified
+
+    left, right = _project(np.array([[0.0, 0.0, 30.0]]))
+    cam = JIG.cameras.left
+    pinhole = triangulate_rectified(left, right, fx_px=cam.fx_px, fy_px=cam.fy_px, cx_px=cam.cx_px,
+                                    cy_px=cam.cy_px, baseline_mm=30.0)[0, 2] + cam.position_mm[2]
+    assert pinhole == pytest.approx(-5 + 5 / 1.575 + 30 / 1.51, abs=0.1)
+    assert triangulate_refracted(left, right, JIG, FRAME).points_J[0, 2] == pytest.approx(30.0, abs=1e-9)
+
+
+def test_closest_points_of_skew_rays():
+    mid, gap = closest_points_of_rays(np.array([[0.0, 0, 0]]), np.array([[1.0, 0, 0]]),
+                                      np.array([[0.0, 1, 2]]), np.array([[0.0, 1, 0]]))
+    assert np.allclose(mid, [[0, 0, 1]]) and gap[0] == pytest.approx(2.0)
+    mid, _ = closest_points_of_rays(np.zeros((1, 3)), np.array([[1.0, 0, 0]]), np.ones((1, 3)),
+                                    np.array([[1.0, 0, 0]]))
+    assert np.isnan(mid).all()  # parallel rays: no unique point
+
+
+def test_identities_follow_markers_that_moved():
+    reference = rest_shape_reference(JIG)
+    rng = np.random.default_rng(0)
+    order = rng.permutation(len(reference))[:200]
+    moved = reference.xyz_mm[order] + np.column_stack([rng.normal(0, 0.3, (200, 2)), -rng.uniform(0, 5, 200)])
+    found = identify_markers(moved, reference, max_lateral_mm=4.0)
+    assert np.array_equal(found.ids, order)
+    assert np.allclose(found.displacement_mm, moved - reference.xyz_mm[order])
+    stray = identify_markers(np.array([[500.0, 0, 0]]), reference, max_lateral_mm=4.0)
+    assert stray.ids[0] == -1 and np.isnan(stray.displacement_mm).all()
+    one = ReferenceMarkers(np.array([[0.0, 0, 30]]), "rest shape")
+    twins = identify_markers(np.array([[0.1, 0, 30], [0.5, 0, 30]]), one, max_lateral_mm=4.0)
+    assert list(twins.ids) == [0, -1]  # one to one: the nearer keeps it
+
+
+def _pressed_disc(diameter, alpha_deg, push=3.0):
+    """Markers of the rest dome, those under a tilted disc pushed onto its plane (contact by geometry)."""
+    xy = marker_layout_xy(JIG)
+    rest = rest_inner_height_mm(JIG, xy[:, 0], xy[:, 1])
+    n = normal_from_tilt(np.radians(alpha_deg), 0.0)
+    plane = 30.0 - push - (n[0] * xy[:, 0] + n[1] * xy[:, 1]) / n[2]
+    under = np.hypot(*xy.T) < diameter / 2
+    contact = under & (plane < rest)
+    z = np.where(contact, plane, rest)
+    return np.column_stack([xy, z]), rest, contact
+
+
+def test_contact_found_from_indentation_and_its_footprint():
+    points, rest, contact = _pressed_disc(50, 0.0)
+    rng = np.random.default_rng(1)
+    points[:, 2] += rng.normal(0, 0.05, len(points)) - 0.8  # noise and a uniform depth bias of the cameras
+    dent = indentation(points, rest)
+    assert dent.zero_mm == pytest.approx(0.8, abs=0.02) and dent.noise_mm == pytest.approx(0.05, rel=0.3)
+    candidates = contact_candidates(dent)
+    assert np.array_equal(candidates, contact)
+    plane = fit_plane_svd(points[candidates])
+    region = describe_contact(points[candidates, :2], plane, JIG, noise_mm=dent.noise_mm, part_diameter_mm=50)
+    assert region.area_mm2 == pytest.approx(np.pi * 25**2, rel=0.15)
+    assert np.hypot(*region.centroid_xy_mm) < 0.5
+    assert not region.partial and region.edge_clearance_mm > 2.0
+
+
+def test_partial_contact_is_flagged_with_its_side():
+    points, _, contact = _pressed_disc(80, 15.0)  # tilted towards +x: it lifts off on the -x side
+    plane = fit_plane_svd(points[contact])
+    region = describe_contact(points[contact, :2], plane, JIG, noise_mm=0.05, part_diameter_mm=80)
+    assert region.partial
+    assert abs((region.lift_azimuth_deg - 180.0 + 180.0) % 360.0 - 180.0) < 45.0
+    assert region.centroid_xy_mm[0] > 5.0  # the contact lies on the lowered side
