@@ -103,10 +103,17 @@ def test_wrong_image_size_is_an_input_error(raw_pair):
         rectify_pair(raw_pair.left[:100], raw_pair.right, RAW)
 
 
-def test_default_method_on_a_rectified_raw_pair_finds_the_true_normal(raw_pair):
+def test_estimate_pair_accepts_the_raw_pair_itself(raw_pair):
+    """A raw pair with an unrectified config goes through estimate_pair as is (rectified inside)."""
+    left, right, jig = rectify_pair(raw_pair.left, raw_pair.right, RAW)
+    via_rectified = estimate_pair(left, right, jig, part_diameter_mm=50, method="paper").estimate
+    direct = estimate_pair(raw_pair.left, raw_pair.right, RAW, part_diameter_mm=50, method="paper").estimate
+    assert direct == via_rectified
+
+
+def test_refractive_method_on_a_raw_pair_finds_the_true_normal(raw_pair):
     from softjig.geometry import angle_between, normal_from_tilt
 
-    left, right, jig = rectify_pair(raw_pair.left, raw_pair.right, RAW)
-    got = estimate_pair(left, right, jig, part_diameter_mm=50).estimate
+    got = estimate_pair(raw_pair.left, raw_pair.right, RAW, part_diameter_mm=50, method="refractive").estimate
     truth = normal_from_tilt(POSE.alpha_rad, POSE.theta_rad)
     assert np.degrees(angle_between(np.array(got.normal), truth)) < 1.0

@@ -183,8 +183,10 @@ def estimate(
         from softjig.io.dataset import encode_png
         from softjig.io.files import write_bytes_atomic
         from softjig.sensing.overlay import draw_overlay
+        from softjig.sensing.rectify import rectify_pair
 
-        write_bytes_atomic(overlay, encode_png(draw_overlay(left, right, result, jig)))
+        left, right, used_jig = rectify_pair(left, right, jig)  # the markers' pixels are rectified ones
+        write_bytes_atomic(overlay, encode_png(draw_overlay(left, right, result, used_jig)))
     if displacements is not None:
         from softjig.sensing.export import write_displacements
 

@@ -66,6 +66,7 @@ from softjig.sensing.identities import (
     rest_shape_reference,
 )
 from softjig.sensing.jigframe import JigFrame, inside_fiducials, resolve_jig_frame
+from softjig.sensing.rectify import rectify_pair
 from softjig.sensing.refractive import triangulate_refracted
 from softjig.sensing.robust import fit_plane_robust
 from softjig.sensing.stereo import StereoMatches, match_rectified, triangulate_rectified
@@ -389,7 +390,9 @@ def estimate_pair(
 
     Parameters
     ----------
-    left, right : (H, W) or (H, W, 3) uint8 or uint16 images of the nominal jig's cameras (RGB).
+    left, right : (H, W) or (H, W, 3) uint8 or uint16 images of the nominal jig's cameras (RGB); a raw
+        (unrectified) pair when ``jig.cameras.rectified`` is false, rectified first
+        (:func:`softjig.sensing.rectify.rectify_pair`).
     jig : the nominal jig (the estimator never knows the as-built one).
     part_diameter_mm : diameter of the part's base (mm). The paper's method needs it (markers within half
         of it from the jig axis are fitted); ours does not, and uses it only to judge partial contact.
@@ -403,12 +406,12 @@ def estimate_pair(
     Returns
     -------
     SensingResult
-        The estimate and what led to it.
+        The estimate and what led to it; pixel coordinates are in the rectified images.
 
     Raises
     ------
     InputError
-        Bad images (size, dtype, blank or saturated), an unrectified config, a bad diameter or method.
+        Bad images (size, dtype, blank or saturated), a bad diameter or method.
     EstimationError
         No contact or too few markers in it (fewer than ``sensing.min_points``), points that do not
         define a plane, or fiducials required but not found.
@@ -420,6 +423,8 @@ def estimate_pair(
     if method == "paper" and part_diameter_mm is None:
         raise InputError("the paper's method needs the part's base diameter (--part-diameter MM)")
     clock = _StageClock(timings)
+    if not jig.cameras.rectified:  # a raw pair: rectify it with the stereo calibration in the config
+        left, right, jig = rectify_pair(left, right, jig)
     observation = observe_pair(left, right, jig, clock)
     if method == "paper":
         result = _paper_estimate(observation, jig, part_diameter_mm, calibration, clock)
