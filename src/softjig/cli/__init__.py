@@ -1,6 +1,7 @@
 """The ``softjig`` command line: one module per command, all registered on :data:`app`."""
 
 from softjig.cli import (  # noqa: F401 - importing a command's module registers it on the app
+    align,
     calibrate,
     calibrate_stereo,
     config_cmd,

@@ -15,10 +15,12 @@ own module imported by :mod:`softjig.cli`, follow the same pattern::
 from __future__ import annotations
 
 import functools
+import json
 from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated, Any, NoReturn, TypeVar
 
+import numpy as np
 import typer
 from rich.console import Console
 from rich.text import Text
@@ -120,3 +122,35 @@ def _main(
     ] = False,
 ) -> None:
     """Sensing soft jig: simulate, estimate a part's principal normal, calibrate."""
+
+
+def read_json_file(path: Path, what: str) -> dict:
+    """A JSON object from a file named by an option (``what``); InputError if missing or malformed."""
+    try:
+        data = json.loads(Path(path).read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise InputError(f"{what} file {path} does not exist") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(f"cannot read {what} file {path}: {exc}") from None
+    if not isinstance(data, dict):
+        raise InputError(f"{what} file {path} must hold a JSON object")
+    return data
+
+
+def pose_from_json(data: dict, key: str, path: Path) -> np.ndarray:
+    """A 4x4 pose from ``{key: 4x4}`` or ``{"position_mm": [..], "quaternion_xyzw": [..]}``."""
+    from scipy.spatial.transform import Rotation
+
+    if key in data:
+        T = np.asarray(data[key], dtype=float)
+        if T.shape != (4, 4) or not np.allclose(T[3], [0, 0, 0, 1]):
+            raise InputError(f"{path}: {key} must be a 4x4 homogeneous matrix (mm)")
+        return T
+    if "position_mm" in data and "quaternion_xyzw" in data:
+        T = np.eye(4)
+        T[:3, :3] = Rotation.from_quat(np.asarray(data["quaternion_xyzw"], float)).as_matrix()
+        T[:3, 3] = np.asarray(data["position_mm"], float)
+        return T
+    raise InputError(
+        f"{path}: give {key} (a 4x4 matrix) or position_mm and quaternion_xyzw (x, y, z, w)"
+    )
