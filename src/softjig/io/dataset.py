@@ -539,6 +539,9 @@ class DatasetWriter:
         with it, a non-empty folder that is not a dataset (no ``rig.toml`` nor ``frames.jsonl``) is
         refused, so a mistyped path never deletes unrelated files.
     png_compression : zlib level of the PNGs (0-9; all lossless).
+    durable : fsync every file and line (a recording survives a power cut); ``False`` keeps the writes
+        atomic (a killed writer leaves only complete frames) without the disk waits, for data that can be
+        regenerated (simulations).
 
     Examples
     --------
@@ -554,11 +557,13 @@ class DatasetWriter:
         as_built: AsBuiltJig | None = None,
         overwrite: bool = False,
         png_compression: int = PNG_COMPRESSION,
+        durable: bool = True,
     ) -> None:
         self.root = Path(path)
         self.jig = jig
         self.as_built = as_built
         self.overwrite = overwrite
+        self.durable = durable
         self.png_compression = int(png_compression)
         self._next_index = 0
         self._frames_fh: io.BufferedWriter | None = None
@@ -661,13 +666,14 @@ class DatasetWriter:
         # Files first, the line last: a frame is in frames.jsonl only once its files are complete.
         for side, image in (("left", left), ("right", right)):
             data = image if isinstance(image, bytes) else encode_png(image, compression=self.png_compression)
-            write_bytes_atomic(self.root / side / f"{name}.png", data)
+            write_bytes_atomic(self.root / side / f"{name}.png", data, durable=self.durable)
         if arrays is not None:
             buf = io.BytesIO()
             np.savez(buf, **arrays)
-            write_bytes_atomic(self.root / "truth" / f"{name}.npz", buf.getvalue())
+            write_bytes_atomic(self.root / "truth" / f"{name}.npz", buf.getvalue(), durable=self.durable)
         self._frames_fh.write(line.encode("utf-8") + b"\n")
         self._frames_fh.flush()
-        os.fsync(self._frames_fh.fileno())
+        if self.durable:
+            os.fsync(self._frames_fh.fileno())
         self._next_index += 1
         return index

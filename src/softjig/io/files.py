@@ -9,10 +9,12 @@ from pathlib import Path
 from softjig.errors import InputError
 
 
-def write_bytes_atomic(path: str | os.PathLike[str], data: bytes) -> None:
+def write_bytes_atomic(path: str | os.PathLike[str], data: bytes, *, durable: bool = True) -> None:
     """Write ``data`` to ``path`` atomically: a temporary file in the same folder, fsync, then rename.
 
     A crash or a kill at any moment leaves either the old file or the new one, never a partial file.
+    ``durable`` (the default) also survives a power cut: the file and its folder entry are fsynced
+    (a few ms each); data that can be regenerated (a simulation) may skip that.
 
     Raises
     ------
@@ -30,8 +32,9 @@ def write_bytes_atomic(path: str | os.PathLike[str], data: bytes) -> None:
     try:
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
+            if durable:
+                fh.flush()
+                os.fsync(fh.fileno())
         os.replace(tmp, path)
     except OSError as exc:
         Path(tmp).unlink(missing_ok=True)
@@ -39,7 +42,8 @@ def write_bytes_atomic(path: str | os.PathLike[str], data: bytes) -> None:
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
-    _fsync_folder(path.parent)
+    if durable:
+        _fsync_folder(path.parent)
 
 
 def _fsync_folder(folder: Path) -> None:
