@@ -42,6 +42,7 @@ import numpy as np
 from softjig.calibration.tilt import (
     TiltCalibration,
     fit_tilt_calibration,
+    read_calibration_json,
     tilt_calibration_from_dict,
     tilt_calibration_to_dict,
 )
@@ -412,14 +413,9 @@ def load_sweep_calibration(path: str | os.PathLike[str]) -> SweepCalibration:
         A missing, unreadable or invalid file, naming the problem.
     """
     path = Path(path)
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise InputError(
-            f"calibration file {path} does not exist (make one with `softjig calibrate`)"
-        ) from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(f"cannot read calibration file {path}: {exc}") from None
+    data = read_calibration_json(path)
+    if not isinstance(data, dict):
+        raise InputError(f"{path}: expected a JSON object with offset_x_deg, offset_y_deg and scale")
     pooled = tilt_calibration_from_dict(data, where=str(path))
     entries = data.get("per_diameter") or []
     if not isinstance(entries, list):

@@ -116,8 +116,8 @@ def tilt_calibration_from_dict(data: dict, *, where: str = "calibration") -> Til
     return TiltCalibration(np.radians(values[0]), np.radians(values[1]), values[2])
 
 
-def load_tilt_calibration(path: str | os.PathLike[str]) -> TiltCalibration:
-    """Read a calibration JSON file; :class:`InputError` if missing, unreadable or invalid."""
+def read_calibration_json(path: str | os.PathLike[str]) -> dict:
+    """The JSON object of a calibration file; :class:`InputError` if missing or unreadable."""
     path = Path(path)
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
@@ -127,7 +127,12 @@ def load_tilt_calibration(path: str | os.PathLike[str]) -> TiltCalibration:
         ) from None
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise InputError(f"cannot read calibration file {path}: {exc}") from None
-    return tilt_calibration_from_dict(data, where=str(path))
+    return data
+
+
+def load_tilt_calibration(path: str | os.PathLike[str]) -> TiltCalibration:
+    """Read a calibration JSON file; :class:`InputError` if missing, unreadable or invalid."""
+    return tilt_calibration_from_dict(read_calibration_json(path), where=str(path))
 
 
 def save_tilt_calibration(
