@@ -4,6 +4,7 @@ from softjig.cli import (  # noqa: F401 - importing a command's module registers
     align,
     calibrate,
     calibrate_stereo,
+    compare,
     config_cmd,
     demo,
     estimate,
