@@ -10,6 +10,7 @@ import typer
 
 from softjig.cli.app import EXIT_BAD_INPUT, EXIT_NO_ESTIMATE, app, error, handle_errors, load_config, warn
 from softjig.errors import InputError
+from softjig.sensing.pipeline import DEFAULT_METHOD
 
 
 @app.command()
@@ -61,7 +62,7 @@ def live(
     method: Annotated[
         str | None,
         typer.Option(
-            help="Estimation method: refractive (ours) or paper (as published).",
+            help="Estimation method: paper (as published) or refractive (ours).",
             show_default="the estimator's default",
         ),
     ] = None,
@@ -114,9 +115,10 @@ def live(
         if config is None:
             warn("no --config: using the default (the paper's) jig; pass the rig.toml of your cameras")
         jig = load_config(config)
-        if part_diameter is None and method == "paper":
+        if part_diameter is None and (method or DEFAULT_METHOD) == "paper":
             raise InputError(
-                "--method paper on live cameras needs --part-diameter MM (the part's base diameter)"
+                "the paper's method (the default --method) on live cameras needs --part-diameter MM (the "
+                "part's base diameter), or use --method refractive"
             )
         cam = jig.cameras.left
         cameras = open_source(source, width_px=cam.width_px, height_px=cam.height_px, fps=fps)
