@@ -532,6 +532,43 @@ def _reference_height_at_axis(reference: ReferenceMarkers, pitch_mm: float) -> f
     return float(np.linalg.lstsq(design, z, rcond=None)[0][0])
 
 
+def _contact_under_known_face(
+    points_J: np.ndarray, dent: Indentation, radius_mm: float, fit, minimum: int
+) -> tuple[np.ndarray, PlaneFit]:
+    """The contact when the part's base radius is known and the part is centred (the paper's setting).
+
+    The face is a tilted disc, so its footprint on the membrane is an ellipse, not the paper's circle: the
+    markers within ``radius_mm`` of the jig axis are fitted robustly once (their plane gives the tilt),
+    then only the markers under the face (within ``radius_mm`` of the axis *measured in the face's
+    plane*) that are pushed in at all are fitted robustly again. The membrane's wall beside the lowered
+    edge lies outside the ellipse; where the part lifts off, the one-sided robust fit rejects the markers
+    below the face.
+    """
+    pushed = np.nan_to_num(dent.depth_mm, nan=-np.inf) > dent.noise_mm
+    selection = pushed & (np.hypot(points_J[:, 0], points_J[:, 1]) < radius_mm)
+    if selection.sum() < minimum:
+        raise EstimationError(
+            f"only {int(selection.sum())} pushed-in markers lie within {radius_mm:g} mm of the jig axis; at "
+            f"least {minimum} are needed (sensing.min_points): is the part centred, its size right?"
+        )
+    plane = None
+    for _ in range(3):
+        inliers, plane = fit(points_J[selection])
+        used = np.zeros(len(points_J), dtype=bool)
+        used[np.flatnonzero(selection)[inliers]] = True
+        # Under the face: the marker's vertical projection onto the face's plane lies within the radius
+        # of the face's centre (the plane's point above the jig axis).
+        centre = np.array([0.0, 0.0, plane.z_at(0.0, 0.0)])
+        on_plane = points_J.copy()
+        on_plane[:, 2] = [plane.z_at(x, y) for x, y in points_J[:, :2]]
+        under = np.linalg.norm(on_plane - centre, axis=1) < radius_mm
+        new_selection = pushed & under
+        if np.array_equal(new_selection, selection) or new_selection.sum() < minimum:
+            break
+        selection = new_selection
+    return used, plane
+
+
 def _refractive_estimate(
     observation: Observation,
     jig: JigConfig,
@@ -563,8 +600,9 @@ def _refractive_estimate(
             f"({dent.noise_mm:.2f} mm); at least {minimum} are needed (sensing.min_points). Is a part "
             "pressed onto the jig?"
         )
-    # Contact: grown from the deepest pushed-in markers over the neighbours on their plane, each plane
-    # fitted robustly; the inlier distance is set by the markers' own depth noise.
+    # Contact: under the known face (when the part's size is given), or grown from the deepest pushed-in
+    # markers over the neighbours on their plane; planes are fitted robustly, with an inlier distance set
+    # by the markers' own depth noise.
     threshold = CONTACT_INLIER_SIGMAS * max(dent.noise_mm, UNCERTAINTY_FLOOR_MM)
 
     def fit(points: np.ndarray) -> tuple[np.ndarray, PlaneFit]:
@@ -574,15 +612,18 @@ def _refractive_estimate(
             raise EstimationError(f"no plane could be fitted to the pushed-in markers: {exc}") from None
         return robust.inliers, robust.plane
 
-    used, plane = grow_contact(
-        points_J,
-        dent,
-        candidates,
-        pitch_mm=jig.markers.pitch_mm,
-        fit_plane=fit,
-        threshold_mm=threshold,
-        min_points=minimum,
-    )
+    if part_diameter_mm is not None:
+        used, plane = _contact_under_known_face(points_J, dent, part_diameter_mm / 2.0, fit, minimum)
+    else:
+        used, plane = grow_contact(
+            points_J,
+            dent,
+            candidates,
+            pitch_mm=jig.markers.pitch_mm,
+            fit_plane=fit,
+            threshold_mm=threshold,
+            min_points=minimum,
+        )
     if used.sum() < minimum:
         raise EstimationError(
             f"only {int(used.sum())} markers are in contact; at least {minimum} are needed "
