@@ -99,7 +99,7 @@ def test_workers_give_identical_results(sweep, tmp_path):
     ("extra", "code", "message"),
     [
         (["--part-diameter", "8"], 3, "sensing.min_points"),
-        ([], 2, "--part-diameter"),
+        (["--method", "paper"], 2, "--part-diameter"),
         (["--part-diameter", "50", "--method", "magic"], 2, "magic"),
         (["--part-diameter", "50", "--calibration", "/nonexistent.json"], 2, "does not exist"),
         (["--part-diameter", "50", "--workers", "2"], 2, "DATASET"),

@@ -1,5 +1,6 @@
 """The paper's pipeline on simulated pairs: exactness, detection quality, and every bad input."""
 
+import functools
 from dataclasses import replace
 
 import numpy as np
@@ -10,10 +11,14 @@ from softjig.calibration.tilt import TiltCalibration
 from softjig.config import CylinderPart, default_jig, exact_jig
 from softjig.errors import EstimationError, InputError
 from softjig.geometry import angle_between, fit_plane_svd, tilt_angles
-from softjig.sensing.pipeline import estimate_pair, sensing_setup
+from softjig.sensing.pipeline import estimate_pair as _estimate_pair
+from softjig.sensing.pipeline import sensing_setup
 from softjig.sim.asbuilt import draw_as_built, nominal_as_built
 from softjig.sim.parts import PartPose
 from softjig.sim.render import idealised, render_pair
+
+# This file tests the paper's method (exactly as published); the refractive method has its own tests.
+estimate_pair = functools.partial(_estimate_pair, method="paper")
 
 EXACT = idealised(exact_jig(), refraction=False, blur=False, noise=False)
 EXACT_AS_BUILT = nominal_as_built(EXACT)

@@ -41,7 +41,7 @@ def test_uncalibrated_normal_beats_the_uncalibrated_paper_method(diameter, alpha
     assert error < 1.5
     assert error < np.degrees(angle_between(np.array(paper.estimate.normal), truth))
     est = ours.estimate
-    assert est.reference == "reference frame" and est.part_diameter_mm is None
+    assert est.indentation_reference == "reference frame" and est.part_diameter_mm is None
     assert 0 < est.tilt_sigma_deg < 2.0 and est.tilt_sigma_x_deg > 0 and est.tilt_sigma_y_deg > 0
     assert est.push_depth_mm == pytest.approx(3.0, abs=1.0)
     assert np.hypot(*est.contact_centroid_xy_mm) < diameter / 2  # the part is centred on the jig

@@ -16,8 +16,8 @@ from softjig.sensing.pipeline import DEFAULT_METHOD
 
 
 class Method(StrEnum):
-    paper = "paper"
     refractive = "refractive"
+    paper = "paper"
 
 
 DEFAULT_METHOD_CHOICE = Method(DEFAULT_METHOD)
@@ -54,7 +54,7 @@ def _print_estimate_table(estimate: dict) -> None:
                     f"{estimate['contact_area_mm2']:.0f} mm^2"
                     + ("  (partial)" if estimate["contact_partial"] else ""),
                 ),
-                ("indentations against", estimate["reference"]),
+                ("indentations against", estimate["indentation_reference"]),
             ]
             if estimate.get("tilt_sigma_x_deg") is not None
             else []
@@ -98,8 +98,9 @@ def estimate(
     method: Annotated[
         Method,
         typer.Option(
-            help="paper: the paper's method exactly as published; refractive: ours (refraction-aware, "
-            "automatic contact, robust plane, uncertainty, position; needs no tilt calibration)."
+            help="refractive: ours (refraction-aware, contact found from the indentation, robust plane, "
+            "uncertainty, position; needs no tilt calibration); paper: the paper's method exactly as "
+            "published."
         ),
     ] = DEFAULT_METHOD_CHOICE,
     reference_left: Annotated[
@@ -221,7 +222,7 @@ def _estimate_dataset(
         )
     write_rows(rows, out)
     failed = [row for row in rows if "error" in row]
-    loaded = [row for row in rows if not row.get("reference")]
+    loaded = [row for row in rows if row.get("reference") is not True]
     typer.echo(
         f"estimated {len(loaded) - len(failed)} of {len(loaded)} loaded frames in "
         f"{time.perf_counter() - t0:.1f} s ({method}"

@@ -62,7 +62,7 @@ def live(
     method: Annotated[
         str | None,
         typer.Option(
-            help="Estimation method: paper (as published) or refractive (ours).",
+            help="Estimation method: refractive (ours) or paper (as published).",
             show_default="the estimator's default",
         ),
     ] = None,

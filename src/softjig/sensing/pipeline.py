@@ -15,13 +15,13 @@ axis, an SVD plane. Its depths come out compressed (by about the oil's index), w
 calibration ``S`` absorbs; its push depth is measured from the rest membrane as the same triangulation
 sees it, so zero push reads zero, and stays compressed by the same factor.
 
-``method="refractive"`` fixes the paper's known weaknesses (opt-in until its contact search is robust
-for small parts at large tilts; ``DEFAULT_METHOD``):
+``method="refractive"`` (the default) fixes the paper's known weaknesses:
 
 - each marker is triangulated through the plate and the oil by Snell's law
   (:mod:`softjig.sensing.refractive`): metric depths, no robot calibration needed for the tilt;
 - the contact region is found from each marker's indentation against the unloaded jig (a reference
-  frame, or the nominal rest shape), not from a part size (:mod:`softjig.sensing.contact`);
+  frame, or the nominal rest shape), not from a part size (:mod:`softjig.sensing.contact`); when the
+  part's size is given, only under the tilted face's elliptical footprint;
 - the plane is fitted robustly, so markers where the part lifts off do not pull it
   (:mod:`softjig.sensing.robust`), and partial contact is flagged;
 - the normal comes with its covariance and 1-sigma tilt errors (:mod:`softjig.sensing.uncertainty`);
@@ -72,12 +72,11 @@ from softjig.sensing.robust import fit_plane_robust
 from softjig.sensing.stereo import StereoMatches, match_rectified, triangulate_rectified
 from softjig.sensing.uncertainty import NormalUncertainty, normal_uncertainty
 
-METHODS = ("paper", "refractive")
-# The refractive method is far more accurate than the paper's in most of the paper's grid, uncalibrated,
-# but still fails now and then where a small contact sits in a deep bowl (see issue 6's notes): until its
-# contact search is robust there, the paper's method (systematic errors, which its calibration removes)
-# stays the default.
-DEFAULT_METHOD = "paper"
+METHODS = ("refractive", "paper")
+# The best we have (DESIGN.md): on the paper's simulated sweep, uncalibrated, it beats the paper's method
+# calibrated in 18 of 24 cells (`softjig compare`; issue 6's notes). `--method paper` keeps the published
+# method exactly.
+DEFAULT_METHOD = "refractive"
 # Unmodelled, systematic errors of a triangulated marker (hemisphere seen obliquely, membrane ripple, the
 # as-built cameras): the residual scale used for the normal's uncertainty is at least this.
 UNCERTAINTY_FLOOR_MM = 0.05
@@ -109,7 +108,8 @@ class Estimate:
         centroid ``(x, y)`` in J (the part's position on the jig) and outline (``refractive`` only).
     contact_partial : whether the part lifts off on some side (``refractive`` only).
     lift_azimuth_deg : towards which azimuth it lifts off, if it does.
-    reference : what the indentations were measured against (``"reference frame"`` or ``"rest shape"``).
+    indentation_reference : what indentations were measured against (``"reference frame"`` or
+        ``"rest shape"``).
     """
 
     normal: tuple[float, float, float]
@@ -137,7 +137,7 @@ class Estimate:
     contact_outline_xy_mm: tuple[tuple[float, float], ...] | None = None
     contact_partial: bool | None = None
     lift_azimuth_deg: float | None = None
-    reference: str | None = None
+    indentation_reference: str | None = None
 
     def to_dict(self) -> dict:
         """The JSON form (``DESIGN.md``'s command-line contract): plain floats, lists and strings."""
@@ -397,7 +397,7 @@ def estimate_pair(
     part_diameter_mm : diameter of the part's base (mm). The paper's method needs it (markers within half
         of it from the jig axis are fitted); ours does not, and uses it only to judge partial contact.
     calibration : the paper's tilt calibration to apply, if any.
-    method : ``"paper"`` (the default: exactly as published) or ``"refractive"`` (ours).
+    method : ``"refractive"`` (the default: ours) or ``"paper"`` (exactly as published).
     reference : the unloaded jig's markers (:func:`reference_from_pair`), for ``"refractive"``; the
         nominal rest shape when ``None``.
     timings : if given, filled with each stage's wall time in seconds (``checks``, ``frame``,
@@ -655,7 +655,7 @@ def _refractive_estimate(
         contact_outline_xy_mm=tuple((float(x), float(y)) for x, y in contact.outline_xy_mm),
         contact_partial=contact.partial,
         lift_azimuth_deg=contact.lift_azimuth_deg,
-        reference=reference.source,
+        indentation_reference=reference.source,
         **_common_fields(observation, plane, calibration, "refractive", part_diameter_mm, n_used, warnings),
     )
     return SensingResult(
