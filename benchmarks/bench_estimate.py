@@ -26,6 +26,7 @@ STAGES = ("checks", "frame", "detect", "match", "triangulate", "fit")
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--repeats", type=int, default=30)
+    parser.add_argument("--method", choices=("refractive", "paper"), default="refractive")
     args = parser.parse_args()
     cv2.setNumThreads(1)
     jig = default_jig()
@@ -40,7 +41,9 @@ def main() -> None:
     for k in range(args.repeats):
         pair = pairs[k % len(pairs)]
         timings: dict[str, float] = {}
-        result = estimate_pair(pair.left, pair.right, jig, part_diameter_mm=50, timings=timings)
+        result = estimate_pair(
+            pair.left, pair.right, jig, part_diameter_mm=50, method=args.method, timings=timings
+        )
         for stage in STAGES:
             records[stage].append(timings[stage] * 1e3)
         records["total"].append(sum(timings.values()) * 1e3)
@@ -51,7 +54,7 @@ def main() -> None:
             ):
                 distance, _ = cKDTree(markers.xy_px).query(px[visible])
                 errors.append(distance[distance < 2.0])
-    print(f"softjig estimate, one default 1280x720 pair, {args.repeats} runs, 1 thread")
+    print(f"softjig estimate ({args.method}), one default 1280x720 pair, {args.repeats} runs, 1 thread")
     print(f"machine: {platform.processor() or platform.machine()}, Python {platform.python_version()}, "
           f"NumPy {np.__version__}, OpenCV {cv2.__version__}")
     print(f"{'stage':<12} {'median ms':>10} {'IQR ms':>16}")

@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated
 
+import numpy as np
 import typer
 from rich.console import Console
 from rich.table import Table
@@ -49,6 +50,11 @@ def compare(
             "calibrated",
             [result.paper_calibrated, result.ours_uncalibrated, result.ours_calibrated],
         )
+    )
+    cal = result.ours_calibration
+    console.print(
+        f"ours' own tilt calibration (even frames): Ox {np.degrees(cal.offset_x_rad):+.3f} deg, "
+        f"Oy {np.degrees(cal.offset_y_rad):+.3f} deg, S {cal.scale:.4f} (a calibrated sensor: 0, 0, 1)"
     )
     console.print(
         f"ours: 1-sigma coverage {100 * result.coverage_x:.0f} % (Ax), {100 * result.coverage_y:.0f} % (Ay), "

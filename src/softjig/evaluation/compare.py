@@ -31,7 +31,9 @@ class MethodComparison:
     ----------
     paper_calibrated : the paper's method, calibrated on the even-theta frames.
     ours_uncalibrated, ours_calibrated : the refractive method, without and with the same calibration.
-    coverage_x, coverage_y : share of held-out frames whose |Ax| / |Ay| error is within ours' 1-sigma.
+    ours_calibration : the paper's ``(Ox, Oy, S)`` fitted to ours on the even-theta frames: a sensor that
+        needs no calibration has ``S = 1`` and ``O = 0``.
+    coverage_x, coverage_y : share of loaded frames whose |Ax| / |Ay| error is within ours' 1-sigma.
     position_rms_mm : RMS distance between ours' contact centroid and the part's true centre (mm).
     n_frames : held-out frames; ``n_failed_paper``, ``n_failed_ours``: sweep frames without an estimate.
     """
@@ -39,6 +41,7 @@ class MethodComparison:
     paper_calibrated: RmseGrid
     ours_uncalibrated: RmseGrid
     ours_calibrated: RmseGrid
+    ours_calibration: TiltCalibration
     coverage_x: float
     coverage_y: float
     position_rms_mm: float
@@ -76,6 +79,7 @@ def compare_methods(
         paper_calibrated=paper_grid.calibrated,
         ours_uncalibrated=ours_raw.uncalibrated,
         ours_calibrated=ours_grid.calibrated,
+        ours_calibration=ours_cal,
         coverage_x=coverage_x,
         coverage_y=coverage_y,
         position_rms_mm=position,
