@@ -174,3 +174,17 @@ def test_outputs_that_are_folders_exit_2(sweep, tmp_path):
 def test_dataset_rejects_pair_only_options(sweep):
     result = runner.invoke(app, ["estimate", str(sweep.root), "--json"])
     assert result.exit_code == 2 and "stereo pair" in result.output
+
+
+def test_a_calibration_applies_to_its_own_method_only(sweep, tmp_path):
+    """`softjig calibrate` records the method it calibrated; another method refuses it (exit 2)."""
+    out = tmp_path / "cal.json"
+    result = runner.invoke(app, ["calibrate", str(sweep.root), "--out", str(out), "--method", "paper",
+                                 "--workers", "1", "--no-progress"])
+    assert result.exit_code == 0, result.output
+    assert json.loads(out.read_text())["method"] == "paper"
+    refused = runner.invoke(app, ["estimate", *_pair_args(sweep), "--calibration", str(out)])
+    assert refused.exit_code == 2 and "does not apply" in refused.output
+    accepted = runner.invoke(app, ["estimate", *_pair_args(sweep), "--calibration", str(out), "--method",
+                                   "paper", "--part-diameter", "50", "--json"])
+    assert accepted.exit_code == 0 and json.loads(accepted.stdout)["calibrated"]

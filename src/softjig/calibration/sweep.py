@@ -33,7 +33,7 @@ import json
 import math
 import os
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -491,6 +491,7 @@ def calibrate_dataset(
     rows: Sequence[dict] | None = None,
     mode: str = "pooled",
     selection: str = "all",
+    method: str = "paper",
     workers: int | None = None,
     on_row: Callable[[dict], None] | None = None,
 ) -> tuple[SweepCalibration, SweepSamples, list[dict]]:
@@ -500,8 +501,9 @@ def calibrate_dataset(
     ----------
     dataset : an open :class:`softjig.io.dataset.Dataset`.
     rows : estimate rows of this dataset (e.g. :func:`load_result_rows`); if ``None`` every frame is
-        estimated with the paper's method on the dataset's nominal jig, without calibration, on
-        ``workers`` processes (default: every CPU), ``on_row`` called after each.
+        estimated with ``method`` on the dataset's nominal jig, without calibration, on ``workers``
+        processes (default: every CPU), ``on_row`` called after each.
+    method : the estimation method to calibrate (the calibration is only valid for it).
     mode, selection : see :func:`fit_sweep_calibration`.
 
     Returns
@@ -510,9 +512,19 @@ def calibrate_dataset(
         The fit, the sweep it was fitted to (every frame, before the selection) and the estimate rows.
     """
     if rows is None:
-        from softjig.sensing.batch import BatchSettings, estimate_dataset
+        from softjig.sensing.batch import BatchSettings, dataset_reference, estimate_dataset
 
-        settings = BatchSettings(jig=dataset.jig, method="paper")
+        reference = dataset_reference(dataset, dataset.jig) if method == "refractive" else None
+        settings = BatchSettings(jig=dataset.jig, method=method, reference=reference)
         rows = list(estimate_dataset(dataset, settings, workers=workers, on_row=on_row))
+    used = {row.get("method") for row in rows if "method" in row}
+    if used and used != {method}:
+        raise InputError(
+            f"the results were estimated with {', '.join(sorted(used))}, not with the method to calibrate "
+            f"({method}): pass --method {sorted(used)[0]}"
+        )
     samples = sweep_samples(dataset, rows)
-    return fit_sweep_calibration(samples, mode=mode, selection=selection), samples, list(rows)
+    fit = fit_sweep_calibration(samples, mode=mode, selection=selection)
+    pooled = replace(fit.pooled, method=method)
+    per = tuple((d, replace(cal, method=method), n) for d, cal, n in fit.per_diameter)
+    return replace(fit, pooled=pooled, per_diameter=per), samples, list(rows)

@@ -26,11 +26,16 @@ from softjig.io.files import write_text_atomic
 
 @dataclass(frozen=True)
 class TiltCalibration:
-    """Offsets (rad) and scale of the paper's tilt calibration; the identity by default."""
+    """Offsets (rad) and scale of the paper's tilt calibration; the identity by default.
+
+    ``method`` is the estimation method whose tilt angles it was fitted to (``None``: not recorded): a
+    calibration corrects one method's errors and must not be applied to another's.
+    """
 
     offset_x_rad: float = 0.0
     offset_y_rad: float = 0.0
     scale: float = 1.0
+    method: str | None = None
 
     def apply(self, ax_rad, ay_rad):
         """Corrected tilt angles ``S (A - O)`` (rad); scalars or arrays."""
@@ -89,7 +94,7 @@ CALIBRATION_VERSION = 1
 def tilt_calibration_to_dict(calibration: TiltCalibration, *, source: dict | None = None) -> dict:
     """The JSON form: ``offset_x_deg``, ``offset_y_deg``, ``scale`` (``DESIGN.md``), versioned, with
     what it was computed from (``source``: dataset, frames, ...)."""
-    return {
+    data = {
         "format": CALIBRATION_FORMAT,
         "version": CALIBRATION_VERSION,
         "offset_x_deg": float(np.degrees(calibration.offset_x_rad)),
@@ -97,6 +102,9 @@ def tilt_calibration_to_dict(calibration: TiltCalibration, *, source: dict | Non
         "scale": float(calibration.scale),
         "source": source or {},
     }
+    if calibration.method is not None:
+        data["method"] = calibration.method
+    return data
 
 
 def tilt_calibration_from_dict(data: dict, *, where: str = "calibration") -> TiltCalibration:
@@ -113,7 +121,10 @@ def tilt_calibration_from_dict(data: dict, *, where: str = "calibration") -> Til
         values.append(float(value))
     if values[2] <= 0:
         raise InputError(f"{where}: 'scale' must be positive, got {values[2]}")
-    return TiltCalibration(np.radians(values[0]), np.radians(values[1]), values[2])
+    method = data.get("method")
+    if method is not None and not isinstance(method, str):
+        raise InputError(f"{where}: 'method' must be the name of an estimation method, got {method!r}")
+    return TiltCalibration(np.radians(values[0]), np.radians(values[1]), values[2], method)
 
 
 def read_calibration_json(path: str | os.PathLike[str]) -> dict:

@@ -11,6 +11,7 @@ import typer
 
 from softjig.cli.app import app, handle_errors, stderr_console, warn
 from softjig.errors import InputError
+from softjig.sensing.pipeline import DEFAULT_METHOD, METHODS
 
 
 @app.command()
@@ -44,6 +45,10 @@ def calibrate(
     workers: Annotated[
         int | None, typer.Option(min=1, help="Estimation processes.", show_default="all CPUs")
     ] = None,
+    method: Annotated[
+        str,
+        typer.Option(help="The estimation method to calibrate (the calibration applies to it only)."),
+    ] = DEFAULT_METHOD,
     progress: Annotated[bool, typer.Option(help="Show a progress bar on stderr.")] = True,
 ) -> None:
     """Fit the paper's tilt calibration (offsets Ox, Oy and scale S) to a tilt sweep and write it as JSON."""
@@ -57,6 +62,8 @@ def calibrate(
     )
     from softjig.io.dataset import Dataset
 
+    if method not in METHODS:
+        raise InputError(f"--method must be one of {', '.join(METHODS)}, got {method!r}")
     if frames not in SELECTIONS:
         raise InputError(f"--frames must be one of {', '.join(SELECTIONS)}, got {frames!r}")
     ds = Dataset.open(dataset)
@@ -69,13 +76,14 @@ def calibrate(
             rows=rows,
             mode="per-diameter" if per_diameter else "pooled",
             selection=frames,
+            method=method,
             workers=workers,
             on_row=lambda _row: bar.advance(task),
         )
     source = {
         "dataset": str(Path(dataset).resolve()),
         "results": None if results is None else str(results.resolve()),
-        "method": "paper",
+        "method": method,
     }
     save_sweep_calibration(cal, out, source=source)
     c = cal.pooled

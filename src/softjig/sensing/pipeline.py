@@ -420,6 +420,12 @@ def estimate_pair(
         raise InputError(f"unknown method {method!r}; valid: {', '.join(METHODS)}")
     if part_diameter_mm is not None and not (np.isfinite(part_diameter_mm) and part_diameter_mm > 0):
         raise InputError(f"the part diameter must be a positive number of mm, got {part_diameter_mm}")
+    if calibration is not None and calibration.method not in (None, method):
+        raise InputError(
+            f"the tilt calibration was fitted to the {calibration.method} method's estimates and does not "
+            f"apply to the {method} method's: estimate with --method {calibration.method}, or calibrate "
+            f"again with --method {method}"
+        )
     if method == "paper" and part_diameter_mm is None:
         raise InputError("the paper's method needs the part's base diameter (--part-diameter MM)")
     clock = _StageClock(timings)
