@@ -2,6 +2,7 @@
 
 from dataclasses import replace
 
+import numpy as np
 import pytest
 
 from softjig.config import (
@@ -130,4 +131,7 @@ def test_parts():
         validate_part(CylinderPart(-5.0))
     with pytest.raises(ConfigError, match=r"part\.kind"):
         part_from_dict({"kind": "sphere"})
-    assert isinstance(CameraConfig().K, type(CameraConfig().T_J_cam))
+    cam = CameraConfig(position_mm=(1.0, 2.0, -150.0), rotation_deg=(0.0, 0.0, 90.0))
+    assert np.allclose(cam.K, [[925.0, 0.0, 639.5], [0.0, 925.0, 359.5], [0.0, 0.0, 1.0]])
+    assert np.allclose(cam.T_J_cam[:3, 3], [1.0, 2.0, -150.0])
+    assert np.allclose(cam.T_J_cam[:3, :3] @ [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])  # 90 deg about z

@@ -66,9 +66,9 @@ def test_fast_replay_estimates_every_frame_and_publishes_it(sweep):
             sinks=[PublisherSink(pub)],
         ).run()
         messages = _collect(sub)
-    assert (summary.captured, summary.processed, summary.dropped) == (5, 5, 0)
+    assert (summary.final.captured, summary.final.processed, summary.final.dropped) == (5, 5, 0)
     assert summary.exhausted and not summary.interrupted
-    assert (summary.estimated, summary.failed) == (4, 1)  # the reference frame names no part
+    assert (summary.final.estimated, summary.final.failed) == (4, 1)  # the reference frame names no part
     estimates = [p for t, p in messages if t == TOPIC_ESTIMATE]
     assert [p["seq"] for p in estimates] == [0, 1, 2, 3, 4]
     assert [p["frame"]["index"] for p in estimates] == [0, 1, 2, 3, 4]
@@ -101,9 +101,9 @@ def test_a_busy_estimator_drops_camera_rate_frames_and_counts_them(sweep):
         LiveSettings(jig=sweep.jig, part_diameter_mm=50.0),
         on_outcome=lambda o, m: outcomes.append(m),
     ).run()
-    assert summary.captured == 5
-    assert summary.dropped >= 1
-    assert summary.processed + summary.dropped == summary.captured
+    assert summary.final.captured == 5
+    assert summary.final.dropped >= 1
+    assert summary.final.processed + summary.final.dropped == summary.final.captured
     assert [m["dropped_frames"] for m in outcomes] == sorted(m["dropped_frames"] for m in outcomes)
     assert outcomes[-1]["frame"]["index"] == 4  # the newest frame is never the one dropped
 
@@ -148,9 +148,9 @@ def test_a_failing_camera_is_retried_and_reported_unhealthy(sweep):
     with sub:
         summary = LiveLoop(source, settings, sinks=[PublisherSink(pub)]).run()
         messages = _collect(sub)
-    assert summary.captured == 5 and summary.exhausted  # every frame got through in the end
-    assert summary.camera_errors == 3  # two errors and one re-open after silence
-    assert summary.reopens == 3 and source.opens == 4
+    assert summary.final.captured == 5 and summary.exhausted  # every frame got through in the end
+    assert summary.final.camera_errors == 3  # two errors and one re-open after silence
+    assert summary.final.reopens == 3 and source.opens == 4
     statuses = [p["status"] for t, p in messages if t == TOPIC_HEALTH]
     assert "unhealthy" in statuses
     unhealthy = next(p for t, p in messages if t == TOPIC_HEALTH and p["status"] == "unhealthy")
@@ -184,14 +184,14 @@ def test_stop_ends_an_endless_loop_cleanly(sweep):
     summary = loop.run()
     timer.cancel()
     assert summary.interrupted and not summary.exhausted
-    assert summary.captured >= 1
+    assert summary.final.captured >= 1
 
 
 def test_max_frames_limits_the_captured_pairs(sweep):
     summary = LiveLoop(
         ReplaySource(sweep, rate="fast"), LiveSettings(jig=sweep.jig, part_diameter_mm=50.0, max_frames=2)
     ).run()
-    assert (summary.captured, summary.processed) == (2, 2)
+    assert (summary.final.captured, summary.final.processed) == (2, 2)
 
 
 def test_health_status_words():

@@ -31,7 +31,7 @@ def sweep(tmp_path_factory):
 def test_recording_a_replay_is_a_lossless_dataset(sweep, tmp_path):
     recorder = Recorder(tmp_path / "rec", sweep.jig)
     summary = LiveLoop(ReplaySource(sweep, rate="fast"), LiveSettings(jig=sweep.jig), recorder=recorder).run()
-    assert (summary.recorded, summary.not_recorded) == (5, 0)
+    assert (summary.final.recorded, summary.final.not_recorded) == (5, 0)
     rec = Dataset.open(tmp_path / "rec")
     assert len(rec) == 5 and rec.jig == sweep.jig
     for original, copy in zip(sweep, rec, strict=True):

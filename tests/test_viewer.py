@@ -49,7 +49,7 @@ def test_the_mcap_log_holds_images_markers_points_plane_and_estimates(sweep, tmp
         sinks=[viewer],
         on_outcome=lambda o, m: messages.append(m),
     ).run()
-    assert summary.processed == 5 and summary.estimated == 4 and not summary.sink_errors
+    assert summary.final.processed == 5 and summary.final.estimated == 4 and not summary.sink_errors
     with open(path, "rb") as fh:
         records = list(mcap_reader.make_reader(fh).iter_messages())
     counts = Counter(channel.topic for _, channel, _ in records)

@@ -108,7 +108,14 @@ class PlaneFit:
 
     def z_at(self, x_mm: float, y_mm: float) -> float:
         """Height of the plane above ``(x, y)`` (mm)."""
-        return float(-(self.offset_mm + self.normal[0] * x_mm + self.normal[1] * y_mm) / self.normal[2])
+        return float(self.heights_mm(x_mm, y_mm))
+
+    def heights_mm(self, x_mm: np.ndarray, y_mm: np.ndarray) -> np.ndarray:
+        """Heights of the plane above many ``(x, y)`` at once (mm), vectorised."""
+        return (
+            -(self.offset_mm + self.normal[0] * np.asarray(x_mm) + self.normal[1] * np.asarray(y_mm))
+            / (self.normal[2])
+        )
 
 
 def fit_plane_svd(points_mm: np.ndarray, *, min_points: int = 3) -> PlaneFit:

@@ -175,21 +175,22 @@ def live(
         summary = loop.run()
     finally:
         signal.signal(signal.SIGTERM, previous)
-    median = "-" if summary.latency_median_s is None else f"{1000 * summary.latency_median_s:.0f} ms"
-    p95 = "-" if summary.latency_p95_s is None else f"{1000 * summary.latency_p95_s:.0f} ms"
+    final = summary.final
+    median = "-" if final.latency_median_s is None else f"{1000 * final.latency_median_s:.0f} ms"
+    p95 = "-" if final.latency_p95_s is None else f"{1000 * final.latency_p95_s:.0f} ms"
     typer.echo(
-        f"{'stopped' if summary.interrupted else 'done'}: {summary.captured} pairs captured, "
-        f"{summary.processed} estimated ({summary.estimated} with an estimate, {summary.failed} without), "
-        f"{summary.dropped} dropped while busy, latency median {median} / p95 {p95}, "
+        f"{'stopped' if summary.interrupted else 'done'}: {final.captured} pairs captured, "
+        f"{final.processed} estimated ({final.estimated} with an estimate, {final.failed} without), "
+        f"{final.dropped} dropped while busy, latency median {median} / p95 {p95}, "
         f"{summary.throughput_hz:.1f} frames/s"
-        + (f", {summary.recorded} recorded to {record}" if record else "")
-        + (f" ({summary.not_recorded} not recorded)" if summary.not_recorded else "")
-        + (f", {summary.camera_errors} camera errors" if summary.camera_errors else ""),
+        + (f", {final.recorded} recorded to {record}" if record else "")
+        + (f" ({final.not_recorded} not recorded)" if final.not_recorded else "")
+        + (f", {final.camera_errors} camera errors" if final.camera_errors else ""),
         err=True,
     )
     for note in summary.sink_errors:
         warn(note)
-    if summary.processed and not summary.estimated:
+    if final.processed and not final.estimated:
         message = f"no frame gave an estimate; the last: {summary.last_error}"
         if summary.interrupted:  # stopped by the user: a clean stop, not a failure of this run
             warn(message)

@@ -72,12 +72,11 @@ def compare_methods(
     ours = sweep_samples(frames, ours_rows)
     paper_grid = evaluate_sweep(paper, fit_sweep_calibration(paper, selection="even").pooled, selection="odd")
     ours_cal = fit_sweep_calibration(ours, selection="even").pooled
-    ours_grid = evaluate_sweep(ours, ours_cal, selection="odd")
-    ours_raw = evaluate_sweep(ours, TiltCalibration(), selection="odd")
+    ours_grid = evaluate_sweep(ours, ours_cal, selection="odd")  # both grids: calibrated and raw
     coverage_x, coverage_y, position = _uncertainty_and_position(frames, ours_rows)
     return MethodComparison(
         paper_calibrated=paper_grid.calibrated,
-        ours_uncalibrated=ours_raw.uncalibrated,
+        ours_uncalibrated=ours_grid.uncalibrated,
         ours_calibrated=ours_grid.calibrated,
         ours_calibration=ours_cal,
         coverage_x=coverage_x,

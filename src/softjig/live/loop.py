@@ -374,11 +374,8 @@ class LiveSummary:
 
     Attributes
     ----------
-    captured, processed, dropped, estimated, failed : pairs captured, estimated (with or without
-        success), dropped while the estimator was busy, with an estimate, without one.
-    recorded, not_recorded : pairs written by the recorder, and refused because it lagged or failed.
-    camera_errors, reopens : camera failures and re-openings of the source.
-    latency_median_s, latency_p95_s : latency of the processed frames (s; ``None`` if none).
+    final : the loop's counters at the end (frames captured, processed, dropped, estimated, failed,
+        recorded; camera errors; latencies): the last health message's content.
     duration_s : wall time of the run (s).
     interrupted : whether Ctrl-C (or :meth:`LiveLoop.stop`) ended it.
     exhausted : whether the source ended (a replay's last frame).
@@ -386,17 +383,7 @@ class LiveSummary:
     sink_errors : errors raised by sinks (each is reported once, then the loop goes on).
     """
 
-    captured: int
-    processed: int
-    dropped: int
-    estimated: int
-    failed: int
-    recorded: int
-    not_recorded: int
-    camera_errors: int
-    reopens: int
-    latency_median_s: float | None
-    latency_p95_s: float | None
+    final: HealthSnapshot
     duration_s: float
     interrupted: bool
     exhausted: bool
@@ -407,7 +394,7 @@ class LiveSummary:
     @property
     def throughput_hz(self) -> float:
         """Processed frames per second of the run."""
-        return self.processed / self.duration_s if self.duration_s > 0 else 0.0
+        return self.final.processed / self.duration_s if self.duration_s > 0 else 0.0
 
 
 def _percentile(values: Sequence[float], q: float) -> float:
@@ -688,19 +675,8 @@ class LiveLoop:
             for sink in self.sinks:
                 with contextlib.suppress(Exception):
                     sink.close()
-        snap = self.snapshot(stopped=True)
         return LiveSummary(
-            captured=snap.captured,
-            processed=snap.processed,
-            dropped=snap.dropped,
-            estimated=snap.estimated,
-            failed=snap.failed,
-            recorded=snap.recorded,
-            not_recorded=snap.not_recorded,
-            camera_errors=snap.camera_errors,
-            reopens=snap.reopens,
-            latency_median_s=snap.latency_median_s,
-            latency_p95_s=snap.latency_p95_s,
+            final=self.snapshot(stopped=True),
             duration_s=time.monotonic() - t_start,
             interrupted=interrupted,
             exhausted=self._exhausted,

@@ -243,7 +243,7 @@ def describe_contact(
     outward = hull - centroid
     norms = np.linalg.norm(outward, axis=1, keepdims=True)
     edge = hull + half_pitch * np.divide(outward, norms, out=np.zeros_like(outward), where=norms > 0)
-    plane_z = np.array([plane.z_at(x, y) for x, y in edge])
+    plane_z = plane.heights_mm(edge[:, 0], edge[:, 1])
     clearance = rest_inner_height_mm(jig, edge[:, 0], edge[:, 1]) - plane_z
     lowest = int(np.argmin(clearance))
     tolerance = max(3.0 * noise_mm, 0.3)

@@ -14,6 +14,7 @@ are used instead (``sensing.extrinsics``); the result says which source was used
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import cv2
 import numpy as np
@@ -57,18 +58,20 @@ def _projected_quads(jig: JigConfig, camera: CameraConfig, T_J_cam: np.ndarray) 
     return _project(camera, invert_pose(T_J_cam), corners).reshape(-1, 4, 2)
 
 
+@lru_cache(maxsize=16)
 def jig_frame_from_config(jig: JigConfig) -> JigFrame:
-    """The fixed extrinsics written in the config."""
+    """The fixed extrinsics written in the config (computed once per jig: every frame asks for them, if
+    only for where its fiducials should be; the arrays are read-only)."""
     left, right = jig.cameras.left, jig.cameras.right
-    return JigFrame(
+    arrays = [
         left.T_J_cam,
         right.T_J_cam,
-        "config",
-        float("nan"),
-        (),
         _projected_quads(jig, left, left.T_J_cam),
         _projected_quads(jig, right, right.T_J_cam),
-    )
+    ]
+    for array in arrays:
+        array.flags.writeable = False
+    return JigFrame(arrays[0], arrays[1], "config", float("nan"), (), arrays[2], arrays[3])
 
 
 def inside_fiducials(xy_px: np.ndarray, quads_px: np.ndarray, *, quiet_zone: float = 1.0 / 3.0) -> np.ndarray:

@@ -92,7 +92,7 @@ def draw_overlay(left: np.ndarray, right: np.ndarray, result: SensingResult, jig
         radius = (est.part_diameter_mm or 0.0) / 2.0
         outline = radius * np.column_stack([np.cos(angles), np.sin(angles)])
         centre = np.zeros(2)
-    ring = np.column_stack([outline, [plane.z_at(x, y) for x, y in outline]])
+    ring = np.column_stack([outline, plane.heights_mm(outline[:, 0], outline[:, 1])])
     ring_px = _project_left(ring, result, jig)
     cv2.polylines(canvas_left, [np.round(ring_px).astype(np.int32)], True, CYAN, 1, cv2.LINE_AA)
     base = np.array([centre[0], centre[1], plane.z_at(*centre)])

@@ -331,9 +331,10 @@ def observe_pair(
             "first, with the stereo calibration of the cameras"
         )
     gray_left, gray_right = _checked_pair(left, right, jig)
+    u8_left, u8_right = _as_u8(left, gray_left), _as_u8(right, gray_right)
     setup = sensing_setup(jig)
     clock.lap("checks")
-    frame, warnings = resolve_jig_frame(_to_u8(gray_left), _to_u8(gray_right), jig)
+    frame, warnings = resolve_jig_frame(u8_left, u8_right, jig)
     clock.lap("frame")
     kwargs = {"sigma_px": setup.sigma_px}
     if setup.threshold is not None:
@@ -566,7 +567,7 @@ def _contact_under_known_face(
         # of the face's centre (the plane's point above the jig axis).
         centre = np.array([0.0, 0.0, plane.z_at(0.0, 0.0)])
         on_plane = points_J.copy()
-        on_plane[:, 2] = [plane.z_at(x, y) for x, y in points_J[:, :2]]
+        on_plane[:, 2] = plane.heights_mm(points_J[:, 0], points_J[:, 1])
         under = np.linalg.norm(on_plane - centre, axis=1) < radius_mm
         new_selection = pushed & under
         if np.array_equal(new_selection, selection) or new_selection.sum() < minimum:
@@ -698,6 +699,12 @@ def _off_fiducials(markers: Markers, quads_px: np.ndarray) -> Markers:
     """The markers that are not on a fiducial (its black and white cells look like blobs to the LoG)."""
     keep = ~inside_fiducials(markers.xy_px, quads_px)
     return Markers(xy_px=markers.xy_px[keep], response=markers.response[keep], sigma_px=markers.sigma_px)
+
+
+def _as_u8(image: np.ndarray, gray: np.ndarray) -> np.ndarray:
+    """The 8-bit gray image ArUco needs: a gray uint8 input as it is, anything else from its float gray."""
+    image = np.asarray(image)
+    return image if image.dtype == np.uint8 and image.ndim == 2 else _to_u8(gray)
 
 
 def _to_u8(gray: np.ndarray) -> np.ndarray:
