@@ -16,6 +16,7 @@ from softjig.optics import (
     point_on_ray_at_z,
     project_points,
     projection_jacobian,
+    rays_in_top_region,
     refract_directions,
     refracted_ray_directions,
     trace_rays_through_layers,
@@ -448,3 +449,43 @@ def test_projection_jacobian_linearises_projection():
     np.testing.assert_allclose(np.einsum("nij,nj->ni", jac, step), duv, atol=1e-5)
     with pytest.raises(ValueError, match="step_mm"):
         projection_jacobian(pts, K, DIST, T_LEFT, LAYERS, step_mm=0.0)
+
+
+# ---------------------------------------------------------------------------------------------
+# Closed-form back-projection (the fast path) against the traced one
+
+
+@pytest.mark.parametrize(
+    "layers",
+    [
+        LAYERS,
+        FlatLayers((0.0,), (1.0, 1.51)),
+        FlatLayers((-8.0, -5.0, 0.0), (1.0003, 1.49, 1.575, 1.33)),
+        FlatLayers((-5.0, 0.0), (1.0, 1.0, 1.0)),
+    ],
+)
+def test_closed_form_backprojection_matches_the_traced_one(layers):
+    rng = np.random.default_rng(1)
+    uv = rng.uniform([-200, -100], [1480, 820], (500, 2))
+    K_skewed = K.copy()
+    K_skewed[0, 1] = 0.7
+    for k, dist in ((K, None), (K, DIST), (K_skewed, DIST)):
+        T = pose((-15.0, 2.0, -155.0), (0.02, -0.03, 0.4))
+        o_ref, d_ref = backproject_pixels(uv, k, dist, T, layers)
+        o, d = rays_in_top_region(uv, k, dist, T, layers)
+        np.testing.assert_allclose(o, o_ref, rtol=0, atol=1e-10)
+        np.testing.assert_allclose(d, d_ref, rtol=0, atol=1e-13)
+    o, d = rays_in_top_region(uv.reshape(20, 25, 2), K, None, T_LEFT, layers)
+    assert o.shape == d.shape == (20, 25, 3)
+
+
+def test_closed_form_backprojection_raises_like_the_traced_one():
+    T_down = pose((-15.0, 0.0, -155.0), (np.pi, 0.0, 0.0))
+    with pytest.raises(ValueError, match="upwards"):
+        rays_in_top_region([[639.5, 359.5]], K, None, T_down, LAYERS)
+    with pytest.raises(ValueError, match="region 0"):
+        rays_in_top_region([[639.5, 359.5]], K, None, pose((0.0, 0.0, -2.0)), LAYERS)
+    layers = FlatLayers((-20.0, 0.0), (1.33, 1.0, 1.51))
+    with pytest.raises(ValueError, match="total internal reflection"):
+        rays_in_top_region([[639.5 + 925.0 * 1.5, 359.5]], K, None, T_LEFT, layers)
+    rays_in_top_region([[639.5 + 925.0 * 0.5, 359.5]], K, None, T_LEFT, layers)

@@ -1,11 +1,15 @@
 """Refractive triangulation, marker identities and the contact footprint, against analytic truth."""
 
+from dataclasses import replace
+
+import cv2
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from softjig.config import exact_jig
+from softjig.config import default_jig, exact_jig
+from softjig.errors import InputError
 from softjig.geometry import fit_plane_svd, normal_from_tilt
 from softjig.jig_shape import marker_layout_xy, rest_inner_height_mm
 from softjig.optics import project_points
@@ -22,8 +26,10 @@ FRAME = jig_frame_from_config(JIG)
 def _project(points):
     layers = flat_layers(JIG)
     cams = JIG.cameras
-    return (project_points(points, cams.left.K, None, cams.left.T_J_cam, layers),
-            project_points(points, cams.right.K, None, cams.right.T_J_cam, layers))
+    return (
+        project_points(points, cams.left.K, None, cams.left.T_J_cam, layers),
+        project_points(points, cams.right.K, None, cams.right.T_J_cam, layers),
+    )
 
 
 @settings(max_examples=50, deadline=None)
@@ -42,18 +48,63 @@ def test_refraction_matters():
 
     left, right = _project(np.array([[0.0, 0.0, 30.0]]))
     cam = JIG.cameras.left
-    pinhole = triangulate_rectified(left, right, fx_px=cam.fx_px, fy_px=cam.fy_px, cx_px=cam.cx_px,
-                                    cy_px=cam.cy_px, baseline_mm=30.0)[0, 2] + cam.position_mm[2]
+    pinhole = (
+        triangulate_rectified(
+            left, right, fx_px=cam.fx_px, fy_px=cam.fy_px, cx_px=cam.cx_px, cy_px=cam.cy_px, baseline_mm=30.0
+        )[0, 2]
+        + cam.position_mm[2]
+    )
     assert pinhole == pytest.approx(-5 + 5 / 1.575 + 30 / 1.51, abs=0.1)
     assert triangulate_refracted(left, right, JIG, FRAME).points_J[0, 2] == pytest.approx(30.0, abs=1e-9)
 
 
+def test_closed_form_and_traced_triangulation_agree():
+    """The fast path (closed-form rays, fused closest approach) against backproject_pixels, for a head
+    that is off its nominal pose and a camera with distortion."""
+    rng = np.random.default_rng(3)
+    jig = default_jig()
+    distorted = replace(jig.cameras.left, distortion=(0.02, -0.01, 0.001, -0.0008, 0.0))
+    jig = replace(jig, cameras=replace(jig.cameras, left=distorted))
+    moved = np.eye(4)  # the head 1 mm and ~0.8 deg off its nominal pose
+    moved[:3, :3] = cv2.Rodrigues(np.array([0.008, -0.005, 0.01]))[0]
+    moved[:3, 3] = (0.7, -0.4, 0.9)
+    nominal = jig_frame_from_config(jig)
+    frame = replace(nominal, T_J_left=moved @ nominal.T_J_left, T_J_right=moved @ nominal.T_J_right)
+    left = rng.uniform([0, 0], [1280, 720], (400, 2))
+    right = left - [rng.uniform(120, 190), 0] + rng.normal(0, 1.0, (400, 2))
+    fast = triangulate_refracted(left, right, jig, frame)
+    traced = triangulate_refracted(left, right, jig, frame, reference=True)
+    np.testing.assert_allclose(fast.points_J, traced.points_J, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(fast.ray_gap_mm, traced.ray_gap_mm, rtol=0, atol=1e-9)
+    assert np.all(fast.ray_gap_mm > 0)  # noisy matches: skew rays
+
+
+@pytest.mark.parametrize(
+    ("left", "right", "words"),
+    [
+        (np.zeros((3, 2)), np.zeros((2, 2)), "left_xy_px has 3 points but right_xy_px has 2"),
+        (np.zeros((3, 3)), np.zeros((3, 2)), r"left_xy_px must be an \(M, 2\) array"),
+        (np.zeros((1, 2)), [[np.nan, 1.0]], "right_xy_px contains NaN"),
+    ],
+)
+def test_triangulate_refracted_rejects_bad_input(left, right, words):
+    with pytest.raises(InputError, match=words):
+        triangulate_refracted(left, right, JIG, FRAME)
+
+
+def test_triangulate_nothing():
+    result = triangulate_refracted(np.zeros((0, 2)), [], JIG, FRAME)
+    assert result.points_J.shape == (0, 3) and result.ray_gap_mm.shape == (0,)
+
+
 def test_closest_points_of_skew_rays():
-    mid, gap = closest_points_of_rays(np.array([[0.0, 0, 0]]), np.array([[1.0, 0, 0]]),
-                                      np.array([[0.0, 1, 2]]), np.array([[0.0, 1, 0]]))
+    mid, gap = closest_points_of_rays(
+        np.array([[0.0, 0, 0]]), np.array([[1.0, 0, 0]]), np.array([[0.0, 1, 2]]), np.array([[0.0, 1, 0]])
+    )
     assert np.allclose(mid, [[0, 0, 1]]) and gap[0] == pytest.approx(2.0)
-    mid, _ = closest_points_of_rays(np.zeros((1, 3)), np.array([[1.0, 0, 0]]), np.ones((1, 3)),
-                                    np.array([[1.0, 0, 0]]))
+    mid, _ = closest_points_of_rays(
+        np.zeros((1, 3)), np.array([[1.0, 0, 0]]), np.ones((1, 3)), np.array([[1.0, 0, 0]])
+    )
     assert np.isnan(mid).all()  # parallel rays: no unique point
 
 
@@ -106,3 +157,17 @@ def test_partial_contact_is_flagged_with_its_side():
     assert region.partial
     assert abs((region.lift_azimuth_deg - 180.0 + 180.0) % 360.0 - 180.0) < 45.0
     assert region.centroid_xy_mm[0] > 5.0  # the contact lies on the lowered side
+
+
+def test_triangulate_refracted_says_why_rays_cannot_be_traced():
+    above = np.eye(4)
+    above[:3, 3] = (0.0, 0.0, -2.0)  # a camera inside the plate
+    frame = replace(FRAME, T_J_left=above)
+    with pytest.raises(ValueError, match="region 0"):
+        triangulate_refracted(np.array([[600.0, 300.0]]), np.array([[500.0, 300.0]]), JIG, frame)
+    down = np.diag([1.0, -1.0, -1.0, 1.0])  # looking down, away from the plate
+    down[:3, 3] = FRAME.T_J_left[:3, 3]
+    with pytest.raises(ValueError, match="upwards"):
+        triangulate_refracted(
+            np.array([[600.0, 300.0]]), np.array([[500.0, 300.0]]), JIG, replace(FRAME, T_J_left=down)
+        )

@@ -187,9 +187,7 @@ def test_matching_is_the_optimal_assignment(seed, batch_edges, monkeypatch):
     matches = match_rectified(left, right, **window)
     assert len(np.unique(matches.right_index)) == len(matches)
     half = 25.0
-    cost = (matches.row_difference_px / 1.0) ** 2 + 0.01 * (
-        (matches.disparity_px - 35.0) / half
-    ) ** 2
+    cost = (matches.row_difference_px / 1.0) ** 2 + 0.01 * ((matches.disparity_px - 35.0) / half) ** 2
     n_ref, cost_ref = reference_assignment(left, right, 1.0, 10.0, 60.0)
     assert len(matches) == n_ref
     assert_allclose(cost.sum(), cost_ref, rtol=1e-9)
@@ -253,9 +251,7 @@ def test_triangulation_round_trip_is_exact():
     rng = np.random.default_rng(4)
     points = rng.uniform([-70, -40, 120], [70, 40, 300], (200, 3))
     camera = {"fx_px": 930.0, "fy_px": 921.0, "cx_px": 650.2, "cy_px": 350.7, "baseline_mm": 30}
-    left, right = project(
-        points, fx=930.0, fy=921.0, cx=650.2, cy=350.7, baseline=camera["baseline_mm"]
-    )
+    left, right = project(points, fx=930.0, fy=921.0, cx=650.2, cy=350.7, baseline=camera["baseline_mm"])
     assert_allclose(triangulate_rectified(left, right, **camera), points, rtol=0, atol=1e-9)
 
 
@@ -265,9 +261,7 @@ def test_triangulation_through_matching():
     order = np.random.default_rng(5).permutation(len(points))
     right = right[order]
     d_min, d_max = disparity_window_px(FX, BASELINE, 175.0, 195.0)
-    m = match_rectified(
-        left, right, row_tolerance_px=1.0, min_disparity_px=d_min, max_disparity_px=d_max
-    )
+    m = match_rectified(left, right, row_tolerance_px=1.0, min_disparity_px=d_min, max_disparity_px=d_max)
     xyz = triangulate_rectified(left[m.left_index], right[m.right_index], **CAMERA)
     assert_allclose(xyz, points[m.left_index], atol=1e-9)
     assert xyz.shape == (len(points), 3)
@@ -349,6 +343,54 @@ def test_stereo_matches_is_immutable():
     with pytest.raises(ValueError, match="read-only"):
         m.disparity_px[0] = 1.0
     with pytest.raises(InputError, match="equal lengths"):
-        StereoMatches(
-            left_index=[0], right_index=[1, 2], row_difference_px=[0.0], disparity_px=[1.0]
+        StereoMatches(left_index=[0], right_index=[1, 2], row_difference_px=[0.0], disparity_px=[1.0])
+
+
+# ---------------------------------------------------------------------------------------
+# The fast path (degrees, then a small union-find) against the sparse-graph search
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_fast_matching_equals_the_graph_search(seed):
+    """Grids with row jitter, spurious detections and wide windows: few to hundreds of conflicts."""
+    rng = np.random.default_rng(seed)
+    left, right = project(marker_surface(seed))
+    right[:, 1] += rng.uniform(-1.5, 1.5, len(right))
+    doubles = right[rng.choice(len(right), 6, replace=False)] + [4.0, 0.3]  # split detections
+    right = np.vstack([right, doubles, rng.uniform([0, 0], [1280, 720], (30, 2))])
+    right = right[rng.permutation(len(right))]
+    conflicts = []
+    for tol, lo, hi in ((2.5, 140.0, 161.0), (3.0, 120.0, 200.0), (6.0, 60.0, 260.0)):
+        kwargs = {"row_tolerance_px": tol, "min_disparity_px": lo, "max_disparity_px": hi}
+        fast = match_rectified(left, right, **kwargs)
+        graph = match_rectified(left, right, **kwargs, reference=True)
+        assert_array_equal(fast.left_index, graph.left_index)
+        assert_array_equal(fast.right_index, graph.right_index)
+        li, rj = stereo._admissible_pairs(left, right, tol, lo, hi)
+        alone = (np.bincount(li, minlength=len(left))[li] == 1) & (np.bincount(rj)[rj] == 1)
+        conflicts.append(int((~alone).sum()))
+    assert 0 < conflicts[0] < 50 < 200 < conflicts[-1]  # a few conflicts to hundreds
+
+
+def test_pairs_and_components_of_the_numba_loop_match_numpy_and_scipy():
+    rng = np.random.default_rng(7)
+    for _ in range(50):
+        n_left, n_right = rng.integers(1, 40, 2)
+        left = rng.uniform([0, 0], [300, 60], (n_left, 2))
+        right = rng.uniform([0, 0], [300, 60], (n_right, 2))
+        right[rng.integers(0, n_right, 3), 1] = right[0, 1]  # equal rows: the sort must be stable
+        window = (rng.uniform(0.5, 8.0), -20.0, rng.uniform(0.0, 150.0))
+        order = np.argsort(right[:, 1], kind="stable")
+        li, rj, row_diff, disparity, component, n_conflicts = stereo._pairs_and_components(
+            left, right, order, *window
         )
+        assert_array_equal(row_diff, left[li, 1] - right[rj, 1])
+        assert_array_equal(disparity, left[li, 0] - right[rj, 0])
+        li_ref, rj_ref = stereo._admissible_pairs(left, right, *window)
+        assert_array_equal(li, li_ref)
+        assert_array_equal(rj, rj_ref)
+        conflicts = component >= 0
+        assert n_conflicts == conflicts.sum()
+        if n_conflicts:
+            graph = stereo._component_labels(li[conflicts], rj[conflicts], n_left, n_right)
+            assert_array_equal(component[conflicts], graph)

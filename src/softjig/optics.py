@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import itertools
 from dataclasses import dataclass
+from functools import lru_cache
 
 import cv2
 import numpy as np
@@ -34,9 +35,13 @@ __all__ = [
     "backproject_pixels",
     "camera_center_J",
     "distort_normalized",
+    "layer_constants",
+    "pixels_to_normalized",
     "point_on_ray_at_z",
     "project_points",
     "projection_jacobian",
+    "rays_in_top_region",
+    "rays_in_top_region_normalized",
     "refract_directions",
     "refracted_ray_directions",
     "trace_rays_through_layers",
@@ -663,6 +668,139 @@ def backproject_pixels(
         )
     o, dj = trace_rays_through_layers(np.broadcast_to(c, rays_J.shape), rays_J, layers)
     return o.reshape(*lead, 3), dj.reshape(*lead, 3)
+
+
+def rays_in_top_region(
+    pixels: ArrayLike,
+    K: ArrayLike,
+    dist: ArrayLike | None,
+    T_J_cam: ArrayLike,
+    layers: FlatLayers,
+) -> tuple[FloatArray, FloatArray]:
+    """Back-project pixels to refracted rays in the top region, in closed form.
+
+    Same inputs, outputs and errors as :func:`backproject_pixels` (and the same rays, to ~1e-12 mm),
+    without its per-interface loop and validation (the pose is not re-checked): see
+    :func:`rays_in_top_region_normalized`.
+
+    Parameters
+    ----------
+    pixels : array_like, shape (..., 2)
+        Pixel coordinates ``(u, v)`` = (column, row).
+    K : array_like, shape (3, 3)
+        Intrinsics, pixels.
+    dist : array_like or None
+        OpenCV distortion ``(k1, k2, p1, p2[, k3])``.
+    T_J_cam : array_like, shape (4, 4)
+        Camera pose in J (a rigid transform); its centre must be below every interface.
+    layers : FlatLayers
+        The refracting interfaces.
+
+    Returns
+    -------
+    origins : ndarray, shape (..., 3)
+        Where each ray crosses the last interface, J, mm.
+    directions : ndarray, shape (..., 3)
+        Unit direction of each ray in the top region, J.
+
+    Raises
+    ------
+    ValueError
+        If the camera is not below the interfaces, a pixel's ray does not go up, or total internal
+        reflection occurs.
+    """
+    px = np.asarray(pixels, dtype=float)
+    lead = px.shape[:-1]
+    T = np.asarray(T_J_cam, dtype=float)
+    q = pixels_to_normalized(px.reshape(-1, 2), K, dist)
+    o, d = rays_in_top_region_normalized(q[None], T[None, :3, :3], T[None, :3, 3], layers)
+    return o[0].reshape(*lead, 3), d[0].reshape(*lead, 3)
+
+
+def pixels_to_normalized(pixels: FloatArray, K: ArrayLike, dist: ArrayLike | None) -> FloatArray:
+    """Ideal normalised image coordinates ``(X/Z, Y/Z)`` of ``(M, 2)`` pixels (``K`` inverted, then the
+    distortion, if any, with :func:`undistort_normalized`)."""
+    Km = np.asarray(K, dtype=float)
+    q = (pixels - Km[:2, 2]) / Km[[0, 1], [0, 1]]
+    if Km[0, 1] != 0.0:
+        q[:, 0] -= Km[0, 1] * q[:, 1] / Km[0, 0]
+    if dist is not None and np.any(dist):
+        q = undistort_normalized(q, dist)
+    return q
+
+
+def rays_in_top_region_normalized(
+    normalized: FloatArray, R_J_cam: FloatArray, centers_J: FloatArray, layers: FlatLayers
+) -> tuple[FloatArray, FloatArray]:
+    """Refracted rays in the top region of ``C`` cameras' ideal normalised image points, in closed form.
+
+    Through horizontal interfaces a ray keeps its azimuth and its invariant ``kappa = n_0 sin(theta_0)``,
+    so in region ``i`` its unit direction has horizontal part ``u_xy n_0 / n_i`` and vertical part
+    ``c_i = sqrt(1 - (n_0 / n_i)^2 |u_xy|^2)`` (``u`` its unit direction in region 0), and it reaches the
+    top interface displaced horizontally by ``u_xy (h_0 / u_z + sum_i h_i (n_0 / n_i) / c_i)`` with
+    ``h_i`` the height of region ``i`` below the top. Measured for 2 x 290 markers: ~60 us against
+    ~600 us for :func:`backproject_pixels` (one refraction and one validation per interface).
+
+    Parameters
+    ----------
+    normalized : (C, M, 2) ideal normalised coordinates ``(X/Z, Y/Z)`` in each camera.
+    R_J_cam : (C, 3, 3) the cameras' orientations in J.
+    centers_J : (C, 3) the cameras' centres in J (mm), below every interface.
+    layers : the refracting interfaces.
+
+    Returns
+    -------
+    origins, directions : (C, M, 3) where each ray crosses the last interface (J, mm) and its unit
+        direction above it.
+
+    Raises
+    ------
+    ValueError
+        If a camera is not below the interfaces, a ray does not go up, or total internal reflection
+        occurs.
+    """
+    z_if, ratio, ratio_sq, layer_advance = layer_constants(layers)
+    heights_0 = z_if[0] - centers_J[:, 2]  # (C,) air between each camera and the first interface
+    if not (heights_0 > 0).all():
+        raise ValueError(
+            f"camera centre z = {centers_J[:, 2].min()} mm must lie in region 0, strictly below the lowest "
+            f"interface z = {z_if[0]} mm"
+        )
+    # rays = x R[:, 0] + y R[:, 1] + R[:, 2] for each camera, (C, M, 3) in J
+    rays = normalized @ np.swapaxes(R_J_cam[:, :, :2], 1, 2) + R_J_cam[:, None, :, 2]
+    rays /= np.sqrt(np.einsum("cmi,cmi->cm", rays, rays))[..., None]
+    if not (rays[..., 2] > 0).all():
+        raise ValueError(
+            "some rays do not go upwards (d_z <= 0 in J) and never reach the interfaces; "
+            "is the camera looking up?"
+        )
+    sin2 = np.einsum("cmi,cmi->cm", rays[..., :2], rays[..., :2])  # sin^2(theta_0)
+    cos2 = 1.0 - np.multiply.outer(ratio_sq, sin2)  # (R - 1, C, M) in regions 1 .. R - 1
+    if not (cos2 > 0).all():  # (n_0 / n_i) sin(theta_0) >= 1
+        raise ValueError(f"total internal reflection for some rays going through the layers {layers}")
+    cos = np.sqrt(cos2)
+    advance = heights_0[:, None] / rays[..., 2]
+    for k, layer in enumerate(layer_advance):  # the layers between two interfaces (the plate)
+        advance += layer / cos[k]
+    origins = np.empty_like(rays)
+    origins[..., :2] = centers_J[:, None, :2] + rays[..., :2] * advance[..., None]
+    origins[..., 2] = z_if[-1]
+    directions = rays  # reused in place: the horizontal part scaled, the vertical one from Snell's law
+    directions[..., :2] *= ratio[-1]
+    directions[..., 2] = cos[-1]
+    return origins, directions
+
+
+@lru_cache(maxsize=16)
+def layer_constants(layers: FlatLayers) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Read-only constants of the layers (cached): interface heights, ``n_0 / n_i`` per region, its square
+    in regions ``1 ..``, and ``h_i n_0 / n_i`` of the regions between two interfaces."""
+    z_if = np.asarray(layers.interfaces_z_mm, dtype=float)
+    ratio = layers.refractive_indices[0] / np.asarray(layers.refractive_indices, dtype=float)
+    constants = (z_if, ratio, ratio[1:] ** 2, np.diff(z_if) * ratio[1:-1])
+    for array in constants:
+        array.flags.writeable = False
+    return constants
 
 
 def projection_jacobian(

@@ -4,8 +4,16 @@ The paper transforms the triangulated markers into the jig frame with fiducials 
 are ArUco markers on the plate's bottom face (``fiducials.z_mm``, default ``-5``): the cameras see them
 through air only, so a plain pinhole model is exact for them. Both cameras' views are used at once: the
 stereo head's pose is the one that minimises the reprojection error of every fiducial corner found in
-either image (OpenCV's PnP for the start, then a joint Levenberg-Marquardt refinement with SciPy), with the
-right camera held at its configured pose relative to the left one.
+either image, with the right camera held at its configured pose relative to the left one.
+
+Two paths give that pose. The fast one (every frame of a working rig, ~0.3 ms) reads the fiducials near
+where the config's poses put them (:func:`softjig.sensing.fiducials.locate_fiducials_near`) and solves
+the joint stereo PnP by Gauss-Newton from the config's pose, with an analytic Jacobian (distorted
+cameras: with SciPy's LM). The general one (fiducials far off or partly hidden, ~15 ms) runs OpenCV's
+ArUco detector, OpenCV's PnP for the start and a Levenberg-Marquardt refinement with SciPy. Both refine
+the corners with the same iteration to convergence and minimise the same error, so they agree (measured
+on 196 as-built jigs: to 1.3e-4 mm and 4e-5 deg); the fast one falls back to the general one whenever it
+does not find every fiducial or its fit does not explain the corners.
 
 When the fiducials are not visible, or the user calibrated the extrinsics once, the poses in the config
 are used instead (``sensing.extrinsics``); the result says which source was used.
@@ -13,10 +21,12 @@ are used instead (``sensing.extrinsics``); the result says which source was used
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import lru_cache
 
 import cv2
+import numba
 import numpy as np
 from scipy.optimize import least_squares
 
@@ -24,10 +34,12 @@ from softjig.config import CameraConfig, JigConfig
 from softjig.errors import EstimationError
 from softjig.geometry import invert_pose, pose_from_rotvec_translation
 from softjig.optics import project_points
-from softjig.sensing.fiducials import detect_fiducials, fiducial_corners_J
+from softjig.sensing.fiducials import detect_fiducials, fiducial_corners_J, locate_quads_near
 
 MIN_FIDUCIALS_PER_IMAGE = 2  # 8 corners: a well-conditioned planar PnP
 MAX_FIDUCIAL_RMS_PX = 2.0  # above this, a corner was misread or a fiducial moved: the pose is rejected
+GAUSS_NEWTON_MAX_STEPS = 10
+GAUSS_NEWTON_TOLERANCE = 1e-8  # stop after a step below this (rad, and mm / 100): it is then ~1e-16
 
 
 @dataclass(frozen=True)
@@ -99,15 +111,29 @@ def _project(camera: CameraConfig, T_cam_J: np.ndarray, points_J: np.ndarray) ->
     return project_points(points_J, camera.K, camera.distortion, invert_pose(T_cam_J), None)
 
 
-def jig_frame_from_fiducials(left_u8: np.ndarray, right_u8: np.ndarray, jig: JigConfig) -> JigFrame | None:
+def jig_frame_from_fiducials(
+    left_u8: np.ndarray, right_u8: np.ndarray, jig: JigConfig, *, fast: bool = True
+) -> JigFrame | None:
     """Measure the stereo head's pose in J from the fiducials seen in an 8-bit gray stereo pair.
+
+    Parameters
+    ----------
+    left_u8, right_u8 : (H, W) uint8 images.
+    jig : the nominal jig: its fiducials and cameras (intrinsics, and poses to start from).
+    fast : try the fast path first (see the module's notes); ``False`` runs only the general one.
 
     Returns ``None`` when fewer than :data:`MIN_FIDUCIALS_PER_IMAGE` configured fiducials are found in
     either image, or when the fitted pose does not explain the corners (the fit did not converge or the
     RMS reprojection error exceeds :data:`MAX_FIDUCIAL_RMS_PX`).
     """
+    if fast:
+        frame = _jig_frame_fast(left_u8, right_u8, jig, _fast_constants(jig).expected_quads)
+        hint = _FOUND_BEFORE.get(id(jig))
+        if frame is None and hint is not None and hint[0] is jig:
+            frame = _jig_frame_fast(left_u8, right_u8, jig, hint[1])
+        if frame is not None:
+            return frame
     fid = jig.fiducials
-    corners_J = dict(zip(fid.ids, fiducial_corners_J(fid), strict=True))
     expected = jig_frame_from_config(jig)
     found = [
         detect_fiducials(left_u8, fid, expected_quads_px=expected.fiducial_quads_left_px),
@@ -115,12 +141,157 @@ def jig_frame_from_fiducials(left_u8: np.ndarray, right_u8: np.ndarray, jig: Jig
     ]
     if min(len(f) for f in found) < MIN_FIDUCIALS_PER_IMAGE:
         return None
-    cams = (jig.cameras.left, jig.cameras.right)
-    # The right camera's pose relative to the left one is fixed by the config (the stereo calibration).
-    T_left_right = invert_pose(cams[0].T_J_cam) @ cams[1].T_J_cam
+    frame = _frame_from_corners(found, jig, _fit_pose_lm)
+    if fast and frame is not None and all(set(f) == set(fid.ids) for f in found):
+        _remember_where_found(jig, found)
+    return frame
+
+
+# Where the general path last found every fiducial, per jig object: the fast path's second guess when
+# the as-built head is too far from the config's poses for the capture (> CAPTURE_PX), so that only the
+# first frame of such a rig takes the general path. The fast path's result does not depend on where it
+# starts (the corners and the fit are iterated to convergence): this only saves time.
+_FOUND_BEFORE: dict[int, tuple[JigConfig, tuple[bytes, bytes]]] = {}
+
+
+def _remember_where_found(jig: JigConfig, found: list[dict[int, np.ndarray]]) -> None:
+    """Keep every fiducial's corners in each image (in the config's order) as this jig's second guess."""
+    if len(_FOUND_BEFORE) >= 16:
+        _FOUND_BEFORE.clear()
+    quads = tuple(np.array([f[i] for i in jig.fiducials.ids], dtype=float).tobytes() for f in found)
+    _FOUND_BEFORE[id(jig)] = (jig, quads)
+
+
+def _jig_frame_fast(
+    left_u8: np.ndarray, right_u8: np.ndarray, jig: JigConfig, expected_quads: tuple[bytes, bytes]
+) -> JigFrame | None:
+    """The fast path: every fiducial read near its expected place (the bytes of (M, 4, 2) float64 quads
+    in each image), and a Gauss-Newton fit; ``None`` if a fiducial is not there or the fit fails."""
+    k = _fast_constants(jig)
+    images = [np.asarray(image) for image in (left_u8, right_u8)]
+    if any(image.dtype != np.uint8 or image.ndim != 2 for image in images):
+        return None
+    corners = [
+        locate_quads_near(np.ascontiguousarray(image), jig.fiducials, quads)
+        for image, quads in zip(images, expected_quads, strict=True)
+    ]
+    if corners[0] is None or corners[1] is None:
+        return None
+    if k.distorted:  # the Gauss-Newton fit is for pinholes: SciPy's LM with OpenCV's distortion model
+        found = [dict(zip(jig.fiducials.ids, c, strict=True)) for c in corners]
+        return _frame_from_corners(found, jig, _fit_pose_lm)
+    observed = np.concatenate([corners[0].reshape(-1, 2), corners[1].reshape(-1, 2)])
+    fit = _gauss_newton(k.points_J, observed, k.n_left, k.pinhole)
+    if fit is None:
+        return None
+    T_left_J, residuals = fit
+    rms = float(np.sqrt(residuals @ residuals / len(residuals)))
+    if not rms <= MAX_FIDUCIAL_RMS_PX:
+        return None
+    T_J_left = np.eye(4)
+    T_J_left[:3, :3] = T_left_J[:3, :3].T
+    T_J_left[:3, 3] = -(T_left_J[:3, :3].T @ T_left_J[:3, 3])
+    return JigFrame(
+        T_J_left, T_J_left @ k.T_left_right, "fiducials", rms, k.sorted_ids, corners[0], corners[1]
+    )
+
+
+@dataclass(frozen=True)
+class _FastConstants:
+    """What the fast path needs of a jig, computed once: the expected quads (bytes of (M, 4, 2) float64
+    arrays, left and right), every corner in J in the order they are found (left image, then right),
+    the right camera's pose in the left one's frame, and the Gauss-Newton constants."""
+
+    expected_quads: tuple[bytes, bytes]
+    points_J: np.ndarray
+    n_left: int
+    T_left_right: np.ndarray
+    sorted_ids: tuple[int, ...]
+    distorted: bool
+    pinhole: _PinholeConstants
+
+
+_FAST_CONSTANTS: dict[int, tuple[JigConfig, _FastConstants]] = {}
+
+
+def _fast_constants(jig: JigConfig) -> _FastConstants:
+    """The fast path's constants of this jig object, cached by identity: hashing a JigConfig (as
+    ``lru_cache`` does) walks the whole config, ~10-70 us per frame (measured, cold caches)."""
+    hit = _FAST_CONSTANTS.get(id(jig))
+    if hit is not None and hit[0] is jig:
+        return hit[1]
+    constants = _build_fast_constants(jig)
+    if len(_FAST_CONSTANTS) >= 16:
+        _FAST_CONSTANTS.clear()
+    _FAST_CONSTANTS[id(jig)] = (jig, constants)
+    return constants
+
+
+def _build_fast_constants(jig: JigConfig) -> _FastConstants:
+    expected = jig_frame_from_config(jig)
+    corners = fiducial_corners_J(jig.fiducials).reshape(-1, 3)
+    points = np.concatenate([corners, corners])
+    points.flags.writeable = False
+    n = len(corners)
+    return _FastConstants(
+        expected_quads=(
+            np.ascontiguousarray(expected.fiducial_quads_left_px, dtype=float).tobytes(),
+            np.ascontiguousarray(expected.fiducial_quads_right_px, dtype=float).tobytes(),
+        ),
+        points_J=points,
+        n_left=n,
+        T_left_right=_T_left_right(jig),
+        sorted_ids=tuple(sorted(jig.fiducials.ids)),
+        distorted=bool(np.any(jig.cameras.left.distortion) or np.any(jig.cameras.right.distortion)),
+        pinhole=_pinhole_constants(jig, n, n),
+    )
+
+
+PoseFit = Callable[[list[np.ndarray], list[np.ndarray], JigConfig], "tuple[np.ndarray, np.ndarray] | None"]
+
+
+def _frame_from_corners(found: list[dict[int, np.ndarray]], jig: JigConfig, fit: PoseFit) -> JigFrame | None:
+    """The JigFrame of the corners found in both images, with the pose from ``fit`` (or ``None``)."""
+    corners_J = _corners_J_by_id(jig)
     obj = [np.concatenate([corners_J[i] for i in f]) for f in found]
     img = [np.concatenate([f[i] for i in f]) for f in found]
+    result = fit(obj, img, jig)
+    if result is None:
+        return None
+    T_left_J, residuals = result
+    rms = float(np.sqrt(np.mean(residuals**2)))
+    if not np.isfinite(rms) or rms > MAX_FIDUCIAL_RMS_PX:
+        return None  # a misread corner or a moved fiducial: do not trust this pose
+    T_J_left = invert_pose(T_left_J)
+    both = tuple(sorted(set(found[0]) & set(found[1])))
+    quads = [np.array(list(f.values())).reshape(-1, 4, 2) for f in found]
+    return JigFrame(T_J_left, T_J_left @ _T_left_right(jig), "fiducials", rms, both, quads[0], quads[1])
 
+
+@lru_cache(maxsize=16)
+def _T_left_right(jig: JigConfig) -> np.ndarray:
+    """The right camera's pose relative to the left one, fixed by the config (the stereo calibration;
+    read-only)."""
+    frame = jig_frame_from_config(jig)
+    T = invert_pose(frame.T_J_left) @ frame.T_J_right
+    T.flags.writeable = False
+    return T
+
+
+@lru_cache(maxsize=16)
+def _corners_J_by_id(jig: JigConfig) -> dict[int, np.ndarray]:
+    """Each fiducial's corners in J, (4, 3) mm (read-only)."""
+    corners = fiducial_corners_J(jig.fiducials)
+    corners.flags.writeable = False
+    return dict(zip(jig.fiducials.ids, corners, strict=True))
+
+
+def _fit_pose_lm(
+    obj: list[np.ndarray], img: list[np.ndarray], jig: JigConfig
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """The left camera's pose ``T_left_J`` minimising both images' reprojection errors, and the residuals
+    (px): OpenCV's IPPE PnP in the left image for the start, then SciPy's Levenberg-Marquardt."""
+    cams = (jig.cameras.left, jig.cameras.right)
     ok, rvec, tvec = cv2.solvePnP(
         obj[0], img[0], cams[0].K, np.asarray(cams[0].distortion, float), flags=cv2.SOLVEPNP_IPPE
     )
@@ -129,7 +300,7 @@ def jig_frame_from_fiducials(left_u8: np.ndarray, right_u8: np.ndarray, jig: Jig
 
     # The residual is evaluated ~30 times per frame: OpenCV's projectPoints and composeRT work on the
     # rotation vectors directly (measured: 22 ms per frame with optics.project_points, ~3 ms with these).
-    T_right_left = invert_pose(T_left_right)
+    T_right_left = invert_pose(_T_left_right(jig))
     rvec_rl = cv2.Rodrigues(T_right_left[:3, :3])[0]
     tvec_rl = T_right_left[:3, 3].reshape(3, 1)
     dist = [np.asarray(cam.distortion, float) for cam in cams]
@@ -142,14 +313,184 @@ def jig_frame_from_fiducials(left_u8: np.ndarray, right_u8: np.ndarray, jig: Jig
         return np.concatenate([(left_px - img[0]).ravel(), (right_px - img[1]).ravel()])
 
     fit = least_squares(residuals, np.concatenate([rvec.ravel(), tvec.ravel()]), method="lm")
-    rms = float(np.sqrt(np.mean(fit.fun**2)))
-    if not fit.success or not np.isfinite(rms) or rms > MAX_FIDUCIAL_RMS_PX:
-        return None  # a misread corner or a moved fiducial: do not trust this pose
-    T_left_J = pose_from_rotvec_translation(fit.x[:3], fit.x[3:])
-    T_J_left = invert_pose(T_left_J)
-    both = tuple(sorted(set(found[0]) & set(found[1])))
-    quads = [np.array(list(f.values())).reshape(-1, 4, 2) for f in found]
-    return JigFrame(T_J_left, T_J_left @ T_left_right, "fiducials", rms, both, quads[0], quads[1])
+    if not fit.success:
+        return None
+    return pose_from_rotvec_translation(fit.x[:3], fit.x[3:]), fit.fun
+
+
+def _fit_pose_gauss_newton(
+    obj: list[np.ndarray], img: list[np.ndarray], jig: JigConfig
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """As :func:`_fit_pose_lm` for distortion-free cameras, by Gauss-Newton from the config's pose.
+
+    The head's pose is updated as ``T <- exp(omega, v) T``: a point at ``X`` in the left camera moves by
+    ``omega x X + v``, in the right camera by ``R_rl`` of that, and its pixel by the pinhole's Jacobian
+    ``[[fx / z, 0, -fx x / z^2], [0, fy / z, -fy y / z^2]]``. Each step solves the 6x6 normal equations;
+    from the config's pose (~1 mm, 0.5 deg away) it converges in 3-4 steps. A Numba loop (measured: ~10
+    us; the same steps on NumPy arrays took ~0.3 ms, ~100 array operations of call overhead, and SciPy's
+    LM with a finite-difference Jacobian ~5 ms).
+    """
+    k = _pinhole_constants(jig, len(obj[0]), len(obj[1]))
+    return _gauss_newton(np.concatenate(obj), np.concatenate(img), len(obj[0]), k)
+
+
+def _gauss_newton(
+    points_J: np.ndarray, observed_px: np.ndarray, n_left: int, k: _PinholeConstants
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """``T_left_J`` and the residuals (px) of :func:`_gauss_newton_kernel`, or ``None`` if it did not
+    converge."""
+    R, t, residuals, converged = _gauss_newton_kernel(
+        points_J,
+        observed_px,
+        n_left,
+        k.focal,
+        k.centre,
+        k.R_start,
+        k.t_start,
+        k.R_rl,
+        k.t_rl,
+        GAUSS_NEWTON_MAX_STEPS,
+        GAUSS_NEWTON_TOLERANCE,
+    )
+    if not converged:
+        return None
+    T_left_J = np.eye(4)
+    T_left_J[:3, :3], T_left_J[:3, 3] = R, t
+    return T_left_J, residuals
+
+
+@numba.njit(cache=True, nogil=True)
+def _gauss_newton_kernel(
+    points, observed, n_left, focal, centre, R_start, t_start, R_rl, t_rl, max_steps, tol
+):
+    """Gauss-Newton steps of the head's pose ``(R, t)`` (``T_left_J``) for corners ``points`` (N, 3) in J
+    seen at ``observed`` (N, 2) px, the first ``n_left`` in the left camera and the rest in the right one.
+
+    Returns ``R``, ``t``, the residuals (2 N,) px before the last step, and whether a step fell below
+    ``tol`` (rad, and ``100 tol`` mm) within ``max_steps``.
+    """
+    n = points.shape[0]
+    R = R_start.copy()
+    t = t_start.copy()
+    residuals = np.empty(2 * n)
+    H = np.empty((6, 6))
+    b = np.empty(6)
+    row = np.empty(6)
+    g = np.empty(3)
+    gr = np.empty(3)
+    X_left = np.empty(3)
+    X = np.empty(3)
+    rotation = np.empty((3, 3))
+    for _ in range(max_steps):
+        H[:] = 0.0
+        b[:] = 0.0
+        for k in range(n):
+            for i in range(3):
+                X_left[i] = R[i, 0] * points[k, 0] + R[i, 1] * points[k, 1] + R[i, 2] * points[k, 2] + t[i]
+            if k >= n_left:
+                for i in range(3):
+                    X[i] = R_rl[i, 0] * X_left[0] + R_rl[i, 1] * X_left[1] + R_rl[i, 2] * X_left[2] + t_rl[i]
+            else:
+                X[:] = X_left
+            inv_z = 1.0 / X[2]
+            for c in range(2):  # u, then v
+                f = focal[k, c]
+                r = f * X[c] * inv_z + centre[k, c] - observed[k, c]
+                residuals[2 * k + c] = r
+                g[:] = 0.0  # d pixel / d X in this camera
+                g[c] = f * inv_z
+                g[2] = -f * X[c] * inv_z * inv_z
+                if k >= n_left:  # to d pixel / d X_left
+                    for i in range(3):
+                        gr[i] = g[0] * R_rl[0, i] + g[1] * R_rl[1, i] + g[2] * R_rl[2, i]
+                    g[:] = gr
+                row[0] = X_left[1] * g[2] - X_left[2] * g[1]  # X_left x g: d pixel / d omega
+                row[1] = X_left[2] * g[0] - X_left[0] * g[2]
+                row[2] = X_left[0] * g[1] - X_left[1] * g[0]
+                row[3], row[4], row[5] = g[0], g[1], g[2]
+                for i in range(6):
+                    b[i] -= row[i] * r
+                    for j in range(i + 1):
+                        H[i, j] += row[i] * row[j]
+        # Cholesky H = L L^T (lower triangle of H), then two triangular solves for the step
+        for j in range(6):
+            d = H[j, j]
+            for m in range(j):
+                d -= H[j, m] * H[j, m]
+            if not d > 0.0:
+                return R, t, residuals, False
+            H[j, j] = np.sqrt(d)
+            for i in range(j + 1, 6):
+                s = H[i, j]
+                for m in range(j):
+                    s -= H[i, m] * H[j, m]
+                H[i, j] = s / H[j, j]
+        for i in range(6):
+            s = b[i]
+            for m in range(i):
+                s -= H[i, m] * b[m]
+            b[i] = s / H[i, i]
+        for i in range(5, -1, -1):
+            s = b[i]
+            for m in range(i + 1, 6):
+                s -= H[m, i] * b[m]
+            b[i] = s / H[i, i]
+        # R <- exp(omega) R, t <- exp(omega) t + v (Rodrigues' formula)
+        wx, wy, wz = b[0], b[1], b[2]
+        theta = np.sqrt(wx * wx + wy * wy + wz * wz)
+        if theta < 1e-12:
+            sa, sb = 1.0, 0.5
+        else:
+            sa, sb = np.sin(theta) / theta, (1.0 - np.cos(theta)) / (theta * theta)
+        # exp(omega) = I + sa [omega]_x + sb [omega]_x^2, with [omega]_x^2 = omega omega^T - theta^2 I
+        for i in range(3):  # b[:3] is omega
+            for j in range(3):
+                rotation[i, j] = sb * b[i] * b[j]
+            rotation[i, i] += 1.0 - sb * theta * theta
+        rotation[0, 1] -= sa * wz
+        rotation[1, 0] += sa * wz
+        rotation[0, 2] += sa * wy
+        rotation[2, 0] -= sa * wy
+        rotation[1, 2] -= sa * wx
+        rotation[2, 1] += sa * wx
+        for j in range(3):  # R <- rotation R, column by column
+            c0, c1, c2 = R[0, j], R[1, j], R[2, j]
+            for i in range(3):
+                R[i, j] = rotation[i, 0] * c0 + rotation[i, 1] * c1 + rotation[i, 2] * c2
+        c0, c1, c2 = t[0], t[1], t[2]
+        for i in range(3):
+            t[i] = rotation[i, 0] * c0 + rotation[i, 1] * c1 + rotation[i, 2] * c2 + b[3 + i]
+        if max(abs(wx), abs(wy), abs(wz)) < tol and max(abs(b[3]), abs(b[4]), abs(b[5])) < 100.0 * tol:
+            return R, t, residuals, True
+    return R, t, residuals, False
+
+
+@dataclass(frozen=True)
+class _PinholeConstants:
+    """Per jig and corner count: the start pose (``T_left_J`` from the config), the right camera's pose
+    in the left one's frame, and each corner's focal lengths and principal point (px)."""
+
+    R_start: np.ndarray
+    t_start: np.ndarray
+    R_rl: np.ndarray
+    t_rl: np.ndarray
+    focal: np.ndarray
+    centre: np.ndarray
+
+
+@lru_cache(maxsize=16)
+def _pinhole_constants(jig: JigConfig, n_left: int, n_right: int) -> _PinholeConstants:
+    frame = jig_frame_from_config(jig)
+    T_left_J = invert_pose(frame.T_J_left)
+    T_rl = invert_pose(_T_left_right(jig))
+    left, right = jig.cameras.left, jig.cameras.right
+    counts = [n_left, n_right]
+    focal = np.repeat([[left.fx_px, left.fy_px], [right.fx_px, right.fy_px]], counts, axis=0)
+    centre = np.repeat([[left.cx_px, left.cy_px], [right.cx_px, right.cy_px]], counts, axis=0)
+    arrays = (T_left_J[:3, :3], T_left_J[:3, 3], T_rl[:3, :3], T_rl[:3, 3], focal, centre)
+    for array in arrays:
+        array.flags.writeable = False
+    return _PinholeConstants(*arrays)
 
 
 def resolve_jig_frame(

@@ -1,0 +1,121 @@
+"""The jig frame from the fiducials: the fast path (read near the expected quads, Gauss-Newton) against
+the general one (ArUco detector, SciPy's Levenberg-Marquardt), and its fallbacks."""
+
+import cv2
+import numpy as np
+import pytest
+
+from softjig.config import default_jig
+from softjig.geometry import invert_pose
+from softjig.sensing import jigframe
+from softjig.sensing.fiducials import detect_fiducials, locate_fiducials_near
+from softjig.sensing.jigframe import jig_frame_from_config, jig_frame_from_fiducials, resolve_jig_frame
+from softjig.sim.asbuilt import draw_as_built
+from softjig.sim.render import render_pair
+
+JIG = default_jig()
+EXPECTED = jig_frame_from_config(JIG)
+
+
+@pytest.fixture(scope="module", params=[0, 2, 5])
+def pair(request):
+    """An as-built jig's pair; seed 2 puts the head's fiducials ~26 px from where the config expects."""
+    return render_pair(draw_as_built(JIG, rng=request.param), rng=request.param)
+
+
+def _pose_difference(T_a: np.ndarray, T_b: np.ndarray) -> tuple[float, float]:
+    """Translation (mm) and rotation (deg) between two poses."""
+    dT = invert_pose(T_a) @ T_b
+    angle = np.linalg.norm(cv2.Rodrigues(dT[:3, :3])[0])  # exact for small angles (arccos is not)
+    return float(np.linalg.norm(dT[:3, 3])), float(np.degrees(angle))
+
+
+def test_fast_path_finds_the_same_corners_as_the_aruco_detector(pair):
+    for image, quads in (
+        (pair.left, EXPECTED.fiducial_quads_left_px),
+        (pair.right, EXPECTED.fiducial_quads_right_px),
+    ):
+        fast = locate_fiducials_near(image, JIG.fiducials, quads)
+        aruco = detect_fiducials(image, JIG.fiducials, expected_quads_px=quads)
+        assert fast is not None and list(fast) == list(JIG.fiducials.ids)
+        for marker_id, corners in fast.items():
+            assert np.abs(corners - aruco[marker_id]).max() < 0.01
+
+
+def test_fast_and_general_paths_give_the_same_pose(pair):
+    fast = jig_frame_from_fiducials(pair.left, pair.right, JIG)
+    general = jig_frame_from_fiducials(pair.left, pair.right, JIG, fast=False)
+    assert fast is not None and general is not None
+    for a, b in ((fast.T_J_left, general.T_J_left), (fast.T_J_right, general.T_J_right)):
+        mm, deg = _pose_difference(a, b)
+        assert mm < 1e-3 and deg < 1e-4
+    assert fast.fiducial_ids == general.fiducial_ids == tuple(JIG.fiducials.ids)
+    assert fast.reprojection_rms_px == pytest.approx(general.reprojection_rms_px, abs=1e-3)
+    assert np.abs(fast.fiducial_quads_left_px - general.fiducial_quads_left_px).max() < 0.01
+
+
+def test_gauss_newton_reaches_the_levenberg_marquardt_optimum(pair):
+    found = [
+        locate_fiducials_near(pair.left, JIG.fiducials, EXPECTED.fiducial_quads_left_px),
+        locate_fiducials_near(pair.right, JIG.fiducials, EXPECTED.fiducial_quads_right_px),
+    ]
+    corners = jigframe._corners_J_by_id(JIG)
+    obj = [np.concatenate([corners[i] for i in f]) for f in found]
+    img = [np.concatenate([f[i] for i in f]) for f in found]
+    T_gn, res_gn = jigframe._fit_pose_gauss_newton(obj, img, JIG)
+    T_lm, res_lm = jigframe._fit_pose_lm(obj, img, JIG)
+    mm, deg = _pose_difference(T_gn, T_lm)
+    assert mm < 1e-5 and deg < 1e-6
+    assert np.abs(res_gn - res_lm).max() < 1e-6
+
+
+def test_occluded_fiducial_falls_back_to_the_detector(pair):
+    left = pair.left.copy()
+    quad = EXPECTED.fiducial_quads_left_px[0]
+    lo, hi = np.floor(quad.min(axis=0)).astype(int) - 20, np.ceil(quad.max(axis=0)).astype(int) + 20
+    left[max(lo[1], 0) : hi[1], max(lo[0], 0) : hi[0]] = 10  # fiducial 0 hidden in the left image
+    assert locate_fiducials_near(left, JIG.fiducials, EXPECTED.fiducial_quads_left_px) is None
+    frame, warnings = resolve_jig_frame(left, pair.right, JIG)
+    general = jig_frame_from_fiducials(left, pair.right, JIG, fast=False)
+    assert frame.source == "fiducials" and warnings == []
+    assert frame.fiducial_ids == general.fiducial_ids == tuple(JIG.fiducials.ids[1:])
+    mm, deg = _pose_difference(frame.T_J_left, general.T_J_left)
+    assert mm < 1e-9 and deg < 1e-9  # the same corners and fit: identical
+
+
+def test_wrong_ids_are_not_read_as_the_expected_fiducials(pair):
+    """The cells must read as the configured ids, in their orientation."""
+    swapped = JIG.fiducials.__class__(**{**JIG.fiducials.__dict__, "ids": (1, 0, 2, 3)})
+    assert locate_fiducials_near(pair.left, swapped, EXPECTED.fiducial_quads_left_px) is None
+    rotated = np.roll(EXPECTED.fiducial_quads_left_px, 1, axis=1)  # the same places, corners turned
+    assert locate_fiducials_near(pair.left, JIG.fiducials, rotated) is None
+
+
+def test_nothing_to_find():
+    blank = np.full((JIG.cameras.left.height_px, JIG.cameras.left.width_px), 30, np.uint8)
+    assert locate_fiducials_near(blank, JIG.fiducials, EXPECTED.fiducial_quads_left_px) is None
+    assert locate_fiducials_near(blank[:100, :100], JIG.fiducials, EXPECTED.fiducial_quads_left_px) is None
+    assert jig_frame_from_fiducials(blank, blank, JIG) is None
+    frame, warnings = resolve_jig_frame(blank, blank, JIG)
+    assert frame.source == "config" and "were not found" in warnings[0]
+
+
+def test_a_head_far_off_takes_the_general_path_once(monkeypatch):
+    """As-built draw 235 puts the fiducials ~43 px from where the config expects them: beyond the fast
+    path's capture. The first frame takes the general path; the next ones start where it found them."""
+    pair = render_pair(draw_as_built(JIG, rng=235), rng=1)
+    fast_first = jigframe._jig_frame_fast(
+        pair.left, pair.right, JIG, jigframe._fast_constants(JIG).expected_quads
+    )
+    assert fast_first is None
+    jigframe._FOUND_BEFORE.clear()
+    first = jig_frame_from_fiducials(pair.left, pair.right, JIG)
+    assert first is not None and first.fiducial_ids == tuple(JIG.fiducials.ids)
+
+    def no_detector(*args, **kwargs):
+        raise AssertionError("the general path ran again")
+
+    monkeypatch.setattr(jigframe, "detect_fiducials", no_detector)
+    again = jig_frame_from_fiducials(pair.left, pair.right, JIG)
+    mm, deg = _pose_difference(first.T_J_left, again.T_J_left)
+    assert mm < 1e-3 and deg < 1e-4
