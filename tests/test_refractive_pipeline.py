@@ -48,6 +48,26 @@ def test_uncalibrated_normal_beats_the_uncalibrated_paper_method(diameter, alpha
     json.dumps(est.to_dict())  # plain JSON types only
 
 
+@pytest.mark.parametrize(("diameter", "theta"), [(50, 90), (80, 90), (70, 320)])
+def test_contact_without_the_part_size_at_a_large_tilt(diameter, theta, reference):
+    """At 20 deg the membrane's wall beside the lowered edge is as deep as half the contact and the part
+    lifts off on the other side: the contact grown without the part's size must still be the face (these
+    cases picked the wall, 20-40 deg off, before the hole check and the extra seeds)."""
+    pose, pair = _pair(diameter, 20, theta, 3)
+    result = estimate_pair(pair.left, pair.right, JIG, reference=reference)
+    error = np.degrees(angle_between(np.array(result.estimate.normal), pose.rotation()[:, 2]))
+    assert error < 1.5
+    assert result.estimate.contact_partial
+
+
+def test_part_centre_under_partial_contact(reference):
+    """80 mm at 20 deg: the contact's centroid lies ~15 mm down the tilt, the face's centre within 4 mm."""
+    _, pair = _pair(80, 20, 200, 2)
+    est = estimate_pair(pair.left, pair.right, JIG, part_diameter_mm=80, reference=reference).estimate
+    assert np.hypot(*est.contact_centroid_xy_mm) > 8.0
+    assert np.hypot(*est.part_centre_xy_mm) < 4.0
+
+
 def test_partial_contact_is_flagged(reference):
     _, pair = _pair(80, 20, 200, 2)
     est = estimate_pair(pair.left, pair.right, JIG, method="refractive", reference=reference).estimate

@@ -4,12 +4,13 @@ import numpy as np
 import pytest
 
 from softjig.errors import InputError
-from softjig.geometry import fit_plane_svd, normal_from_tilt, tilt_angles
+from softjig.geometry import fit_plane_svd, normal_from_tilt, normal_from_tilt_angles, tilt_angles
 from softjig.sensing.uncertainty import (
     NormalUncertainty,
     normal_from_slopes,
     normal_uncertainty,
     tilt_angles_from_slopes,
+    with_spread_between,
 )
 
 
@@ -174,3 +175,17 @@ def test_downward_normal_raises():
     flipped = type(plane)(**{**plane.__dict__, "normal": -plane.normal})
     with pytest.raises(InputError, match="n_z > 0"):
         normal_uncertainty(pts, flipped)
+
+
+def test_spread_between_two_normals_adds_half_their_difference_in_quadrature():
+    xy = np.array([[-10.0, 0], [10, 0], [0, -10], [0, 10]])
+    pts = np.column_stack([xy, np.zeros(4)])
+    base = normal_uncertainty(pts, fit_plane_svd(pts), point_sigma_mm=0.1)
+    a = normal_from_tilt_angles(np.radians(0.4), 0.0)
+    b = normal_from_tilt_angles(np.radians(-0.4), 0.0)
+    spread = with_spread_between(base, a, b)
+    assert spread.tilt_sigma_x_rad == pytest.approx(np.hypot(base.tilt_sigma_x_rad, np.radians(0.4)))
+    assert spread.tilt_sigma_y_rad == pytest.approx(base.tilt_sigma_y_rad)
+    assert spread.tilt_sigma_rad > base.tilt_sigma_rad
+    same = with_spread_between(base, a, a)
+    assert same.tilt_sigma_x_rad == pytest.approx(base.tilt_sigma_x_rad)

@@ -4,8 +4,9 @@ Both methods estimate every frame of the dataset. The paper's method is calibrat
 on the even steps of ``theta`` and evaluated on the odd ones, as ``softjig demo`` does; ours (the
 refractive method, indentations against the dataset's unloaded reference frame) is evaluated on the same
 odd frames uncalibrated, and calibrated the same way. On the same frames, ours also reports how often the
-true tilt error lies within its 1-sigma (``coverage``: about 68 % expected), and how far the contact's
-centroid lies from the part's true centre on the jig (the part's position).
+true tilt error lies within its 1-sigma (``coverage``: about 68 % expected), how far its contact's
+centroid lies from the true contact's, and how far its estimate of the part's centre lies from the
+truth (the part's position; in partial contact the contact's centroid is not the part's centre).
 """
 
 from __future__ import annotations
@@ -19,8 +20,10 @@ from softjig.calibration.sweep import fit_sweep_calibration, sweep_samples
 from softjig.calibration.tilt import TiltCalibration
 from softjig.evaluation.metrics import RmseGrid, commanded_tilt_angles_deg
 from softjig.evaluation.tilt_sweep import evaluate_sweep
+from softjig.geometry import fit_plane_svd
 from softjig.io.dataset import Dataset
 from softjig.sensing.batch import BatchSettings, dataset_reference, estimate_dataset
+from softjig.sensing.contact import describe_contact
 
 
 @dataclass(frozen=True)
@@ -34,7 +37,11 @@ class MethodComparison:
     ours_calibration : the paper's ``(Ox, Oy, S)`` fitted to ours on the even-theta frames: a sensor that
         needs no calibration has ``S = 1`` and ``O = 0``.
     coverage_x, coverage_y : share of loaded frames whose |Ax| / |Ay| error is within ours' 1-sigma.
-    position_rms_mm : RMS distance between ours' contact centroid and the part's true centre (mm).
+    contact_centroid_rms_mm : RMS distance between ours' contact centroid and the true contact's (mm).
+    contact_to_part_centre_rms_mm : RMS distance between ours' contact centroid and the part's true
+        centre (mm): in partial contact the contact lies on the lowered side, away from the centre.
+    part_centre_rms_mm : RMS distance between ours' estimate of the part's centre (the part's size is
+        known in a sweep) and the truth (mm).
     n_frames : held-out frames; ``n_failed_paper``, ``n_failed_ours``: sweep frames without an estimate.
     """
 
@@ -44,7 +51,9 @@ class MethodComparison:
     ours_calibration: TiltCalibration
     coverage_x: float
     coverage_y: float
-    position_rms_mm: float
+    contact_centroid_rms_mm: float
+    contact_to_part_centre_rms_mm: float
+    part_centre_rms_mm: float
     n_frames: int
     n_failed_paper: int
     n_failed_ours: int
@@ -73,7 +82,7 @@ def compare_methods(
     paper_grid = evaluate_sweep(paper, fit_sweep_calibration(paper, selection="even").pooled, selection="odd")
     ours_cal = fit_sweep_calibration(ours, selection="even").pooled
     ours_grid = evaluate_sweep(ours, ours_cal, selection="odd")  # both grids: calibrated and raw
-    coverage_x, coverage_y, position = _uncertainty_and_position(frames, ours_rows)
+    coverage_x, coverage_y, to_centre, to_contact, part = _uncertainty_and_position(frames, ours_rows, jig)
     return MethodComparison(
         paper_calibrated=paper_grid.calibrated,
         ours_uncalibrated=ours_grid.uncalibrated,
@@ -81,17 +90,23 @@ def compare_methods(
         ours_calibration=ours_cal,
         coverage_x=coverage_x,
         coverage_y=coverage_y,
-        position_rms_mm=position,
+        contact_to_part_centre_rms_mm=to_centre,
+        contact_centroid_rms_mm=to_contact,
+        part_centre_rms_mm=part,
         n_frames=ours_grid.n_frames,
         n_failed_paper=paper.n_failed,
         n_failed_ours=ours.n_failed,
     )
 
 
-def _uncertainty_and_position(frames: list, rows: list[dict]) -> tuple[float, float, float]:
-    """Coverage of the 1-sigma tilt errors and RMS position error, over every loaded frame estimated."""
+def _uncertainty_and_position(
+    frames: list, rows: list[dict], jig
+) -> tuple[float, float, float, float, float]:
+    """Coverage of the 1-sigma tilt errors, and RMS position errors (mm) over every loaded frame estimated:
+    the contact's centroid against the part's centre and against the true contact's centroid, and the
+    part's centre (when the rows have one) against the truth."""
     by_index = {row["index"]: row for row in rows}
-    inside_x, inside_y, distances = [], [], []
+    inside_x, inside_y, to_centre, to_contact, part = [], [], [], [], []
     for frame in frames:
         row = by_index.get(frame.index, {})
         if frame.reference or "tilt_sigma_x_deg" not in row or frame.alpha_deg is None:
@@ -99,15 +114,34 @@ def _uncertainty_and_position(frames: list, rows: list[dict]) -> tuple[float, fl
         cmd_x, cmd_y = commanded_tilt_angles_deg(np.array([frame.alpha_deg]), np.array([frame.theta_deg]))
         inside_x.append(abs(row["raw_tilt_x_deg"] - cmd_x[0]) <= row["tilt_sigma_x_deg"])
         inside_y.append(abs(row["raw_tilt_y_deg"] - cmd_y[0]) <= row["tilt_sigma_y_deg"])
-        if frame.truth is not None and frame.truth.T_J_part is not None:
-            centre = np.asarray(frame.truth.T_J_part)[:2, 3]
-            distances.append(float(np.hypot(*(np.asarray(row["contact_centroid_xy_mm"]) - centre))))
+        if frame.truth is None or frame.truth.T_J_part is None:
+            continue
+        centroid = np.asarray(row["contact_centroid_xy_mm"])
+        centre = np.asarray(frame.truth.T_J_part)[:2, 3]
+        to_centre.append(float(np.hypot(*(centroid - centre))))
+        if row.get("part_centre_xy_mm") is not None:
+            part.append(float(np.hypot(*(np.asarray(row["part_centre_xy_mm"]) - centre))))
+        if frame.truth.markers is not None:
+            true_contact = _true_contact_centroid(frame, jig)
+            if true_contact is not None:
+                to_contact.append(float(np.hypot(*(centroid - true_contact))))
 
     def mean(values: list) -> float:
         return float(np.mean(values)) if values else float("nan")
 
-    return (
-        mean(inside_x),
-        mean(inside_y),
-        float(np.sqrt(np.mean(np.square(distances)))) if distances else float("nan"),
-    )
+    def rms(values: list) -> float:
+        return float(np.sqrt(np.mean(np.square(values)))) if values else float("nan")
+
+    return mean(inside_x), mean(inside_y), rms(to_centre), rms(to_contact), rms(part)
+
+
+def _true_contact_centroid(frame, jig) -> np.ndarray | None:
+    """The centroid of the true contact's footprint, drawn as ours is (:func:`describe_contact` on the
+    markers the simulator put in contact, at their true positions)."""
+    truth = frame.load_truth_markers()
+    contact = np.asarray(truth["in_contact"], dtype=bool)
+    if contact.sum() < 3:
+        return None
+    xyz = np.asarray(truth["xyz_mm"])[contact]
+    region = describe_contact(xyz[:, :2], fit_plane_svd(xyz), jig, noise_mm=0.0)
+    return np.asarray(region.centroid_xy_mm)

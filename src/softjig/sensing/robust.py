@@ -396,16 +396,20 @@ def _student_factor(dof: int) -> float:
 
 
 def _diverse_inlier_sets(masks: np.ndarray, cost: np.ndarray) -> list[np.ndarray]:
-    """Inlier sets of the lowest-cost hypotheses, skipping sets too like one already taken."""
+    """Inlier sets of the lowest-cost hypotheses, skipping sets too like one already taken.
+
+    Vectorised over the candidates (each taken set rules out, at once, every later one within the
+    Jaccard limit): a per-pair loop cost 1-2 ms per fit.
+    """
+    order = np.argsort(cost, kind="stable")[: 50 * _N_CANDIDATES]
+    pool = masks[order]
+    pool = pool[pool.sum(axis=1) >= 3]
     chosen: list[np.ndarray] = []
-    for i in np.argsort(cost, kind="stable")[: 50 * _N_CANDIDATES]:
-        m = masks[i]
-        if m.sum() < 3:
-            continue
-        if all(np.sum(m & c) / np.sum(m | c) < _SAME_SET_JACCARD for c in chosen):
-            chosen.append(m)
-            if len(chosen) == _N_CANDIDATES:
-                break
+    while len(pool) and len(chosen) < _N_CANDIDATES:
+        taken = pool[0]
+        chosen.append(taken)
+        union = (pool | taken).sum(axis=1)
+        pool = pool[(pool & taken).sum(axis=1) < _SAME_SET_JACCARD * union]
     return chosen
 
 

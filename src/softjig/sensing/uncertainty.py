@@ -35,7 +35,14 @@ from softjig.checks import finite_float, positive_float
 from softjig.errors import InputError
 from softjig.geometry import PlaneFit
 
-__all__ = ["NormalUncertainty", "normal_from_slopes", "normal_uncertainty", "tilt_angles_from_slopes"]
+__all__ = [
+    "NormalUncertainty",
+    "inflated",
+    "normal_from_slopes",
+    "normal_uncertainty",
+    "tilt_angles_from_slopes",
+    "with_spread_between",
+]
 
 
 @dataclass(frozen=True)
@@ -198,4 +205,47 @@ def normal_uncertainty(
         tilt_sigma_y_rad=float(np.sqrt(cov_t[1, 1])),
         tilt_sigma_rad=float(np.sqrt(np.trace(cov_n))),
         residual_sigma_mm=s,
+    )
+
+
+def with_spread_between(
+    uncertainty: NormalUncertainty, normal_a: np.ndarray, normal_b: np.ndarray
+) -> NormalUncertainty:
+    """Add the spread between two equally plausible normals (e.g. of the narrowest and widest contact the
+    noise allows) to an uncertainty, as an independent error of covariance ``d d^T / 4``, ``d = a - b``:
+    the two lie about one sigma either side of the truth.
+
+    Parameters
+    ----------
+    uncertainty : the statistical uncertainty of the normal.
+    normal_a, normal_b : (3,) unit normals with ``n_z > 0``.
+    """
+    a, b = np.asarray(normal_a, dtype=float), np.asarray(normal_b, dtype=float)
+    half_n = (a - b) / 2.0
+    half_t = (np.array(_tilts(a)) - np.array(_tilts(b))) / 2.0
+    covariance = uncertainty.covariance + np.outer(half_n, half_n)
+    return NormalUncertainty(
+        covariance=covariance,
+        tilt_sigma_x_rad=float(np.hypot(uncertainty.tilt_sigma_x_rad, half_t[0])),
+        tilt_sigma_y_rad=float(np.hypot(uncertainty.tilt_sigma_y_rad, half_t[1])),
+        tilt_sigma_rad=float(np.sqrt(np.trace(covariance))),
+        residual_sigma_mm=uncertainty.residual_sigma_mm,
+    )
+
+
+def _tilts(normal: np.ndarray) -> tuple[float, float]:
+    """``(Ax, Ay)`` of a normal (rad), as :func:`softjig.geometry.tilt_angles`."""
+    return float(np.arctan2(-normal[1], normal[2])), float(np.arctan2(normal[0], normal[2]))
+
+
+def inflated(uncertainty: NormalUncertainty, factor: float) -> NormalUncertainty:
+    """The same uncertainty with every sigma multiplied by ``factor`` (the covariance by its square), for
+    errors the model leaves out."""
+    f = positive_float(factor, "factor")
+    return NormalUncertainty(
+        covariance=uncertainty.covariance * f * f,
+        tilt_sigma_x_rad=uncertainty.tilt_sigma_x_rad * f,
+        tilt_sigma_y_rad=uncertainty.tilt_sigma_y_rad * f,
+        tilt_sigma_rad=uncertainty.tilt_sigma_rad * f,
+        residual_sigma_mm=uncertainty.residual_sigma_mm,
     )

@@ -1,0 +1,94 @@
+"""The contact's pure functions on synthetic markers: lift-off pruning and the face's centre."""
+
+import numpy as np
+import pytest
+
+from softjig.config import default_jig
+from softjig.geometry import fit_plane_svd, normal_from_tilt_angles
+from softjig.sensing.contact import Indentation, describe_contact, drop_lifted_off, face_centre_xy
+
+PITCH = 8.0
+REST_Z = 30.0  # a flat unloaded membrane, for the synthetic cases
+
+
+def _grid(radius_mm: float) -> np.ndarray:
+    r = np.arange(-radius_mm, radius_mm + 1e-9, PITCH)
+    x, y = np.meshgrid(r, r)
+    xy = np.column_stack([x.ravel(), y.ravel()])
+    return xy[np.hypot(*xy.T) <= radius_mm]
+
+
+def _tilted_face(alpha_deg: float, push_mm: float):
+    """A face tilted towards +x, its centre ``push_mm`` below the flat rest membrane."""
+    normal = normal_from_tilt_angles(0.0, np.radians(alpha_deg))
+    return normal, lambda x, y: REST_Z - push_mm - (normal[0] * x + normal[1] * y) / normal[2]
+
+
+def test_drop_lifted_off_restores_the_tilt_flattened_by_the_drape():
+    """80 mm face at 20 deg, 3 mm push: the raised side lifts off, and the membrane it drags down stays
+    0.2-0.8 mm below the face for one pitch beyond the lift-off line (within any inlier band), which
+    flattens the least-squares plane."""
+    rng = np.random.default_rng(1)
+    normal, face_z = _tilted_face(20.0, 3.0)
+    xy = _grid(40.0)
+    z_face = face_z(xy[:, 0], xy[:, 1])
+    touching = z_face < REST_Z
+    lifted = ~touching & (z_face - REST_Z < PITCH * np.tan(np.radians(20.0)))
+    z = np.where(touching, z_face, REST_Z)
+    z[lifted] = z_face[lifted] - 0.2 - 0.6 * rng.random(lifted.sum())
+    points = np.column_stack([xy, z + rng.normal(0.0, 0.02, len(xy))])
+    dent = Indentation(REST_Z - points[:, 2], 0.0, 0.02)
+    used = touching | lifted
+    plane = fit_plane_svd(points[used])
+    kept, pruned = drop_lifted_off(points, dent, used, plane, clearance_mm=0.2, fit_plane=fit_plane_svd)
+    assert np.degrees(np.arccos(plane.normal @ normal)) > 0.3  # the drape does flatten it
+    assert np.degrees(np.arccos(pruned.normal @ normal)) < 0.1
+    assert not (kept & lifted).any()
+    assert (kept & touching).sum() >= (REST_Z - z_face > 0.25).sum() - 2  # only the touching markers within
+    # the clearance of the lift-off line go with them
+
+
+def test_drop_lifted_off_keeps_a_full_contact():
+    normal, face_z = _tilted_face(5.0, 3.0)
+    xy = _grid(16.0)
+    points = np.column_stack([xy, face_z(xy[:, 0], xy[:, 1])])
+    dent = Indentation(REST_Z - points[:, 2], 0.0, 0.02)
+    used = np.ones(len(xy), bool)
+    kept, plane = drop_lifted_off(
+        points, dent, used, fit_plane_svd(points), clearance_mm=0.2, fit_plane=fit_plane_svd
+    )
+    assert kept.all()
+    assert np.allclose(plane.normal, normal, atol=1e-9)
+
+
+@pytest.mark.parametrize("centre", [(0.0, 0.0), (6.0, -4.0)])
+def test_face_centre_in_partial_contact_is_not_the_contact_centroid(centre):
+    """A 70 mm face at 20 deg lifts off on its raised side: the footprint's centroid lies ~15 mm downhill,
+    the face's centre (one radius uphill of the rim) is found within a few mm."""
+    jig = default_jig()
+    normal = normal_from_tilt_angles(0.0, np.radians(20.0))
+    radius = 35.0
+    xy = _grid(60.0)
+    inside = np.hypot(*(xy - centre).T) < radius
+    # contact: the face lies below the (flat) rest membrane, 3 mm at its centre
+    face_depth = 3.0 + (xy - centre) @ normal[:2] / normal[2]
+    contact = inside & (face_depth > 0)
+    z = REST_Z - face_depth
+    points = np.column_stack([xy, z])
+    plane = fit_plane_svd(points[contact])
+    region = describe_contact(points[contact, :2], plane, jig, noise_mm=0.05, part_diameter_mm=2 * radius)
+    region = type(region)(**{**region.__dict__, "partial": True})  # the jig's dome is not our flat membrane
+    estimate = face_centre_xy(points[contact, :2], region, plane, radius, pitch_mm=PITCH)
+    centroid_error = np.hypot(*(np.asarray(region.centroid_xy_mm) - centre))
+    assert centroid_error > 10.0
+    assert np.hypot(*(np.asarray(estimate) - centre)) < PITCH / 2
+
+
+def test_face_centre_in_full_contact_is_the_centroid():
+    jig = default_jig()
+    xy = _grid(16.0)
+    points = np.column_stack([xy, np.full(len(xy), 27.0)])
+    plane = fit_plane_svd(points)
+    region = describe_contact(xy, plane, jig, noise_mm=0.05)
+    assert not region.partial
+    assert face_centre_xy(xy, region, plane, 20.0, pitch_mm=PITCH) == pytest.approx(region.centroid_xy_mm)
