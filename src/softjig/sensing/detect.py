@@ -1,10 +1,21 @@
-"""Marker detection: Laplacian-of-Gaussian blobs with sub-pixel quadratic refinement.
+"""Marker detection: Laplacian-of-Gaussian blobs with sub-pixel refinement.
 
 The sensing soft jig images white hemispherical markers on a black membrane. Each marker
 appears as a bright, blurred, roughly circular blob. Following Sakuma et al., markers are
 found as local maxima of the scale-normalised negative Laplacian of Gaussian (LoG) whose
-scale is matched to the marker size in the image, and each maximum is refined to sub-pixel
-accuracy by a least-squares 2-D quadratic fit to the response around it.
+scale is matched to the marker size in the image. Two ways to find them:
+
+* ``candidates="full"`` (the straightforward path, Sakuma et al.'s): the LoG of the whole
+  image at full resolution;
+* ``candidates="pyramid"`` (the default, ~20x faster): the LoG of the image averaged down
+  by 2 or 4 (``cv2.resize``, ``INTER_AREA``), at the correspondingly smaller scale; only
+  the candidates are then refined at full resolution, in small windows.
+
+Each maximum is refined to sub-pixel accuracy either by a prewhitened least-squares fit of
+the marker's image model to the pixels around it (``refine="model"``, the default,
+:mod:`softjig.sensing.subpixel`: within 1.5x the Cramer-Rao bound), or, as Sakuma et al.
+do, by a least-squares 2-D quadratic fit to the LoG response around it
+(``refine="quadratic"``).
 
 Conventions
 -----------
@@ -20,22 +31,30 @@ Everything here is pure: arrays in, frozen dataclasses out.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal
 
 import cv2
+import numba
 import numpy as np
 import numpy.typing as npt
 from scipy.spatial import cKDTree
 
 from softjig.checks import finite_float
 from softjig.errors import InputError
+from softjig.sensing.subpixel import MarkerModel, refine_centres
 
 __all__ = [
+    "CANDIDATES",
+    "DEFAULT_CANDIDATES",
+    "DEFAULT_REFINE",
     "DEFAULT_THRESHOLD",
+    "REFINE_METHODS",
     "Markers",
     "check_image_content",
     "detect_markers",
+    "gray_image",
     "log_sigma_px",
     "to_gray_float",
 ]
@@ -47,7 +66,15 @@ DEFAULT_THRESHOLD: float = 0.05
 _FULL_SCALE = {np.dtype(np.uint8): 255.0, np.dtype(np.uint16): 65535.0}
 _BLANK_STD = 1e-3  # std below this fraction of full scale: blank image
 _SATURATED_FRACTION = 0.5  # more than this fraction of pixels at full scale: saturated
-_REFINE_METHODS = ("quadratic", None)
+#: How candidates are found and the default (see :func:`detect_markers`).
+CANDIDATES = ("pyramid", "full")
+DEFAULT_CANDIDATES = "pyramid"
+#: Sub-pixel refinements and the default (see :func:`detect_markers`).
+REFINE_METHODS = ("model", "quadratic", None)
+DEFAULT_REFINE = "model"
+_MIN_COARSE_SIGMA_PX = 1.2  # the pyramid level is the coarsest where the LoG scale stays above this
+_LOCAL_HALF_WIDTH = 3  # pyramid + quadratic: full-resolution LoG in 7x7 windows around the candidates
+_CANDIDATE_MARGIN = 0.7  # pyramid + quadratic: coarse candidates down to this fraction of the threshold
 _FIT_HALF_WIDTH = 1  # quadratic fit on the (2*1+1) x (2*1+1) = 3x3 neighbourhood
 _MAX_REFINE_OFFSET_PX = 1.0
 
@@ -136,6 +163,33 @@ def to_gray_float(image: npt.ArrayLike) -> np.ndarray:
     scaling is exact in the sense that a ``uint8`` image and the same image as ``uint16``
     (``x * 257``) give bit-identical float32 outputs.
     """
+    gray, full_scale = gray_image(image)
+    if full_scale == 1.0:
+        return gray
+    return gray.astype(np.float32) / np.float32(full_scale)
+
+
+def gray_image(image: npt.ArrayLike) -> tuple[np.ndarray, float]:
+    """Validate a camera image and make it gray, keeping its dtype (no conversion to float).
+
+    Parameters
+    ----------
+    image : array_like
+        As for :func:`to_gray_float`.
+
+    Returns
+    -------
+    gray : numpy.ndarray, shape (H, W)
+        ``uint8`` or ``uint16`` for integer input (RGB converted with ``cv2.cvtColor``, as in
+        :func:`to_gray_float`), float32 in [0, 1] for float input.
+    full_scale : float
+        The value of full scale: 255, 65535 or 1.0.
+
+    Raises
+    ------
+    InputError
+        As :func:`to_gray_float`.
+    """
     arr = np.asarray(image)
     if arr.ndim == 3 and arr.shape[2] == 3:
         is_rgb = True
@@ -164,11 +218,11 @@ def to_gray_float(image: npt.ArrayLike) -> np.ndarray:
                 f"a float image must be scaled to [0, 1], got values in [{low}, {high}]; "
                 "pass the camera's integer frame or divide by its full scale."
             )
-        return cv2.cvtColor(arr, cv2.COLOR_RGB2GRAY) if is_rgb else arr
+        return (cv2.cvtColor(arr, cv2.COLOR_RGB2GRAY) if is_rgb else arr), 1.0
     arr = np.ascontiguousarray(arr)
     if is_rgb:
         arr = cv2.cvtColor(arr, cv2.COLOR_RGB2GRAY)
-    return arr.astype(np.float32) / np.float32(_FULL_SCALE[arr.dtype])
+    return arr, _FULL_SCALE[arr.dtype]
 
 
 def check_image_content(gray: npt.ArrayLike, *, name: str = "the image") -> None:
@@ -176,8 +230,9 @@ def check_image_content(gray: npt.ArrayLike, *, name: str = "the image") -> None
 
     Parameters
     ----------
-    gray : array_like, shape (H, W), float
-        Gray image scaled to [0, 1], as returned by :func:`to_gray_float`.
+    gray : array_like, shape (H, W), uint8, uint16 or float
+        Gray image: integer (full scale 255 or 65535, as returned by :func:`gray_image`) or
+        float scaled to [0, 1] (as returned by :func:`to_gray_float`).
     name : str, optional
         What to call the image in messages, e.g. ``"the left image"``.
 
@@ -194,22 +249,29 @@ def check_image_content(gray: npt.ArrayLike, *, name: str = "the image") -> None
     gives an empty result. Call it where a blank or saturated frame means a faulty setup.
     """
     arr = np.asarray(gray)
-    if arr.ndim != 2 or arr.size == 0 or not np.issubdtype(arr.dtype, np.floating):
+    full = _FULL_SCALE.get(arr.dtype, 1.0)
+    if (
+        arr.ndim != 2
+        or arr.size == 0
+        or not (arr.dtype in _FULL_SCALE or np.issubdtype(arr.dtype, np.floating))
+    ):
         raise InputError(
-            f"{name} must be a non-empty float gray image of shape (H, W) scaled to "
-            f"[0, 1], got dtype {arr.dtype} and shape {arr.shape}; convert it with "
-            "to_gray_float() first."
+            f"{name} must be a non-empty gray image of shape (H, W), uint8, uint16 or float scaled "
+            f"to [0, 1], got dtype {arr.dtype} and shape {arr.shape}; convert it with "
+            "gray_image() or to_gray_float() first."
         )
     # A 1-in-4 subsample decides blank or saturated as well as every pixel, at a sixteenth of the cost.
-    sample = np.ascontiguousarray(arr[::4, ::4], dtype=np.float32)
-    mean, std = (float(v) for v in np.ravel(cv2.meanStdDev(sample)))
+    sample = np.ascontiguousarray(arr[::4, ::4])
+    if sample.dtype not in (np.dtype(np.uint8), np.dtype(np.uint16), np.dtype(np.float32)):
+        sample = sample.astype(np.float32)
+    mean, std = (float(v) / full for v in np.ravel(cv2.meanStdDev(sample)))
     if std < _BLANK_STD:
         raise InputError(
             f"{name} is blank: its gray levels vary by only {std:.2e} of full scale "
             f"(mean {mean:.3f}); check the lighting/exposure, "
             "the lens cap and the camera connection."
         )
-    saturated = float(np.count_nonzero(sample >= 1.0)) / sample.size
+    saturated = float(np.count_nonzero(sample >= full)) / sample.size
     if saturated > _SATURATED_FRACTION:
         raise InputError(
             f"{name} is saturated: {100.0 * saturated:.0f}% of its pixels are at full "
@@ -276,7 +338,10 @@ def detect_markers(
     threshold: float = DEFAULT_THRESHOLD,
     min_distance_px: float | None = None,
     border_px: int | None = None,
-    refine: Literal["quadratic"] | None = "quadratic",
+    refine: Literal["model", "quadratic"] | None = DEFAULT_REFINE,
+    candidates: Literal["pyramid", "full"] = DEFAULT_CANDIDATES,
+    model: MarkerModel | None = None,
+    exclude: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> Markers:
     """Detect bright circular markers as maxima of the scale-normalised LoG.
 
@@ -303,8 +368,14 @@ def detect_markers(
         ``ceil(sqrt(2) * sigma_px)``, one matched marker radius, so that markers cut by
         the image edge (biased centres) are not reported. At least 1 is always used,
         because the refinement needs the 3x3 neighbourhood.
-    refine : {"quadratic", None}, optional
-        ``"quadratic"`` (default): sub-pixel centre from a least-squares fit of
+    refine : {"model", "quadratic", None}, optional
+        ``"model"`` (default): prewhitened least-squares fit of the marker's image model to
+        the ``(2 h + 1)^2`` pixels around each peak (:func:`softjig.sensing.subpixel.refine_centres`,
+        ``h = model.half_width_px``). On the simulator's default frames its error is about
+        0.16 px RMS against 0.27 px for ``"quadratic"`` (mostly the bead speckle, see Notes),
+        and the tilt error of the estimated normal drops from 0.5 to 0.15 deg. A fit that
+        fails (not a bright marker, or moving more than 2.5 px) keeps its candidate position.
+        ``"quadratic"``: sub-pixel centre from a least-squares fit of
         ``z = a + b x + c y + d x^2 + e x y + f y^2`` to the 3x3 response neighbourhood
         of each peak; the centre is the stationary point of the fit. If the fit is not a
         maximum (``d < 0`` and ``4 d f - e^2 > 0``) or the stationary point is more than
@@ -312,6 +383,24 @@ def detect_markers(
         is not dropped). The response is smooth at the marker scale, so a 5x5 window
         was measured to be no more accurate (bias below 0.005 px RMS for both).
         ``None``: integer peak positions.
+    candidates : {"pyramid", "full"}, optional
+        ``"pyramid"`` (default): peaks of the LoG of the image averaged down by ``F`` (4, or
+        2 or 1 when ``sigma_px / F`` would fall below 1.2 px) at scale
+        ``sqrt(sigma^2 - (F^2 - 1) / 12) / F`` (the box average's own blur subtracted); each
+        peak's sub-pixel position (quadratic fit) mapped to full resolution starts the
+        refinement there. With ``refine="quadratic"`` or ``None`` the LoG is then evaluated
+        at full resolution in a 7x7 window around each candidate, so positions and
+        responses are those of ``"full"``. ``"full"``: the LoG of the whole image at full
+        resolution (the straightforward path; about 20x slower).
+    model : MarkerModel, optional
+        The marker and noise model of ``refine="model"``. Default
+        ``MarkerModel.for_sigma(sigma_px)``: the nominal marker (blur 0.4 of the radius)
+        whose matched LoG scale is ``sigma_px``, with the simulator's default noise.
+    exclude : callable, optional
+        ``exclude(xy)`` with ``xy`` (M, 2) candidate centres (px) returns a boolean (M,) mask
+        of the candidates to drop before the refinement (e.g. those on the fiducials); the
+        refinement does not move a marker by more than 2.5 px, so testing the candidate
+        is testing the marker.
 
     Returns
     -------
@@ -350,6 +439,14 @@ def detect_markers(
     coarser (at a correlation length of 1.5 px the background maxima reach 0.07), lower
     it for fainter markers on a cleaner background.
 
+    With ``candidates="pyramid"`` and ``refine="model"``, ``R`` is that of the coarse
+    level at its quadratically interpolated peak, times ``(1 + 1 / (8 s^2)) / (1 + 1 / (8
+    sigma^2))`` (``s`` the coarse scale in coarse pixels), which undoes most of the coarser
+    discrete Laplacian's larger underestimate: it is 1-3.5 % below the full-resolution ``R``
+    (2.3 % on average on the simulator's default frames, measured), so the threshold means
+    practically the same (the default markers' ``R`` is about 0.25, five times the
+    threshold).
+
     Speckle on and around a marker also shifts its LoG peak: with the nominal speckle
     the centre error is about 0.35 px RMS at contrast 120/255 (0.03 px with camera noise
     alone), growing to about 1 px at contrast 0.15.
@@ -371,22 +468,231 @@ def detect_markers(
         raise InputError(f"border_px must be an integer number of pixels, got {border_px!r}.")
     if border_px < 0:
         raise InputError(f"border_px must be >= 0, got {border_px}.")
-    if refine not in _REFINE_METHODS:
-        raise InputError(f"unknown refine method {refine!r}; valid values are 'quadratic' and None.")
+    if refine not in REFINE_METHODS:
+        raise InputError(f"unknown refine method {refine!r}; valid values are 'model', 'quadratic' and None.")
+    if candidates not in CANDIDATES:
+        raise InputError(f"unknown candidates {candidates!r}; valid values are 'pyramid' and 'full'.")
+    if model is not None and not isinstance(model, MarkerModel):
+        raise InputError(f"model must be a softjig.sensing.subpixel.MarkerModel, got {type(model).__name__}.")
 
-    gray = to_gray_float(image)
-    response = _log_response(gray, sigma)
-    rows, cols = _local_maxima(
-        response, threshold=thr, half_width=int(min_dist), border=max(int(border_px), 1)
-    )
-    peak = response[rows, cols].astype(np.float64)
-    xy = np.column_stack([cols, rows]).astype(np.float64)
-    if refine == "quadratic" and len(rows) > 0:
-        offset, peak_fit, ok = _refine_quadratic(response, rows, cols)
-        xy[ok] += offset[ok]
-        peak[ok] = peak_fit[ok]
+    gray, full_scale = gray_image(image)
+    border = max(int(border_px), 1)
+    if candidates == "full":
+        xy, peak = _full_candidates(gray, full_scale, sigma, thr, int(min_dist), border, refine)
+    else:
+        xy, peak = _pyramid_candidates(gray, full_scale, sigma, thr, int(min_dist), border, refine)
+    if exclude is not None and len(xy) > 0:
+        keep = ~np.asarray(exclude(xy), dtype=bool)
+        xy, peak = xy[keep], peak[keep]
+    if refine == "model" and len(xy) > 0:
+        xy = refine_centres(gray, xy, model if model is not None else MarkerModel.for_sigma(sigma)).xy_px
     order = np.argsort(-peak, kind="stable")
     return Markers(xy_px=xy[order], response=peak[order], sigma_px=sigma)
+
+
+def _full_candidates(
+    gray: np.ndarray, full_scale: float, sigma: float, thr: float, half_width: int, border: int, refine
+) -> tuple[np.ndarray, np.ndarray]:
+    """Peaks of the full-resolution LoG: ``(u, v)`` and responses, quadratic-refined unless
+    ``refine is None``."""
+    image = gray if full_scale == 1.0 else gray.astype(np.float32) / np.float32(full_scale)
+    response = _log_response(image, sigma)
+    rows, cols = _local_maxima(response, threshold=thr, half_width=half_width, border=border)
+    peak = response[rows, cols].astype(np.float64)
+    xy = np.column_stack([cols, rows]).astype(np.float64)
+    if refine is not None and len(rows) > 0:
+        offset, peak_fit, ok = _refine_quadratic(response, rows, cols)
+        peak[ok] = peak_fit[ok]
+        xy[ok] += offset[ok]  # also the start of the model fit
+    return xy, peak
+
+
+def pyramid_factor(sigma_px: float) -> int:
+    """The pyramid's reduction ``F`` (4, 2 or 1) for a LoG scale: the largest with a coarse scale of
+    at least 1.2 coarse px (below, the discrete LoG of the coarse level is too rough)."""
+    for factor in (4, 2):
+        if _coarse_sigma(sigma_px, factor) >= _MIN_COARSE_SIGMA_PX:
+            return factor
+    return 1
+
+
+def _coarse_sigma(sigma: float, factor: int) -> float:
+    """LoG scale at the level averaged down by ``factor`` (coarse px): the ``factor x factor`` box
+    average already blurs by a variance of ``(factor^2 - 1) / 12`` full-resolution px^2."""
+    return math.sqrt(max(sigma * sigma - (factor * factor - 1) / 12.0, 0.0)) / factor
+
+
+def _pyramid_candidates(
+    gray: np.ndarray, full_scale: float, sigma: float, thr: float, half_width: int, border: int, refine
+) -> tuple[np.ndarray, np.ndarray]:
+    """Peaks found on the coarse level, at full-resolution coordinates, and their responses."""
+    factor = pyramid_factor(sigma)
+    small = gray
+    for _ in range(factor.bit_length() - 1):  # halve with exact 2x2 means (cv2's fast INTER_AREA case)
+        h, w = small.shape
+        h2, w2 = h // 2, w // 2
+        if h2 < 3 or w2 < 3:
+            break
+        small = cv2.resize(small[: 2 * h2, : 2 * w2], (w2, h2), interpolation=cv2.INTER_AREA)
+    factor = gray.shape[0] // small.shape[0] if small is not gray else 1
+    s_coarse = _coarse_sigma(sigma, factor)
+    # -sigma^2 LoG in full-resolution px of the image scaled to [0, 1]: the coarse Laplacian is factor^2
+    # times the fine one, and the coarser discrete Laplacian underestimates by 1/(8 s^2) instead of
+    # 1/(8 sigma^2). Scales folded into the Laplacian's (one pass over the level instead of three).
+    gain = (sigma / factor) ** 2 * (1.0 + 0.125 / s_coarse**2) / (1.0 + 0.125 / sigma**2) / full_scale
+    smoothed = cv2.GaussianBlur(
+        small.astype(np.float32), (0, 0), sigmaX=s_coarse, sigmaY=s_coarse, borderType=cv2.BORDER_REFLECT
+    )
+    response = cv2.Laplacian(smoothed, cv2.CV_32F, ksize=1, scale=-gain, borderType=cv2.BORDER_REFLECT)
+    exact = refine != "model"  # positions and responses from the full-resolution LoG
+    coarse_xy, peak = _coarse_peaks(
+        response,
+        np.float32(thr * _CANDIDATE_MARGIN if exact else thr),
+        max(1, half_width // factor),
+        _FIT_PINV,
+        _MAX_REFINE_OFFSET_PX,
+    )
+    xy = coarse_xy * factor + 0.5 * (factor - 1)  # coarse pixel centres in full-resolution px
+    if exact:
+        xy, peak = _full_resolution_peaks(gray, full_scale, sigma, thr, xy, refine)
+    # the border margin, on the pixel nearest each candidate (as "full" does on its peak pixel)
+    h, w = gray.shape
+    keep = _inside_border(xy, w, h, border)
+    return xy[keep], peak[keep]
+
+
+@numba.njit(cache=True, nogil=True)
+def _inside_border(xy, w, h, border):
+    """Whether the pixel nearest each ``(u, v)`` is at least ``border`` px from the image's edges."""
+    keep = np.empty(xy.shape[0], np.bool_)
+    for i in range(xy.shape[0]):
+        u, v = math.floor(xy[i, 0] + 0.5), math.floor(xy[i, 1] + 0.5)
+        keep[i] = border <= u < w - border and border <= v < h - border
+    return keep
+
+
+@numba.njit(cache=True, nogil=True)
+def _coarse_peaks(response, threshold, half_width, fit_pinv, max_offset):
+    """Peaks of the coarse response, quadratic-refined: ``(u, v)`` (M, 2) coarse px and values (M,).
+
+    In one pass, what :func:`_local_maxima` and :func:`_refine_quadratic` do (border 1): a pixel
+    above ``threshold`` is a peak if no pixel within ``half_width`` (Chebyshev) is larger, nor equal
+    and earlier in row-major order (on an exact plateau the first pixel is kept). A fit that is not a
+    maximum within ``max_offset`` keeps the pixel and its value. Replaces 0.6 ms of NumPy and
+    k-d tree calls on the 320x180 level by 0.05 ms (measured).
+    """
+    h, w = response.shape
+    xs, ys, vals = [], [], []
+    window = np.empty(9)
+    fit = np.empty(6)
+    for r in range(1, h - 1):
+        for c in range(1, w - 1):
+            value = response[r, c]
+            if not value > threshold:
+                continue
+            # cheap rejection first: most pixels above the threshold are on a peak's flank
+            if (
+                response[r, c + 1] > value
+                or response[r + 1, c] > value
+                or response[r, c - 1] > value
+                or response[r - 1, c] > value
+            ):
+                continue
+            is_peak = True
+            for rr in range(max(r - half_width, 0), min(r + half_width + 1, h)):
+                for cc in range(max(c - half_width, 0), min(c + half_width + 1, w)):
+                    other = response[rr, cc]
+                    if other > value or (other == value and (rr < r or (rr == r and cc < c))):
+                        is_peak = False
+                        break
+                if not is_peak:
+                    break
+            if not is_peak:
+                continue
+            k = 0
+            for dr in range(-1, 2):
+                for dc in range(-1, 2):
+                    window[k] = response[r + dr, c + dc]
+                    k += 1
+            fit[:] = 0.0  # fit_pinv @ window, written out (a BLAS call per peak cost 1 us)
+            for i in range(6):
+                for j in range(9):
+                    fit[i] += fit_pinv[i, j] * window[j]
+            a, b, cq, d, e, f = fit[0], fit[1], fit[2], fit[3], fit[4], fit[5]
+            det = 4.0 * d * f - e * e
+            x, y, peak = 0.0, 0.0, float(value)
+            if d < 0.0 and det > 0.0:
+                xf = (e * cq - 2.0 * f * b) / det
+                yf = (e * b - 2.0 * d * cq) / det
+                if abs(xf) <= max_offset and abs(yf) <= max_offset:
+                    x, y = xf, yf
+                    peak = a + b * x + cq * y + d * x * x + e * x * y + f * y * y
+            xs.append(c + x)
+            ys.append(r + y)
+            vals.append(peak)
+    out = np.empty((len(xs), 2))
+    for i in range(len(xs)):
+        out[i, 0], out[i, 1] = xs[i], ys[i]
+    return out, np.array(vals, dtype=np.float64)
+
+
+def _full_resolution_peaks(
+    gray: np.ndarray, full_scale: float, sigma: float, thr: float, start_xy: np.ndarray, refine
+) -> tuple[np.ndarray, np.ndarray]:
+    """The full-resolution LoG's peak near each start, thresholded, quadratic-refined unless
+    ``refine is None``; duplicates (two starts reaching the same peak) removed."""
+    half = _LOCAL_HALF_WIDTH
+    centre = np.rint(start_xy).astype(np.intp)
+    windows = _local_log(gray, full_scale, sigma, centre, half + 1)  # (N, 2 h + 3, 2 h + 3)
+    n = 2 * half + 1
+    inner = windows[:, 1:-1, 1:-1].reshape(len(centre), -1)
+    best = np.argmax(inner, axis=1)
+    dr, dc = best // n + 1, best % n + 1  # in the padded window
+    rows = centre[:, 1] + dr - (half + 1)
+    cols = centre[:, 0] + dc - (half + 1)
+    peak = inner[np.arange(len(best)), best].astype(np.float64)
+    xy = np.column_stack([cols, rows]).astype(np.float64)
+    if refine is not None:
+        idx = np.arange(len(best))[:, None]
+        nbhd = windows[idx, dr[:, None] + _FIT_DY, dc[:, None] + _FIT_DX].astype(np.float64)
+        offset, peak_fit, ok = _quadratic_peak(nbhd)
+        xy[ok] += offset[ok]
+        peak[ok] = peak_fit[ok]
+    keep = peak > thr
+    _, first = np.unique(np.column_stack([rows, cols])[keep], axis=0, return_index=True)
+    keep = np.flatnonzero(keep)[np.sort(first)]
+    return xy[keep], peak[keep]
+
+
+def _local_log(
+    gray: np.ndarray, full_scale: float, sigma: float, centre: np.ndarray, half: int
+) -> np.ndarray:
+    """``-sigma^2 LoG`` at full resolution in ``(2 half + 1)^2`` windows around integer ``centre``
+    (N, 2) ``(u, v)``: the same values as :func:`_log_response` of the whole image (same Gaussian
+    kernel, 5-point Laplacian, reflected border), float32 ``(N, 2 half + 1, 2 half + 1)``."""
+    ksize = round(sigma * 4 * 2 + 1) | 1  # cv2.GaussianBlur's size for float32 images
+    radius = ksize // 2
+    kernel = cv2.getGaussianKernel(ksize, sigma, cv2.CV_32F).ravel()
+    k = 2 * half + 3  # smoothed values needed: the window and a 1-px ring for the Laplacian
+    m = k + 2 * radius
+    pad = radius + half + 1
+    image = gray if full_scale == 1.0 else gray.astype(np.float32) / np.float32(full_scale)
+    padded = cv2.copyMakeBorder(image, pad, pad, pad, pad, cv2.BORDER_REFLECT)
+    view = np.lib.stride_tricks.sliding_window_view(padded, (m, m))
+    patches = view[centre[:, 1] - half - 1 - radius + pad, centre[:, 0] - half - 1 - radius + pad]
+    band = np.zeros((k, m), np.float32)
+    for i in range(k):
+        band[i, i : i + ksize] = kernel
+    smooth = band @ patches @ band.T  # (N, k, k)
+    lap = (
+        smooth[:, :-2, 1:-1]
+        + smooth[:, 2:, 1:-1]
+        + smooth[:, 1:-1, :-2]
+        + smooth[:, 1:-1, 2:]
+        - 4.0 * smooth[:, 1:-1, 1:-1]
+    )
+    lap *= np.float32(-sigma * sigma)
+    return lap
 
 
 def _log_response(gray: np.ndarray, sigma: float) -> np.ndarray:
@@ -410,19 +716,25 @@ def _local_maxima(
         return rows, cols
     rows += border
     cols += border
+    # The largest of the neighbours (centre excluded): a peak is >= it, and > it unless it ties.
     kernel = np.ones((2 * half_width + 1, 2 * half_width + 1), np.uint8)
-    dilated = cv2.dilate(response, kernel, borderType=cv2.BORDER_REFLECT)
-    is_peak = response[rows, cols] >= dilated[rows, cols]
+    kernel[half_width, half_width] = 0
+    neighbours = cv2.dilate(response, kernel, borderType=cv2.BORDER_REFLECT)
+    value, around = response[rows, cols], neighbours[rows, cols]
+    is_peak = value >= around
+    tied = (value == around)[is_peak]
     rows, cols = rows[is_peak], cols[is_peak]  # row-major order
     # Plateaus (exactly equal neighbouring values) give several pixels per peak: keep the
-    # first of each group in row-major order.
-    if len(rows) > 1:
-        pairs = cKDTree(np.column_stack([rows, cols])).query_pairs(
+    # first of each group in row-major order. Only tied peaks can be in one (the k-d tree on
+    # all the peaks cost 0.2 ms for 360 coarse peaks; on the tied ones, nothing).
+    if np.count_nonzero(tied) > 1:
+        tie = np.flatnonzero(tied)
+        pairs = cKDTree(np.column_stack([rows[tie], cols[tie]])).query_pairs(
             r=half_width, p=np.inf, output_type="ndarray"
         )
         if len(pairs):
             keep = np.ones(len(rows), bool)
-            for i, j in pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]:
+            for i, j in tie[pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]]:
                 if keep[i]:
                     keep[j] = False
             rows, cols = rows[keep], cols[keep]
@@ -438,6 +750,11 @@ def _refine_quadratic(
     mask of the fits that are a maximum within ``_MAX_REFINE_OFFSET_PX`` of the pixel.
     """
     window = response[rows[:, None] + _FIT_DY, cols[:, None] + _FIT_DX].astype(np.float64)
+    return _quadratic_peak(window)
+
+
+def _quadratic_peak(window: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Quadratic fit to (N, 9) row-major 3x3 neighbourhoods: offsets, peak values and success mask."""
     a, b, c, d, e, f = (window @ _FIT_PINV.T).T
     # Stationary point: [2d e; e 2f] [x y]^T = -[b c]^T.
     det = 4.0 * d * f - e * e
