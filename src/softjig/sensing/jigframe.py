@@ -494,12 +494,13 @@ def _pinhole_constants(jig: JigConfig, n_left: int, n_right: int) -> _PinholeCon
 
 
 def resolve_jig_frame(
-    left_u8: np.ndarray, right_u8: np.ndarray, jig: JigConfig
+    left_u8: np.ndarray, right_u8: np.ndarray, jig: JigConfig, *, fast: bool = True
 ) -> tuple[JigFrame, list[str]]:
     """The jig frame as ``sensing.extrinsics`` asks, with any warning to report.
 
     ``"fiducials"`` requires them; ``"config"`` uses the fixed extrinsics; ``"auto"`` measures them when
-    found and falls back to the config with a warning.
+    found and falls back to the config with a warning. ``fast=False`` reads the fiducials with the full
+    ArUco detector only (the straightforward path, see :func:`jig_frame_from_fiducials`).
 
     Raises
     ------
@@ -509,7 +510,7 @@ def resolve_jig_frame(
     mode = jig.sensing.extrinsics
     if mode == "config":
         return jig_frame_from_config(jig), []
-    frame = jig_frame_from_fiducials(left_u8, right_u8, jig)
+    frame = jig_frame_from_fiducials(left_u8, right_u8, jig, fast=fast)
     if frame is not None:
         return frame, []
     message = (

@@ -373,9 +373,17 @@ class Observation:
 
 
 def observe_pair(
-    left: np.ndarray, right: np.ndarray, jig: JigConfig, clock: _StageClock | None = None
+    left: np.ndarray,
+    right: np.ndarray,
+    jig: JigConfig,
+    clock: _StageClock | None = None,
+    *,
+    fast: bool = True,
 ) -> Observation:
     """Check a stereo pair, find the jig frame, detect and match the markers (both methods' front end).
+
+    ``fast=False`` runs the straightforward implementation of every stage (full ArUco detection,
+    full-resolution LoG candidates, the reference matching), for checking the fast one against.
 
     Raises
     ------
@@ -394,9 +402,10 @@ def observe_pair(
     u8_left, u8_right = _as_u8(left, gray_left), _as_u8(right, gray_right)
     setup = sensing_setup(jig)
     clock.lap("checks")
-    frame, warnings = resolve_jig_frame(u8_left, u8_right, jig)
+    frame, warnings = resolve_jig_frame(u8_left, u8_right, jig, fast=fast)
     clock.lap("frame")
-    kwargs = {"sigma_px": setup.sigma_px, "candidates": setup.candidates, "refine": setup.refine}
+    candidates = setup.candidates if fast else "full"
+    kwargs = {"sigma_px": setup.sigma_px, "candidates": candidates, "refine": setup.refine}
     if setup.threshold is not None:
         kwargs["threshold"] = setup.threshold
     if setup.marker is not None:
@@ -410,6 +419,7 @@ def observe_pair(
         row_tolerance_px=jig.sensing.row_tolerance_px,
         min_disparity_px=setup.min_disparity_px,
         max_disparity_px=setup.max_disparity_px,
+        reference=not fast,
     )
     if len(matches) < 0.5 * min(len(markers_left), len(markers_right)):
         warnings = [
@@ -448,6 +458,7 @@ def estimate_pair(
     method: str = DEFAULT_METHOD,
     reference: ReferenceMarkers | None = None,
     timings: dict[str, float] | None = None,
+    fast: bool = True,
 ) -> SensingResult:
     """Estimate the principal normal of the part on the jig from one rectified stereo pair.
 
@@ -465,6 +476,8 @@ def estimate_pair(
         nominal rest shape when ``None``.
     timings : if given, filled with each stage's wall time in seconds (``checks``, ``frame``,
         ``detect``, ``match``, ``triangulate``, ``fit``).
+    fast : ``False`` runs the straightforward implementation of each stage (same method, same results
+        within rounding; see :func:`observe_pair`), ten times slower: for checking the fast one.
 
     Returns
     -------
@@ -494,11 +507,13 @@ def estimate_pair(
     clock = _StageClock(timings)
     if not jig.cameras.rectified:  # a raw pair: rectify it with the stereo calibration in the config
         left, right, jig = rectify_pair(left, right, jig)
-    observation = observe_pair(left, right, jig, clock)
+    observation = observe_pair(left, right, jig, clock, fast=fast)
     if method == "paper":
         result = _paper_estimate(observation, jig, part_diameter_mm, calibration, clock)
     else:
-        result = _refractive_estimate(observation, jig, part_diameter_mm, calibration, reference, clock)
+        result = _refractive_estimate(
+            observation, jig, part_diameter_mm, calibration, reference, clock, fast=fast
+        )
     clock.lap("fit")
     return result
 
@@ -645,10 +660,12 @@ def _refractive_estimate(
     calibration: TiltCalibration | None,
     reference: ReferenceMarkers | None,
     clock: _StageClock,
+    *,
+    fast: bool = True,
 ) -> SensingResult:
     matches = observation.matches
     triangulated = triangulate_refracted(
-        observation.left_xy_px, observation.right_xy_px, jig, observation.frame
+        observation.left_xy_px, observation.right_xy_px, jig, observation.frame, reference=not fast
     )
     points_J = triangulated.points_J
     clock.lap("triangulate")
