@@ -55,15 +55,19 @@ def main() -> None:
                 distance, _ = cKDTree(markers.xy_px).query(px[visible])
                 errors.append(distance[distance < 2.0])
     print(f"softjig estimate ({args.method}), one default 1280x720 pair, {args.repeats} runs, 1 thread")
-    print(f"machine: {platform.processor() or platform.machine()}, Python {platform.python_version()}, "
-          f"NumPy {np.__version__}, OpenCV {cv2.__version__}")
+    print(
+        f"machine: {platform.processor() or platform.machine()}, Python {platform.python_version()}, "
+        f"NumPy {np.__version__}, OpenCV {cv2.__version__}"
+    )
     print(f"{'stage':<12} {'median ms':>10} {'IQR ms':>16}")
     for stage, values in records.items():
         q1, med, q3 = np.percentile(values, [25, 50, 75])
         print(f"{stage:<12} {med:>10.2f} {q1:>7.2f} - {q3:<7.2f}")
     e = np.concatenate(errors)
-    print(f"localisation: RMSE {np.sqrt(np.mean(e**2)):.3f} px, median {np.median(e):.3f} px "
-          f"over {len(e)} markers (default physics, as-built jig)")
+    print(
+        f"localisation: RMSE {np.sqrt(np.mean(e**2)):.3f} px, median {np.median(e):.3f} px "
+        f"over {len(e)} markers (default physics, as-built jig)"
+    )
 
 
 if __name__ == "__main__":

@@ -52,8 +52,10 @@ def main() -> None:
     for name, values in (("CPU time", cpu), ("wall time", wall)):
         ms = 1e3 * np.asarray(values)
         q1, med, q3 = np.percentile(ms, [25, 50, 75])
-        print(f"  {name:9s}: median {med:6.1f} ms, IQR {q1:.1f}-{q3:.1f} ms ({q3 - q1:.1f}), "
-              f"min {ms.min():.1f} ms")
+        print(
+            f"  {name:9s}: median {med:6.1f} ms, IQR {q1:.1f}-{q3:.1f} ms ({q3 - q1:.1f}), "
+            f"min {ms.min():.1f} ms"
+        )
     med = float(np.median(1e3 * np.asarray(cpu)))
     print("per stage (CPU time, median over renders, both cameras):")
     for name in stages[0]:

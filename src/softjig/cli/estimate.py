@@ -205,7 +205,7 @@ def _estimate_dataset(
     from rich.progress import Progress
 
     from softjig.io.dataset import Dataset
-    from softjig.sensing.batch import BatchSettings, dataset_reference, estimate_dataset, write_rows
+    from softjig.sensing.batch import BatchSettings, dataset_reference, estimate_dataset_to_file
 
     dataset = Dataset.open(path)
     jig = load_config(config) if config else dataset.jig
@@ -215,22 +215,21 @@ def _estimate_dataset(
     )
     out = out or Path(path) / "estimates.jsonl"
     t0 = time.perf_counter()
+    # Rows stream to a temporary file as they complete, in frame order; it replaces `out` only at the end.
     with Progress(console=stderr_console(), disable=not progress, transient=True) as bar:
         task = bar.add_task("estimating", total=len(dataset))
-        rows = list(
-            estimate_dataset(dataset, settings, workers=workers, on_row=lambda _row: bar.advance(task))
+        summary = estimate_dataset_to_file(
+            dataset, settings, out, workers=workers, on_row=lambda _row: bar.advance(task)
         )
-    write_rows(rows, out)
-    failed = [row for row in rows if "error" in row]
-    loaded = [row for row in rows if row.get("reference") is not True]
     typer.echo(
-        f"estimated {len(loaded) - len(failed)} of {len(loaded)} loaded frames in "
+        f"estimated {summary.n_loaded - summary.n_failed} of {summary.n_loaded} loaded frames in "
         f"{time.perf_counter() - t0:.1f} s ({method}"
         + (", indentations against the reference frame" if reference is not None else "")
         + f"); wrote {out}"
     )
-    if failed:
+    if summary.first_failure is not None:
+        first = summary.first_failure
         warn(
-            f"{len(failed)} frames gave no estimate (see their 'error' in {out}), e.g. frame "
-            f"{failed[0]['index']}: {failed[0]['error']}"
+            f"{summary.n_failed} frames gave no estimate (see their 'error' in {out}), e.g. frame "
+            f"{first['index']}: {first['error']}"
         )

@@ -1,4 +1,4 @@
-"""Estimate every frame of a dataset, in order, on every core.
+"""Estimate every frame of a dataset, in order, on every core, streaming the rows to a results file.
 
 Each frame becomes one JSON-able row: the :class:`~softjig.sensing.pipeline.Estimate`'s fields plus the
 frame's ``index``, or, when no estimate could be made, ``index``, ``error`` and ``exit_code`` (2 bad
@@ -6,26 +6,61 @@ input, 3 no estimate), so one bad frame never stops a long run; an unloaded refe
 ``{"index": i, "reference": true}``. The part's size comes from each frame's ``part`` entry unless a
 diameter is given for all. The refractive method measures indentations against the dataset's reference
 frame when it has one (:func:`dataset_reference`).
+
+**Throughput and memory.** :func:`estimate_dataset` hands frames to worker processes in small chunks and
+keeps a bounded number of chunks in flight, so the parent holds at most a few dozen rows however long the
+dataset; only frame paths travel to the workers (each reads its own images) and each worker receives the
+settings (jig, reference, calibration) once, at start. Workers are forked (on Linux) with one OpenCV
+thread each: the processes are the parallelism. :class:`RowsWriter` streams the rows to a
+temporary file next to the target and renames it into place only when every row is written, so a crash,
+a kill or a failed run never leaves a half-written file where a good one was
+(:func:`estimate_dataset_to_file` joins the two).
 """
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import io
 import json
+import multiprocessing
+import multiprocessing.context
 import os
-from collections.abc import Callable, Iterator
-from concurrent.futures import ProcessPoolExecutor
+import tempfile
+from collections import deque
+from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import Future, ProcessPoolExecutor
 from dataclasses import dataclass
+from itertools import islice
 from pathlib import Path
+from types import TracebackType
+from typing import IO
 
 from softjig.calibration.tilt import TiltCalibration
 from softjig.config import JigConfig
 from softjig.errors import EstimationError, InputError
 from softjig.io.dataset import Dataset, Frame
-from softjig.io.files import write_text_atomic
 from softjig.sensing.identities import ReferenceMarkers
-from softjig.sensing.pipeline import DEFAULT_METHOD, estimate_pair, reference_from_pair
+from softjig.sensing.pipeline import DEFAULT_METHOD, estimate_pair, reference_from_pair, sensing_setup
+
+__all__ = [
+    "CSV_COLUMNS",
+    "BatchSettings",
+    "BatchSummary",
+    "RowsWriter",
+    "dataset_reference",
+    "estimate_dataset",
+    "estimate_dataset_to_file",
+    "estimate_frame",
+    "frame_part_diameter_mm",
+    "rows_to_text",
+    "write_rows",
+]
+
+#: Frames per chunk handed to a worker at most (fewer for short datasets, so every worker gets some).
+MAX_CHUNK_FRAMES = 8
+#: Chunks in flight per worker: enough to keep every worker busy while the parent writes rows.
+CHUNKS_IN_FLIGHT_PER_WORKER = 3
 
 
 @dataclass(frozen=True)
@@ -71,17 +106,85 @@ def estimate_frame(frame: Frame, settings: BatchSettings) -> dict:
     return {"index": frame.index, **result.estimate.to_dict()}
 
 
+# ------------------------------------------------------------------------------------------ workers
+
 _WORKER_SETTINGS: BatchSettings | None = None
 
 
 def _init_worker(settings: BatchSettings) -> None:
+    """Per-worker state, set once: the settings, one OpenCV thread (the workers are the parallelism) and
+    the sensing setup derived from the jig (cached for the worker's life).
+
+    A forked worker inherits one OpenCV thread from :func:`_one_thread_per_worker` and must not call
+    ``cv2.setNumThreads`` itself: in a forked copy of a parent whose OpenCV thread pool ran, it can wait
+    forever on threads that were not forked. A spawned worker is fresh and sets it here."""
     global _WORKER_SETTINGS
+    import cv2
+
+    if cv2.getNumThreads() != 1:
+        cv2.setNumThreads(1)
     _WORKER_SETTINGS = settings
+    with contextlib.suppress(Exception):  # a warm-up only: each frame reports its own problem
+        sensing_setup(settings.jig)
 
 
-def _estimate_in_worker(frame: Frame) -> dict:
+def _pool_context() -> multiprocessing.context.BaseContext:
+    """Where workers come from: forked from this process where the platform can (they start in
+    milliseconds, with everything imported), else spawned."""
+    if "fork" in multiprocessing.get_all_start_methods():
+        return multiprocessing.get_context("fork")
+    return multiprocessing.get_context("spawn")
+
+
+_THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS")
+
+
+@contextlib.contextmanager
+def _one_thread_per_worker() -> Iterator[None]:
+    """Workers started inside run one OpenCV thread each (and, when spawned, one BLAS/OpenMP/Numba thread):
+    the workers are the parallelism, and more threads than cores slow every worker down. A forked worker
+    inherits this process's OpenCV setting, so it is set to one thread while the workers start and
+    restored after, with the environment variables."""
+    import cv2
+
+    saved = {name: os.environ.get(name) for name in _THREAD_VARIABLES}
+    threads = cv2.getNumThreads()
+    os.environ.update(dict.fromkeys(_THREAD_VARIABLES, "1"))
+    cv2.setNumThreads(1)
+    try:
+        yield
+    finally:
+        cv2.setNumThreads(threads)
+        for name, value in saved.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
+
+
+def _submit_chunks(
+    pool: ProcessPoolExecutor,
+    pending: deque[Future[list[dict]]],
+    frames: Iterator[Frame],
+    chunk: int,
+    limit: int,
+) -> None:
+    """Submit chunks of the next frames until ``limit`` chunks are pending or the frames run out."""
+    while len(pending) < limit:
+        batch = list(islice(frames, chunk))
+        if not batch:
+            return
+        pending.append(pool.submit(_estimate_chunk, batch))
+
+
+def _estimate_chunk(frames: list[Frame]) -> list[dict]:
     assert _WORKER_SETTINGS is not None
-    return estimate_frame(frame, _WORKER_SETTINGS)
+    return [estimate_frame(frame, _WORKER_SETTINGS) for frame in frames]
+
+
+def _chunk_size(n_frames: int, workers: int) -> int:
+    """Frames per chunk: small enough that every worker gets several chunks, at most MAX_CHUNK_FRAMES."""
+    return max(1, min(MAX_CHUNK_FRAMES, n_frames // (4 * workers)))
 
 
 def dataset_reference(dataset: Dataset, jig: JigConfig) -> ReferenceMarkers | None:
@@ -98,28 +201,57 @@ def estimate_dataset(
     *,
     workers: int | None = None,
     on_row: Callable[[dict], None] | None = None,
+    chunk_frames: int | None = None,
 ) -> Iterator[dict]:
     """Yield every frame's row in dataset order, computed on ``workers`` processes (default: every CPU).
 
-    Frames are handed out in chunks; only paths travel between processes, each worker reads its own
-    images, so memory stays flat however long the dataset.
+    Parameters
+    ----------
+    dataset : the frames to estimate.
+    settings : what every frame shares; sent to each worker once, when it starts.
+    workers : processes; 1 estimates in this process. Default ``os.cpu_count()``.
+    on_row : called with each row, in order, before it is yielded (e.g. to advance a progress bar).
+    chunk_frames : frames per task handed to a worker (default: up to :data:`MAX_CHUNK_FRAMES`).
+
+    Notes
+    -----
+    At most ``CHUNKS_IN_FLIGHT_PER_WORKER * workers`` chunks are submitted and not yet yielded, so the
+    memory of a run does not grow with the dataset's length (the rows are yielded, never accumulated).
+    Stopping the iteration early (or an exception in ``on_row``) cancels the chunks not yet started.
     """
     workers = workers or os.cpu_count() or 1
-    frames = list(dataset)
-    if workers <= 1 or len(frames) <= 1:
-        for frame in frames:
+    if workers < 1:
+        raise InputError(f"workers must be at least 1, got {workers}")
+    n_frames = len(dataset)
+    if workers == 1 or n_frames <= 1:
+        for frame in dataset:
             row = estimate_frame(frame, settings)
             if on_row:
                 on_row(row)
             yield row
         return
-    chunk = max(1, min(16, len(frames) // (4 * workers)))
-    with ProcessPoolExecutor(workers, initializer=_init_worker, initargs=(settings,)) as pool:
-        for row in pool.map(_estimate_in_worker, frames, chunksize=chunk):
-            if on_row:
-                on_row(row)
-            yield row
+    chunk = chunk_frames or _chunk_size(n_frames, workers)
+    frames = iter(dataset)
+    pending: deque[Future[list[dict]]] = deque()
+    with _one_thread_per_worker():  # the first submission starts (forks) the workers
+        pool = ProcessPoolExecutor(
+            workers, mp_context=_pool_context(), initializer=_init_worker, initargs=(settings,)
+        )
+        _submit_chunks(pool, pending, frames, chunk, CHUNKS_IN_FLIGHT_PER_WORKER * workers)
+    try:
+        while pending:
+            for row in pending.popleft().result():
+                if on_row:
+                    on_row(row)
+                yield row
+            _submit_chunks(pool, pending, frames, chunk, CHUNKS_IN_FLIGHT_PER_WORKER * workers)
+    finally:
+        for future in pending:
+            future.cancel()
+        pool.shutdown(wait=True, cancel_futures=True)
 
+
+# ------------------------------------------------------------------------------------------ output
 
 CSV_COLUMNS = (
     "index", "normal_x", "normal_y", "normal_z", "tilt_x_deg", "tilt_y_deg", "push_depth_mm", "n_points",
@@ -129,24 +261,181 @@ CSV_COLUMNS = (
 )  # fmt: skip
 
 
-def rows_to_text(rows: list[dict], path: str | os.PathLike[str]) -> str:
-    """The rows as JSON Lines, or CSV when ``path`` ends in ``.csv``."""
-    if Path(path).suffix.lower() != ".csv":
+def _is_csv(path: str | os.PathLike[str]) -> bool:
+    return Path(path).suffix.lower() == ".csv"
+
+
+def _csv_record(row: dict) -> dict:
+    """A row flattened to :data:`CSV_COLUMNS` (normal and contact centroid split, warnings joined)."""
+    flat = dict(row)
+    if "normal" in row:
+        flat["normal_x"], flat["normal_y"], flat["normal_z"] = row["normal"]
+    if row.get("contact_centroid_xy_mm"):
+        flat["contact_x_mm"], flat["contact_y_mm"] = row["contact_centroid_xy_mm"]
+    flat["warnings"] = "; ".join(row.get("warnings", []))
+    return flat
+
+
+def rows_to_text(rows: Iterable[dict], path: str | os.PathLike[str]) -> str:
+    """The rows as JSON Lines, or CSV when ``path`` ends in ``.csv`` (the text :class:`RowsWriter` writes)."""
+    if not _is_csv(path):
         return "".join(json.dumps(row) + "\n" for row in rows)
     buffer = io.StringIO()
     writer = csv.DictWriter(buffer, CSV_COLUMNS, extrasaction="ignore")
     writer.writeheader()
     for row in rows:
-        flat = dict(row)
-        if "normal" in row:
-            flat["normal_x"], flat["normal_y"], flat["normal_z"] = row["normal"]
-        if row.get("contact_centroid_xy_mm"):
-            flat["contact_x_mm"], flat["contact_y_mm"] = row["contact_centroid_xy_mm"]
-        flat["warnings"] = "; ".join(row.get("warnings", []))
-        writer.writerow(flat)
+        writer.writerow(_csv_record(row))
     return buffer.getvalue()
 
 
-def write_rows(rows: list[dict], path: str | os.PathLike[str]) -> None:
-    """Write the rows atomically (a crash never leaves a half-written results file)."""
-    write_text_atomic(path, rows_to_text(rows, path))
+class RowsWriter:
+    """Stream rows to a results file atomically: JSON Lines, or CSV when the path ends in ``.csv``.
+
+    A context manager. Rows go to a temporary file in the target's folder as they are written; on a
+    clean exit the file is flushed, fsynced and renamed over ``path`` (and the folder fsynced), so readers
+    see the old file or the complete new one. On an exception (a failed run, Ctrl-C) the temporary file
+    is deleted and ``path`` is left as it was.
+
+    Parameters
+    ----------
+    path : the results file (``.jsonl``/``.json`` or ``.csv``).
+
+    Raises
+    ------
+    InputError
+        The path is a folder or its folder cannot be written.
+
+    Examples
+    --------
+    >>> with RowsWriter("out/estimates.jsonl") as out:            # doctest: +SKIP
+    ...     for row in estimate_dataset(dataset, settings):
+    ...         out.write(row)
+    """
+
+    def __init__(self, path: str | os.PathLike[str]) -> None:
+        self.path = Path(path)
+        self.n_rows = 0  #: rows written so far
+        self._fh: IO[str] | None = None
+        self._tmp: Path | None = None
+        self._csv: csv.DictWriter | None = None
+
+    def __enter__(self) -> RowsWriter:
+        path = self.path
+        if path.is_dir():
+            raise InputError(f"cannot write {path}: it is a folder; give a file name inside it")
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+        except OSError as exc:
+            raise InputError(f"cannot write {path}: {exc.strerror or exc}; choose another path") from None
+        self._tmp = Path(tmp)
+        # newline="": the text is written byte for byte as rows_to_text makes it (CSV's \r\n kept).
+        self._fh = open(fd, "w", encoding="utf-8", newline="")
+        if _is_csv(path):
+            self._csv = csv.DictWriter(self._fh, CSV_COLUMNS, extrasaction="ignore")
+            self._csv.writeheader()
+        return self
+
+    def write(self, row: dict) -> None:
+        """Append one row."""
+        if self._fh is None:
+            raise RuntimeError("RowsWriter.write outside its `with` block")
+        if self._csv is not None:
+            self._csv.writerow(_csv_record(row))
+        else:
+            self._fh.write(json.dumps(row) + "\n")
+        self.n_rows += 1
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        assert self._fh is not None and self._tmp is not None
+        fh, tmp = self._fh, self._tmp
+        self._fh = self._tmp = self._csv = None
+        if exc_type is not None:
+            fh.close()
+            tmp.unlink(missing_ok=True)
+            return
+        try:
+            fh.flush()
+            os.fsync(fh.fileno())
+            fh.close()
+            os.replace(tmp, self.path)
+        except OSError as err:
+            fh.close()
+            tmp.unlink(missing_ok=True)
+            message = f"cannot write {self.path}: {err.strerror or err}; choose another path"
+            raise InputError(message) from None
+        _fsync_folder(self.path.parent)
+
+
+def _fsync_folder(folder: Path) -> None:
+    """Make a rename durable across a power cut (POSIX: fsync the folder's entry table)."""
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass  # some filesystems cannot fsync a folder; the rename is still atomic
+    finally:
+        os.close(fd)
+
+
+def write_rows(rows: Iterable[dict], path: str | os.PathLike[str]) -> int:
+    """Write the rows atomically, streaming (a crash never leaves a half-written results file).
+
+    Returns the number of rows written.
+    """
+    with RowsWriter(path) as out:
+        for row in rows:
+            out.write(row)
+    return out.n_rows
+
+
+@dataclass(frozen=True)
+class BatchSummary:
+    """What a batch run wrote.
+
+    Attributes
+    ----------
+    n_rows : rows written (every frame of the dataset).
+    n_loaded : rows of loaded frames (all but the unloaded reference frames).
+    n_failed : rows with an ``error`` (no estimate for that frame).
+    first_failure : the first failed row, if any.
+    """
+
+    n_rows: int
+    n_loaded: int
+    n_failed: int
+    first_failure: dict | None = None
+
+
+def estimate_dataset_to_file(
+    dataset: Dataset,
+    settings: BatchSettings,
+    path: str | os.PathLike[str],
+    *,
+    workers: int | None = None,
+    on_row: Callable[[dict], None] | None = None,
+) -> BatchSummary:
+    """Estimate every frame (:func:`estimate_dataset`) and stream the rows, in order, to ``path`` atomically
+    (:class:`RowsWriter`): on any failure the target is left untouched.
+
+    Raises
+    ------
+    InputError
+        ``path`` cannot be written (a folder, no permission): raised before any frame is estimated.
+    """
+    n_loaded = n_failed = 0
+    first_failure = None
+    with RowsWriter(path) as out:
+        for row in estimate_dataset(dataset, settings, workers=workers, on_row=on_row):
+            out.write(row)
+            if row.get("reference") is not True:
+                n_loaded += 1
+            if "error" in row:
+                n_failed += 1
+                first_failure = first_failure or row
+    return BatchSummary(out.n_rows, n_loaded, n_failed, first_failure)
