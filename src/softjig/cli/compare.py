@@ -19,7 +19,7 @@ def _grid_table(title: str, grids: list) -> Table:
     table = Table(title=title)
     table.add_column("D (mm)", justify="right")
     for alpha in first.alphas_deg:
-        table.add_column(f"a={alpha:g}: paper / ours / ours cal.", justify="right")
+        table.add_column(f"a={alpha:g}: paper / ours / ours cal. / no size", justify="right")
     for i, diameter in enumerate(first.diameters_mm):
         cells = [" / ".join(f"{g.rmse_deg[i, j]:.2f}" for g in grids) for j in range(len(first.alphas_deg))]
         table.add_row(f"{diameter:g}", *cells)
@@ -41,14 +41,19 @@ def compare(
 
     data = Dataset.open(dataset)
     with Progress(console=stderr_console(), disable=not progress, transient=True) as bar:
-        task = bar.add_task("estimating (both methods)", total=2 * len(data))
+        task = bar.add_task("estimating (paper, ours, ours without the size)", total=3 * len(data))
         result = compare_methods(data, workers=workers, on_row=lambda _row: bar.advance(task))
     console = Console()
     console.print(
         _grid_table(
             f"RMSE (deg) on {result.n_frames} held-out frames: paper calibrated / ours uncalibrated / ours "
-            "calibrated",
-            [result.paper_calibrated, result.ours_uncalibrated, result.ours_calibrated],
+            "calibrated / ours uncalibrated without the part's size",
+            [
+                result.paper_calibrated,
+                result.ours_uncalibrated,
+                result.ours_calibrated,
+                result.ours_without_part_size,
+            ],
         )
     )
     cal = result.ours_calibration
@@ -61,5 +66,6 @@ def compare(
         f"68 % expected; position RMS: contact centroid {result.contact_centroid_rms_mm:.2f} mm (vs the true "
         f"contact's), part centre {result.part_centre_rms_mm:.2f} mm (the contact's centroid is "
         f"{result.contact_to_part_centre_rms_mm:.2f} mm from it); frames without an estimate: paper "
-        f"{result.n_failed_paper}, ours {result.n_failed_ours}"
+        f"{result.n_failed_paper}, ours {result.n_failed_ours} ({result.n_failed_ours_without_part_size} "
+        "without the part's size)"
     )

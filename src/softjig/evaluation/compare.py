@@ -34,6 +34,8 @@ class MethodComparison:
     ----------
     paper_calibrated : the paper's method, calibrated on the even-theta frames.
     ours_uncalibrated, ours_calibrated : the refractive method, without and with the same calibration.
+    ours_without_part_size : the refractive method uncalibrated, not told the part's size: the contact is
+        found from the indentations alone.
     ours_calibration : the paper's ``(Ox, Oy, S)`` fitted to ours on the even-theta frames: a sensor that
         needs no calibration has ``S = 1`` and ``O = 0``.
     coverage_x, coverage_y : share of loaded frames whose |Ax| / |Ay| error is within ours' 1-sigma.
@@ -49,6 +51,7 @@ class MethodComparison:
     ours_uncalibrated: RmseGrid
     ours_calibrated: RmseGrid
     ours_calibration: TiltCalibration
+    ours_without_part_size: RmseGrid
     coverage_x: float
     coverage_y: float
     contact_centroid_rms_mm: float
@@ -57,12 +60,14 @@ class MethodComparison:
     n_frames: int
     n_failed_paper: int
     n_failed_ours: int
+    n_failed_ours_without_part_size: int
 
 
 def compare_methods(
     dataset: Dataset, *, workers: int | None = None, on_row: Callable[[dict], None] | None = None
 ) -> MethodComparison:
-    """Estimate a sweep dataset with both methods and compare them on its odd-theta frames."""
+    """Estimate a sweep dataset with both methods (ours with and without the part's size) and compare them
+    on its odd-theta frames."""
     jig = dataset.jig
     frames = list(dataset)
     paper_rows = list(
@@ -77,8 +82,17 @@ def compare_methods(
             on_row=on_row,
         )
     )
+    auto_rows = list(
+        estimate_dataset(
+            dataset,
+            BatchSettings(jig=jig, method="refractive", reference=reference, frame_part_size=False),
+            workers=workers,
+            on_row=on_row,
+        )
+    )
     paper = sweep_samples(frames, paper_rows)
     ours = sweep_samples(frames, ours_rows)
+    auto = sweep_samples(frames, auto_rows)
     paper_grid = evaluate_sweep(paper, fit_sweep_calibration(paper, selection="even").pooled, selection="odd")
     ours_cal = fit_sweep_calibration(ours, selection="even").pooled
     ours_grid = evaluate_sweep(ours, ours_cal, selection="odd")  # both grids: calibrated and raw
@@ -88,6 +102,7 @@ def compare_methods(
         ours_uncalibrated=ours_grid.uncalibrated,
         ours_calibrated=ours_grid.calibrated,
         ours_calibration=ours_cal,
+        ours_without_part_size=evaluate_sweep(auto, None, selection="odd").uncalibrated,
         coverage_x=coverage_x,
         coverage_y=coverage_y,
         contact_to_part_centre_rms_mm=to_centre,
@@ -96,6 +111,7 @@ def compare_methods(
         n_frames=ours_grid.n_frames,
         n_failed_paper=paper.n_failed,
         n_failed_ours=ours.n_failed,
+        n_failed_ours_without_part_size=auto.n_failed,
     )
 
 

@@ -65,21 +65,23 @@ CHUNKS_IN_FLIGHT_PER_WORKER = 3
 
 @dataclass(frozen=True)
 class BatchSettings:
-    """What every frame of a batch shares."""
+    """What every frame of a batch shares (``frame_part_size``: use each frame's recorded part size)."""
 
     jig: JigConfig
     part_diameter_mm: float | None = None
     calibration: TiltCalibration | None = None
     method: str = DEFAULT_METHOD
     reference: ReferenceMarkers | None = None
+    frame_part_size: bool = True
 
 
 def frame_part_diameter_mm(frame: Frame, settings: BatchSettings) -> float | None:
-    """The part's base diameter for a frame (mm): the one given for all, else the frame's part's, else
-    ``None`` (the refractive method needs none; the paper's method then reports an error for the frame)."""
+    """The part's base diameter for a frame (mm): the one given for all, else the frame's part's (unless
+    ``settings.frame_part_size`` is false: ours then finds the contact without it), else ``None`` (the
+    refractive method needs none; the paper's method then reports an error for the frame)."""
     if settings.part_diameter_mm is not None:
         return settings.part_diameter_mm
-    if frame.part is None:
+    if frame.part is None or not settings.frame_part_size:
         return None
     return float(frame.part.diameter_mm)  # a box's is its inscribed circle's
 
@@ -257,7 +259,8 @@ CSV_COLUMNS = (
     "index", "normal_x", "normal_y", "normal_z", "tilt_x_deg", "tilt_y_deg", "push_depth_mm", "n_points",
     "rms_residual_mm", "frame_source", "calibrated", "raw_tilt_x_deg", "raw_tilt_y_deg", "part_diameter_mm",
     "method", "tilt_sigma_x_deg", "tilt_sigma_y_deg", "contact_area_mm2", "contact_x_mm", "contact_y_mm",
-    "contact_partial", "warnings", "indentation_reference", "reference", "error", "exit_code",
+    "contact_partial", "part_x_mm", "part_y_mm", "warnings", "indentation_reference", "reference", "error",
+    "exit_code",
 )  # fmt: skip
 
 
@@ -272,6 +275,8 @@ def _csv_record(row: dict) -> dict:
         flat["normal_x"], flat["normal_y"], flat["normal_z"] = row["normal"]
     if row.get("contact_centroid_xy_mm"):
         flat["contact_x_mm"], flat["contact_y_mm"] = row["contact_centroid_xy_mm"]
+    if row.get("part_centre_xy_mm"):
+        flat["part_x_mm"], flat["part_y_mm"] = row["part_centre_xy_mm"]
     flat["warnings"] = "; ".join(row.get("warnings", []))
     return flat
 
