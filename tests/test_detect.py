@@ -25,9 +25,14 @@ from numpy.testing import assert_allclose, assert_array_equal
 from scipy.spatial import cKDTree
 
 from softjig.errors import InputError
-from softjig.sensing.detect import (
+from softjig.sensing.detect import (  # the compiled peak scan against the NumPy path
+    _FIT_PINV,
+    _MAX_REFINE_OFFSET_PX,
     DEFAULT_THRESHOLD,
     Markers,
+    _coarse_blur,
+    _coarse_peaks,
+    _refine_quadratic,
     check_image_content,
     detect_markers,
     log_sigma_px,
@@ -487,6 +492,45 @@ def test_pyramid_and_full_find_the_same_markers(nominal_frame, refine):
     else:
         assert dist.max() < 0.005
         assert_allclose(fast.response, full.response[partner], rtol=1e-4)
+
+
+def test_coarse_peaks_follow_their_rule():
+    # The compiled scan of the pyramid against its documented rule, in plain Python, on a response with
+    # exact plateaus (quantised values: ties between neighbours) and peaks next to the border.
+    rng = np.random.default_rng(5)
+    response = cv2.GaussianBlur(rng.normal(0.0, 1.0, (90, 160)).astype(np.float32), (0, 0), 1.5)
+    response = np.round(response * 20.0) / np.float32(20.0)
+    response[1, 40], response[45, 1] = 5.0, 5.0
+    for half_width in (1, 2, 3):
+        xy, peak = _coarse_peaks(response, np.float32(0.05), half_width, _FIT_PINV, _MAX_REFINE_OFFSET_PX)
+        rows, cols = [], []
+        for r, c in zip(*np.nonzero(response[1:-1, 1:-1] > 0.05), strict=True):
+            r, c = r + 1, c + 1
+            top, left = max(r - half_width, 0), max(c - half_width, 0)
+            win = response[top : r + half_width + 1, left : c + half_width + 1]
+            first = np.flatnonzero(win.ravel() == win.max())[0]  # the first maximum in row-major order
+            if response[r, c] == win.max() and first == np.ravel_multi_index((r - top, c - left), win.shape):
+                rows.append(r)
+                cols.append(c)
+        rows, cols = np.array(rows), np.array(cols)
+        offset, peak_fit, ok = _refine_quadratic(response, rows, cols)
+        expected_xy = np.column_stack([cols, rows]).astype(np.float64)
+        expected_xy[ok] += offset[ok]
+        assert len(rows) > 20 and 0 < np.count_nonzero(ok) < len(rows) and {1, 45} <= set(rows)
+        assert_allclose(xy, expected_xy, rtol=0, atol=1e-12)
+        assert_allclose(peak, np.where(ok, peak_fit, response[rows, cols]), rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.float32])
+@pytest.mark.parametrize("sigma", [1.2, 1.447, 2.3])
+def test_coarse_blur_is_cv2_gaussian_blur_of_the_float_copy(dtype, sigma):
+    rng = np.random.default_rng(6)
+    top = {np.uint8: 255, np.uint16: 65535, np.float32: 1}[dtype]
+    small = (rng.uniform(0, 1, (180, 320)) * top).astype(dtype)
+    expected = cv2.GaussianBlur(
+        small.astype(np.float32), (0, 0), sigmaX=sigma, sigmaY=sigma, borderType=cv2.BORDER_REFLECT
+    )
+    assert_array_equal(_coarse_blur(small, sigma), expected)
 
 
 def test_exclude_drops_candidates_before_refinement(nominal_frame):

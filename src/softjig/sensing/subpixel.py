@@ -22,11 +22,11 @@ each step is a fixed ``4 x n^2`` weight matrix ``W = (J^T C^{-1} J)^{-1} J^T C^{
 window. The weights depend smoothly on the reference centre; they are computed once per model
 (:func:`fit_tables`, 0.3-1 s) for reference centres every 1/4 px within 1 px of the window's central
 pixel, with the covariance taken at the nominal amplitude, and fitted by a cubic polynomial in the
-reference centre's offset. One product of each marker's window with the polynomial's coefficients,
-``(N, n^2) x (n^2, 30)`` for all markers at once, then gives ``(A, A du, A dv)`` about any reference
-centre as a cubic of its offset, so the Gauss-Newton steps (to 1e-6 px) cost nothing: 0.5-0.7 ms for
-the ~290 markers of a default 1280x720 frame with 21x21 windows on one core of this machine (measured),
-most of it the window gather and the product. Noise-free, on the model's own markers, the fit is
+reference centre's offset. One product of each marker's window with the polynomial's coefficients
+(``n^2 x 30``) then gives ``(A, A du, A dv)`` about any reference centre as a cubic of its offset, so the
+Gauss-Newton steps (to 1e-6 px) cost little: the whole fit, one compiled loop, takes 0.4-0.6 ms for the
+~290 markers of a default 1280x720 frame with 21x21 windows on one core of this machine (measured),
+most of it the products. Noise-free, on the model's own markers, the fit is
 unbiased to 0.003 px RMS (the polynomials' error) for a blur of at least ``MIN_MODEL_BLUR_PX``; with
 noise drawn from its covariance it reaches the Cramer-Rao bound (``tests/test_cramer_rao.py``). On
 the simulator's default frames: 0.161 px RMS against 0.271 px for the LoG's 3x3 quadratic fit.
@@ -38,7 +38,6 @@ The fit does not model the hemisphere's obliquity (its image is asymmetric about
 from __future__ import annotations
 
 import math
-import threading
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -376,9 +375,13 @@ def refine_centres(
     image edge are read with the edge pixels repeated (those markers are biased; the detector's
     border margin discards most of them).
 
-    The windows are gathered into reused buffers and multiplied by the tables in one BLAS product; the
-    steps are a Numba loop. A Numba loop doing the product too was 3x slower than BLAS, and NumPy steps
-    on (N, 10, 3) arrays 7x slower than the loop (call overhead; measured).
+    All of it (gather, product, steps, re-centring) is one compiled call (:func:`_refine_all`), with no
+    per-call NumPy overhead and no BLAS: 0.57 ms of CPU time for the 290 markers of a default frame
+    against 1.43 ms for a NumPy gather, one OpenBLAS product (one thread) and Numba steps per window
+    position (measured side by side on the benchmark's frames, loaded machine). Multi-threaded
+    OpenBLAS was worse still on this shared 2-core machine (up to 10x, its threads spinning). The
+    compiled product sums in another order than BLAS: centres differ from that version's by up to
+    4e-6 px (float32 rounding; measured).
     """
     start = np.ascontiguousarray(np.asarray(start_xy_px, dtype=np.float64).reshape(-1, 2))
     arr = np.asarray(image)
@@ -386,150 +389,205 @@ def refine_centres(
         raise InputError(f"refine_centres needs a gray (H, W) image, got shape {arr.shape}.")
     if arr.dtype not in _FULL_SCALE and arr.dtype != np.float32:
         arr = arr.astype(np.float32)
+    arr = np.ascontiguousarray(arr)
     scale = 1.0 / _FULL_SCALE.get(arr.dtype, 1.0)
-    tables = fit_tables(model)
-    half = int(model.half_width_px)
-    centre = np.floor(start + 0.5)
-    coeffs = _coefficients(arr, centre, half, tables, "first")
-    xy, amp, ok, moved = _gauss_newton(coeffs, start, centre, scale, iterations, start)
-    todo = np.flatnonzero(moved)
-    for _ in range(_MAX_PASSES - 1):  # again, in the window centred on the pixel nearest the result
-        if len(todo) == 0:
-            break
-        previous = centre[todo]
-        centre[todo] = np.floor(xy[todo] + 0.5)
-        coeffs = _coefficients(arr, centre[todo], half, tables, "again")
-        xy2, amp2, ok2, moved2 = _gauss_newton(coeffs, start[todo], centre[todo], scale, iterations, xy[todo])
-        # A fit that points back to the previous window lies on the boundary between the two: keep the
-        # fit of the window first in row-major order, so that the result does not depend on the start.
-        back = moved2 & np.all(np.floor(xy2 + 0.5) == previous, axis=1)
-        keep_previous = back & (
-            (previous[:, 1] < centre[todo, 1])
-            | ((previous[:, 1] == centre[todo, 1]) & (previous[:, 0] < centre[todo, 0]))
-        )
-        new = todo[~keep_previous]
-        xy[new], amp[new], ok[new] = xy2[~keep_previous], amp2[~keep_previous], ok2[~keep_previous]
-        centre[todo[keep_previous]] = previous[keep_previous]
-        todo = todo[moved2 & ~back]
-    xy[~ok] = start[~ok]
+    n_terms = fit_tables(model).shape[1] // 3
+    xy = np.empty_like(start)
+    amp = np.empty(len(start))
+    ok = np.empty(len(start), np.bool_)
+    _refine_all(
+        arr,
+        start,
+        _kernel_tables(model),
+        int(model.half_width_px),
+        n_terms,
+        scale,
+        int(iterations),
+        xy,
+        amp,
+        ok,
+    )
     return SubpixelFit(xy_px=xy, amplitude=amp, ok=ok)
 
 
-class _Workspace(threading.local):
-    """Per-thread buffers reused from frame to frame: fresh arrays of a few hundred kB cost more in page
-    faults than the product they feed (about 0.2 ms a frame here, measured)."""
-
-    def __init__(self) -> None:
-        self.buffers: dict[tuple[str, int], np.ndarray] = {}
-
-    def get(self, name: str, rows: int, cols: int) -> np.ndarray:
-        buf = self.buffers.get((name, cols))
-        if buf is None or buf.shape[0] < rows:
-            buf = np.empty((max(rows, 512), cols), np.float32)
-            self.buffers[(name, cols)] = buf
-        return buf[:rows]
+_BLOCK = 4  # windows and table rows per block of _block_product
+_CHUNK = 32  # windows gathered at a time: 55 kB of float32 for 21x21 windows
 
 
-_WORKSPACE = _Workspace()
+@lru_cache(maxsize=16)
+def _kernel_tables(model: MarkerModel) -> np.ndarray:
+    """:func:`fit_tables` transposed, ``(3 K, n^2)`` padded with zero rows to a multiple of 4, float32.
 
-
-def _coefficients(
-    image: np.ndarray, centre: np.ndarray, half: int, tables: np.ndarray, name: str
-) -> np.ndarray:
-    """(N, 3 K) polynomial coefficients (raw image units) of the windows centred at ``centre`` (N, 2).
-
-    The windows are gathered through a strided view of all windows (0.19 ms for 360 25x25 windows, against
-    0.55 for a Numba loop and 0.6 for a flat fancy index; measured) into a reused float32 buffer; those
-    reaching past the image edge are read with the edge pixels repeated.
+    One row per coefficient, contiguous over the window's pixels: the layout of :func:`_block_product`.
     """
-    h, w = image.shape
+    tables = fit_tables(model)
+    rows = -(-tables.shape[1] // _BLOCK) * _BLOCK
+    out = np.zeros((rows, tables.shape[0]), np.float32)
+    out[: tables.shape[1]] = tables.T
+    out.flags.writeable = False
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _refine_all(image, start, tables_t, half, n_terms, scale, iterations, xy, amp, ok):
+    """:func:`refine_centres` for all markers: writes the centres ``xy`` (N, 2), amplitudes ``amp`` and
+    success ``ok``.
+
+    Pass 1 fits every marker in the window at the pixel nearest its start; each later pass (up to
+    ``_MAX_PASSES``) fits again the markers whose result lies nearer another pixel, in the window
+    centred there. A fit pointing back to the previous window keeps the fit of the window first in
+    row-major order. The windows are gathered ``_CHUNK`` at a time and multiplied by the tables in
+    blocks of 4 (:func:`_block_product`).
+    """
+    n_markers = start.shape[0]
     n = 2 * half + 1
-    ci = centre.astype(np.intp)
-    ci -= half  # top-left pixels
-    windows = _WORKSPACE.get(name + "_windows", len(ci), n * n)
-    # every n x n window as a view, indexed by its top-left pixel (sliding_window_view without its checks)
-    s0, s1 = image.strides
-    if h >= n and w >= n and _all_inside(ci, w - n, h - n):
-        view = np.lib.stride_tricks.as_strided(
-            image, (h - n + 1, w - n + 1, n, n), (s0, s1, s0, s1), writeable=False
-        )
-        np.copyto(windows.reshape(-1, n, n), view[ci[:, 1], ci[:, 0]])
-    else:
-        ci += half
-        inside = (ci[:, 0] >= half) & (ci[:, 0] < w - half) & (ci[:, 1] >= half) & (ci[:, 1] < h - half)
-        if inside.any():
-            view = np.lib.stride_tricks.as_strided(
-                image, (h - n + 1, w - n + 1, n, n), (s0, s1, s0, s1), writeable=False
-            )
-            windows[inside] = view[ci[inside, 1] - half, ci[inside, 0] - half].reshape(-1, n * n)
-        r = np.arange(-half, half + 1)
-        out = ci[~inside]
-        rows = np.clip(out[:, 1, None] + r, 0, h - 1)
-        cols = np.clip(out[:, 0, None] + r, 0, w - 1)
-        windows[~inside] = image[rows[:, :, None], cols[:, None, :]].reshape(-1, n * n)
-    return np.matmul(windows, tables, out=_WORKSPACE.get(name + "_coeffs", len(ci), tables.shape[1]))
-
-
-@numba.njit(cache=True, nogil=True)
-def _all_inside(top_left, max_u, max_v):
-    """Whether every ``(u, v)`` in ``top_left`` lies in ``[0, max_u] x [0, max_v]``."""
-    for i in range(top_left.shape[0]):
-        if not (0 <= top_left[i, 0] <= max_u and 0 <= top_left[i, 1] <= max_v):
-            return False
-    return True
-
-
-@numba.njit(cache=True, nogil=True)
-def _gauss_newton(coeffs, start, centre, scale, iterations, first):
-    """Steps ``t <- t + (A du, A dv) / A`` from ``first`` (N, 2), the weights' cubic evaluated at the
-    offset ``t`` from the window's centre, per marker.
-
-    Returns the centres (N, 2) (``start`` where the fit failed), amplitudes, success, and whether the
-    result lies nearer another pixel than the window's centre. A Numba loop: the same steps on
-    (N, 10, 3) NumPy arrays took 0.5 ms for 360 markers, mostly call overhead (measured).
-    """
-    n = coeffs.shape[0]
-    n_terms = coeffs.shape[1] // 3  # 10 (cubic) or 6 (quadratic): graded order, so a prefix of phi
-    xy = np.empty((n, 2))
-    amp = np.zeros(n)
-    ok = np.zeros(n, np.bool_)
-    moved = np.zeros(n, np.bool_)
+    windows = np.zeros((_CHUNK, n * n), np.float32)  # zeros: the padding rows of a last block are finite
+    coeffs = np.empty((_CHUNK, tables_t.shape[0]), np.float32)
     phi = np.empty(10)
+    centre = np.empty((n_markers, 2))  # the current window's central pixel
+    previous = np.empty((n_markers, 2))  # the previous one
+    fit = np.empty((n_markers, 2))  # the accepted result, and the next pass's first point
+    todo = np.empty(n_markers, np.int64)
+    again = np.empty(n_markers, np.int64)
+    count = 0
+    for m in range(n_markers):
+        su, sv = start[m, 0], start[m, 1]
+        xy[m, 0], xy[m, 1], amp[m], ok[m] = su, sv, 0.0, False
+        if math.isfinite(su) and math.isfinite(sv):
+            centre[m, 0], centre[m, 1] = math.floor(su + 0.5), math.floor(sv + 0.5)
+            fit[m, 0], fit[m, 1] = su, sv
+            todo[count] = m
+            count += 1
+    for p in range(_MAX_PASSES):
+        n_again = 0
+        for c0 in range(0, count, _CHUNK):
+            rows = min(_CHUNK, count - c0)
+            for i in range(rows):
+                m = todo[c0 + i]
+                _gather(image, int(centre[m, 0]) - half, int(centre[m, 1]) - half, n, windows[i])
+            _block_product(windows, tables_t, coeffs, rows)
+            for i in range(rows):
+                m = todo[c0 + i]
+                su, sv, cu, cv = start[m, 0], start[m, 1], centre[m, 0], centre[m, 1]
+                u, v, a, good, moved = _steps(
+                    coeffs[i], n_terms, phi, su, sv, cu, cv, fit[m, 0], fit[m, 1], scale, iterations
+                )
+                back = False
+                if p > 0:  # pointing back to the previous window: on the boundary between the two
+                    pu, pv = previous[m, 0], previous[m, 1]
+                    back = moved and math.floor(u + 0.5) == pu and math.floor(v + 0.5) == pv
+                    if back and (pv < cv or (pv == cv and pu < cu)):
+                        continue  # the previous window is first in row-major order: its fit stays
+                fit[m, 0], fit[m, 1], amp[m], ok[m] = u, v, a, good
+                if moved and not back:
+                    previous[m, 0], previous[m, 1] = cu, cv
+                    centre[m, 0], centre[m, 1] = math.floor(u + 0.5), math.floor(v + 0.5)
+                    again[n_again] = m
+                    n_again += 1
+        todo, again, count = again, todo, n_again
+    for m in range(n_markers):
+        if ok[m]:
+            xy[m, 0], xy[m, 1] = fit[m, 0], fit[m, 1]
+
+
+@numba.njit(cache=True, nogil=True)
+def _gather(image, u0, v0, n, window):
+    """The ``n x n`` window of top-left pixel ``(u0, v0)``, row-major, into ``window`` (float32); pixels
+    past the image edge are read as the nearest edge pixel."""
+    h, w = image.shape
+    if u0 >= 0 and v0 >= 0 and u0 + n <= w and v0 + n <= h:
+        for r in range(n):
+            row = image[v0 + r]
+            for c in range(n):
+                window[r * n + c] = row[u0 + c]
+        return
+    for r in range(n):
+        row = image[min(max(v0 + r, 0), h - 1)]
+        for c in range(n):
+            window[r * n + c] = row[min(max(u0 + c, 0), w - 1)]
+
+
+@numba.njit(cache=True, nogil=True, fastmath={"reassoc", "contract"})
+def _block_product(windows, tables_t, coeffs, rows):
+    """``coeffs[:rows] = windows[:rows] @ tables_t.T`` (float32), in blocks of 4 windows x 4 table rows.
+
+    Sixteen independent sums, vectorised over the pixels (``reassoc``), reuse each loaded value four
+    times: 0.6 us per 21x21 window, against 1.4 us for one window at a time and 0.45 us for OpenBLAS
+    (one thread; measured). Rows past ``rows`` up to a multiple of 4 are computed and ignored (every
+    window is summed in the same order, wherever it is in the block).
+    """
+    n = windows.shape[1]
+    for i in range(0, rows, 4):
+        x0, x1, x2, x3 = windows[i], windows[i + 1], windows[i + 2], windows[i + 3]
+        for j in range(0, tables_t.shape[0], 4):
+            t0, t1, t2, t3 = tables_t[j], tables_t[j + 1], tables_t[j + 2], tables_t[j + 3]
+            a00 = a01 = a02 = a03 = a10 = a11 = a12 = a13 = np.float32(0.0)
+            a20 = a21 = a22 = a23 = a30 = a31 = a32 = a33 = np.float32(0.0)
+            for k in range(n):
+                p0, p1, p2, p3 = t0[k], t1[k], t2[k], t3[k]
+                y = x0[k]
+                a00, a01, a02, a03 = a00 + y * p0, a01 + y * p1, a02 + y * p2, a03 + y * p3
+                y = x1[k]
+                a10, a11, a12, a13 = a10 + y * p0, a11 + y * p1, a12 + y * p2, a13 + y * p3
+                y = x2[k]
+                a20, a21, a22, a23 = a20 + y * p0, a21 + y * p1, a22 + y * p2, a23 + y * p3
+                y = x3[k]
+                a30, a31, a32, a33 = a30 + y * p0, a31 + y * p1, a32 + y * p2, a33 + y * p3
+            coeffs[i, j], coeffs[i, j + 1], coeffs[i, j + 2], coeffs[i, j + 3] = a00, a01, a02, a03
+            coeffs[i + 1, j], coeffs[i + 1, j + 1], coeffs[i + 1, j + 2], coeffs[i + 1, j + 3] = (
+                a10,
+                a11,
+                a12,
+                a13,
+            )
+            coeffs[i + 2, j], coeffs[i + 2, j + 1], coeffs[i + 2, j + 2], coeffs[i + 2, j + 3] = (
+                a20,
+                a21,
+                a22,
+                a23,
+            )
+            coeffs[i + 3, j], coeffs[i + 3, j + 1], coeffs[i + 3, j + 2], coeffs[i + 3, j + 3] = (
+                a30,
+                a31,
+                a32,
+                a33,
+            )
+
+
+@numba.njit(cache=True, nogil=True)
+def _steps(coeffs, n_terms, phi, su, sv, cu, cv, fu, fv, scale, iterations):
+    """Gauss-Newton steps ``t <- t + (A du, A dv) / A`` from ``(fu, fv)`` in the window centred on pixel
+    ``(cu, cv)``, the weights' polynomial (``coeffs``, ``n_terms`` monomials in graded order) evaluated
+    at the offset ``t`` from the window's centre; ``(su, sv)`` is the marker's start.
+
+    Returns the centre ``(u, v)``, the amplitude, whether the fit succeeded (a bright marker, within the
+    weights' range and ``_MAX_SHIFT_PX`` of the start) and whether the result lies nearer another pixel
+    (to be fitted again there, even if out of the weights' range here).
+    """
     lim = _TABLE_RANGE_PX
-    for m in range(n):
-        tu = min(max(first[m, 0] - centre[m, 0], -lim), lim)
-        tv = min(max(first[m, 1] - centre[m, 1], -lim), lim)
-        a = 0.0
-        for _ in range(iterations):
-            uu, uv, vv = tu * tu, tu * tv, tv * tv
-            phi[0], phi[1], phi[2], phi[3], phi[4] = 1.0, tu, tv, uu, uv
-            phi[5], phi[6], phi[7], phi[8], phi[9] = vv, uu * tu, uu * tv, tu * vv, vv * tv
-            a, au, av = 0.0, 0.0, 0.0
-            for i in range(n_terms):
-                a += phi[i] * coeffs[m, 3 * i]
-                au += phi[i] * coeffs[m, 3 * i + 1]
-                av += phi[i] * coeffs[m, 3 * i + 2]
-            a *= scale
-            if not a > 0.0:
-                break
-            du = min(max(au * scale / a, -_MAX_STEP_PX), _MAX_STEP_PX)
-            dv = min(max(av * scale / a, -_MAX_STEP_PX), _MAX_STEP_PX)
-            tu = min(max(tu + du, -lim - 0.25), lim + 0.25)
-            tv = min(max(tv + dv, -lim - 0.25), lim + 0.25)
-            if abs(du) < _STEP_TOLERANCE_PX and abs(dv) < _STEP_TOLERANCE_PX:
-                break
-        u, v = centre[m, 0] + tu, centre[m, 1] + tv
-        good = (
-            a > 0.0
-            and abs(tu) <= lim
-            and abs(tv) <= lim
-            and abs(u - start[m, 0]) <= _MAX_SHIFT_PX
-            and abs(v - start[m, 1]) <= _MAX_SHIFT_PX
-        )
-        # nearer another pixel: to be fitted again there (even if out of the weights' range here)
-        far = abs(u - start[m, 0]) > _MAX_SHIFT_PX or abs(v - start[m, 1]) > _MAX_SHIFT_PX
-        moved[m] = a > 0.0 and not far and (abs(tu) >= 0.5 or abs(tv) >= 0.5)
-        amp[m], ok[m] = a, good
-        xy[m, 0] = u if good or moved[m] else start[m, 0]
-        xy[m, 1] = v if good or moved[m] else start[m, 1]
-    return xy, amp, ok, moved
+    tu = min(max(fu - cu, -lim), lim)
+    tv = min(max(fv - cv, -lim), lim)
+    a = 0.0
+    for _ in range(iterations):
+        uu, uv, vv = tu * tu, tu * tv, tv * tv
+        phi[0], phi[1], phi[2], phi[3], phi[4] = 1.0, tu, tv, uu, uv
+        phi[5], phi[6], phi[7], phi[8], phi[9] = vv, uu * tu, uu * tv, tu * vv, vv * tv
+        a, au, av = 0.0, 0.0, 0.0
+        for i in range(n_terms):
+            a += phi[i] * coeffs[3 * i]
+            au += phi[i] * coeffs[3 * i + 1]
+            av += phi[i] * coeffs[3 * i + 2]
+        a *= scale
+        if not a > 0.0:
+            break
+        du = min(max(au * scale / a, -_MAX_STEP_PX), _MAX_STEP_PX)
+        dv = min(max(av * scale / a, -_MAX_STEP_PX), _MAX_STEP_PX)
+        tu = min(max(tu + du, -lim - 0.25), lim + 0.25)
+        tv = min(max(tv + dv, -lim - 0.25), lim + 0.25)
+        if abs(du) < _STEP_TOLERANCE_PX and abs(dv) < _STEP_TOLERANCE_PX:
+            break
+    u, v = cu + tu, cv + tv
+    far = abs(u - su) > _MAX_SHIFT_PX or abs(v - sv) > _MAX_SHIFT_PX
+    good = a > 0.0 and abs(tu) <= lim and abs(tv) <= lim and not far
+    moved = a > 0.0 and not far and (abs(tu) >= 0.5 or abs(tv) >= 0.5)
+    return u, v, a, good, moved
