@@ -7,18 +7,24 @@ estimate, and the markers' localisation RMSE against the renderer's ground truth
 
 from __future__ import annotations
 
-import argparse
-import platform
+import os
 
-import cv2
-import numpy as np
-from scipy.spatial import cKDTree
+# One core: idle BLAS threads spinning after the fit's small SVDs slow the next frame's detection.
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
 
-from softjig.config import CylinderPart, default_jig
-from softjig.sensing.pipeline import estimate_pair
-from softjig.sim.asbuilt import draw_as_built
-from softjig.sim.parts import PartPose
-from softjig.sim.render import render_pair
+import argparse  # noqa: E402
+import platform  # noqa: E402
+
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
+from scipy.spatial import cKDTree  # noqa: E402
+
+from softjig.config import CylinderPart, default_jig  # noqa: E402
+from softjig.sensing.pipeline import estimate_pair  # noqa: E402
+from softjig.sim.asbuilt import draw_as_built  # noqa: E402
+from softjig.sim.parts import PartPose  # noqa: E402
+from softjig.sim.render import render_pair  # noqa: E402
 
 STAGES = ("checks", "frame", "detect", "match", "triangulate", "fit")
 

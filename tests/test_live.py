@@ -94,12 +94,18 @@ def test_fast_replay_estimates_every_frame_and_publishes_it(sweep):
 
 
 def test_a_busy_estimator_drops_camera_rate_frames_and_counts_them(sweep):
-    # 1000 Hz replay: far faster than the ~0.1 s estimate, so frames arrive while the estimator is busy
+    # 1000 Hz replay, and a consumer that takes 0.2 s per outcome: frames arrive (as fast as the replay
+    # decodes them, ~30 ms) while the estimator is busy, however fast the estimate itself is
     outcomes = []
+
+    def slow_consumer(outcome, message):
+        time.sleep(0.2)
+        outcomes.append(message)
+
     summary = LiveLoop(
         ReplaySource(sweep, rate="recorded", fps=1000.0),
         LiveSettings(jig=sweep.jig, part_diameter_mm=50.0),
-        on_outcome=lambda o, m: outcomes.append(m),
+        on_outcome=slow_consumer,
     ).run()
     assert summary.final.captured == 5
     assert summary.final.dropped >= 1
