@@ -92,3 +92,69 @@ def test_face_centre_in_full_contact_is_the_centroid():
     region = describe_contact(xy, plane, jig, noise_mm=0.05)
     assert not region.partial
     assert face_centre_xy(xy, region, plane, 20.0, pitch_mm=PITCH) == pytest.approx(region.centroid_xy_mm)
+
+
+# ------------------------------------------------------------------ compiled helpers against references
+
+
+def _marker_cloud(rng: np.random.Generator, count: int) -> np.ndarray:
+    """A jittered 8 mm grid (as the markers) or, every other call, uniform points, in a disc."""
+    grid = np.stack(np.meshgrid(np.arange(-64.0, 65, 8), np.arange(-64.0, 65, 8)), -1).reshape(-1, 2)
+    grid = grid[np.hypot(*grid.T) < 65]
+    grid = grid + rng.normal(0, 0.4, grid.shape)
+    return grid if count % 2 else rng.uniform(-60, 60, (count, 2))
+
+
+def test_inside_hull_matches_delaunay():
+    from scipy.spatial import Delaunay
+
+    from softjig.sensing.contact import _inside_hull
+
+    rng = np.random.default_rng(3)
+    for trial in range(60):
+        xy = _marker_cloud(rng, 150 + trial)
+        contact = rng.random(len(xy)) < rng.uniform(0.05, 0.6)
+        expected = Delaunay(xy[contact]).find_simplex(xy) >= 0
+        assert np.array_equal(_inside_hull(xy, contact), expected)
+    line = np.column_stack([np.arange(5.0), np.zeros(5)])  # no area: nothing is inside
+    assert not _inside_hull(line, np.ones(5, dtype=bool)).any()
+
+
+def test_neighbour_helpers_match_a_kd_tree():
+    from scipy.spatial import cKDTree
+
+    from softjig.sensing.contact import _neighbour_noise, just_outside
+
+    rng = np.random.default_rng(4)
+    for trial in range(20):
+        xy = _marker_cloud(rng, 200 + trial)
+        raw = rng.normal(0, 0.05, len(xy)) + 0.01 * xy[:, 0]
+        distance, index = cKDTree(xy).query(xy, k=9, distance_upper_bound=12.0)
+        near = np.isfinite(distance[:, 1:])
+        k = near.sum(axis=1)
+        values = np.where(near, raw[np.minimum(index[:, 1:], len(raw) - 1)], 0.0)
+        enough = k >= 3
+        residual = (raw[enough] - values[enough].sum(axis=1) / k[enough]) / np.sqrt(1 + 1 / k[enough])
+        expected = max(1.4826 * np.median(np.abs(residual)), 1e-6)
+        assert _neighbour_noise(xy, raw, 8.0) == pytest.approx(expected, rel=1e-12)
+        contact = rng.random(len(xy)) < 0.3
+        distance, _ = cKDTree(xy[contact]).query(xy, distance_upper_bound=12.0)
+        assert np.array_equal(just_outside(xy, contact, 8.0), np.isfinite(distance) & ~contact)
+
+
+def test_fit_plane_matches_the_svd_of_the_points():
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        xy = rng.uniform(-30, 30, (int(rng.integers(4, 200)), 2))
+        z = rng.normal(0, 0.2, len(xy)) + xy @ rng.normal(0, 0.3, 2) - 5.0
+        points = np.column_stack([xy, z])
+        fit = fit_plane_svd(points)
+        _, s, vt = np.linalg.svd(points - points.mean(axis=0), full_matrices=False)
+        normal = vt[2] * np.sign(vt[2, 2])
+        assert np.allclose(fit.normal, normal, rtol=0, atol=1e-12)
+        assert np.allclose(fit.singular_values, s, rtol=1e-9)
+        assert fit.rms_residual_mm == pytest.approx(
+            np.sqrt(np.mean(((points - fit.centroid_mm) @ normal) ** 2))
+        )
+    with pytest.raises(Exception, match="line"):
+        fit_plane_svd(np.column_stack([np.arange(6.0), 2 * np.arange(6.0), np.zeros(6)]))

@@ -171,3 +171,26 @@ def test_triangulate_refracted_says_why_rays_cannot_be_traced():
         triangulate_refracted(
             np.array([[600.0, 300.0]]), np.array([[500.0, 300.0]]), JIG, replace(FRAME, T_J_left=down)
         )
+
+
+def test_identities_match_a_kd_tree_resolved_nearest_first():
+    from scipy.spatial import cKDTree
+
+    reference = rest_shape_reference(default_jig())
+    rng = np.random.default_rng(6)
+    for _ in range(10):
+        points = reference.xyz_mm[rng.permutation(len(reference))[:250]].copy()
+        points[:, :2] += rng.normal(0, 2.5, (len(points), 2))  # some claim the same marker, some none
+        distance, nearest = cKDTree(reference.xyz_mm[:, :2]).query(points[:, :2], distance_upper_bound=4.0)
+        expected = np.full(len(points), -1)
+        taken = set()
+        for k in np.argsort(distance, kind="stable"):
+            if np.isfinite(distance[k]) and nearest[k] not in taken:
+                taken.add(nearest[k])
+                expected[k] = nearest[k]
+        found = identify_markers(points, reference, max_lateral_mm=4.0)
+        assert np.array_equal(found.ids, expected)
+        assert (found.ids == -1).any() and len(set(found.ids[found.ids >= 0])) == (found.ids >= 0).sum()
+        known = expected >= 0
+        assert np.array_equal(found.displacement_mm[known], points[known] - reference.xyz_mm[expected[known]])
+        assert np.isnan(found.displacement_mm[~known]).all()

@@ -64,6 +64,7 @@ from softjig.sensing.contact import (
     grow_contact,
     indentation,
     just_outside,
+    under_face,
 )
 from softjig.sensing.detect import (
     DEFAULT_CANDIDATES,
@@ -606,14 +607,23 @@ def _fit_or_fail(points: np.ndarray, minimum: int) -> PlaneFit:
 
 
 def _reference_height_at_axis(reference: ReferenceMarkers, pitch_mm: float) -> float:
-    """Height of the reference membrane on the jig axis: a quadratic surface through its nearest markers."""
+    """Height of the reference membrane on the jig axis: a quadratic surface through its nearest markers.
+
+    Computed once per reference and pitch (it cost 0.1 ms per estimate, measured) and kept with it.
+    """
+    key = ("height_at_axis", pitch_mm)
+    if key in reference._cache:
+        return reference._cache[key]
     xyz = reference.xyz_mm
     near = np.hypot(xyz[:, 0], xyz[:, 1]) < 2.5 * pitch_mm
     if near.sum() < 6:
-        return float(xyz[np.argmin(np.hypot(xyz[:, 0], xyz[:, 1])), 2])
-    x, y, z = xyz[near].T
-    design = np.column_stack([np.ones_like(x), x, y, x * x, x * y, y * y])
-    return float(np.linalg.lstsq(design, z, rcond=None)[0][0])
+        height = float(xyz[np.argmin(np.hypot(xyz[:, 0], xyz[:, 1])), 2])
+    else:
+        x, y, z = xyz[near].T
+        design = np.column_stack([np.ones_like(x), x, y, x * x, x * y, y * y])
+        height = float(np.linalg.lstsq(design, z, rcond=None)[0][0])
+    reference._cache[key] = height
+    return height
 
 
 def _contact_under_known_face(
@@ -628,7 +638,7 @@ def _contact_under_known_face(
     edge lies outside the ellipse; where the part lifts off, the one-sided robust fit rejects the markers
     below the face.
     """
-    pushed = np.nan_to_num(dent.depth_mm, nan=-np.inf) > dent.noise_mm
+    pushed = dent.depth_mm > dent.noise_mm  # False where NaN (unknown)
     selection = pushed & (np.hypot(points_J[:, 0], points_J[:, 1]) < radius_mm)
     if selection.sum() < minimum:
         raise EstimationError(
@@ -642,11 +652,7 @@ def _contact_under_known_face(
         used[np.flatnonzero(selection)[inliers]] = True
         # Under the face: the marker's vertical projection onto the face's plane lies within the radius
         # of the face's centre (the plane's point above the jig axis).
-        centre = np.array([0.0, 0.0, plane.z_at(0.0, 0.0)])
-        on_plane = points_J.copy()
-        on_plane[:, 2] = plane.heights_mm(points_J[:, 0], points_J[:, 1])
-        under = np.linalg.norm(on_plane - centre, axis=1) < radius_mm
-        new_selection = pushed & under
+        new_selection = pushed & under_face(points_J, plane, radius_mm)
         if np.array_equal(new_selection, selection) or new_selection.sum() < minimum:
             break
         selection = new_selection
@@ -672,11 +678,10 @@ def _refractive_estimate(
     reference = reference or rest_shape_reference(jig)
     identities = identify_markers(points_J, reference, max_lateral_mm=jig.markers.pitch_mm / 2.0)
     known = identities.ids >= 0
-    reference_z = np.where(
-        known,
-        reference.xyz_mm[np.maximum(identities.ids, 0), 2],
-        rest_inner_height_mm(jig, points_J[:, 0], points_J[:, 1]),
-    )
+    reference_z = reference.xyz_mm[np.maximum(identities.ids, 0), 2]
+    if not known.all():  # the rest shape where no reference marker is near
+        unknown = points_J[~known]
+        reference_z[~known] = rest_inner_height_mm(jig, unknown[:, 0], unknown[:, 1])
     dent = indentation(points_J, reference_z, pitch_mm=jig.markers.pitch_mm)
     candidates = contact_candidates(dent)
     minimum = jig.sensing.min_points
@@ -715,7 +720,8 @@ def _refractive_estimate(
             f"only {int(used.sum())} markers are in contact; at least {minimum} are needed "
             "(sensing.min_points)"
         )
-    plane = _fit_or_fail(points_J[used], minimum)
+    if part_diameter_mm is None:  # under a known face, the plane is already the SVD fit of points_J[used]
+        plane = _fit_or_fail(points_J[used], minimum)
     grown = used
     clearance = LIFT_OFF_SIGMAS * dent.noise_mm
     used, plane = drop_lifted_off(
@@ -728,14 +734,23 @@ def _refractive_estimate(
         min_points=minimum,
     )
     uncertainty = normal_uncertainty(points_J[used], plane, floor_mm=UNCERTAINTY_FLOOR_MM)
+    plane_depth = face_depth_mm(points_J, dent, plane)  # used twice below
     narrow, wide = ambiguous_selection(
-        points_J, dent, used, grown & ~used, plane, clearance_mm=clearance, margin_mm=dent.noise_mm
+        points_J,
+        dent,
+        used,
+        grown & ~used,
+        plane,
+        clearance_mm=clearance,
+        margin_mm=dent.noise_mm,
+        face_depth=plane_depth,
     )
     if narrow.sum() >= minimum and not np.array_equal(narrow, wide):
+        # ``plane`` is the fit of ``points_J[used]``: not fitted again where a selection is ``used``.
         uncertainty = with_spread_between(
             uncertainty,
-            _fit_or_fail(points_J[narrow], minimum).normal,
-            _fit_or_fail(points_J[wide], minimum).normal,
+            plane.normal if np.array_equal(narrow, used) else _fit_or_fail(points_J[narrow], minimum).normal,
+            plane.normal if np.array_equal(wide, used) else _fit_or_fail(points_J[wide], minimum).normal,
         )
     uncertainty = inflated(uncertainty, MODEL_ERROR_FACTOR)
     outside = just_outside(points_J[:, :2], used, jig.markers.pitch_mm)
@@ -745,7 +760,7 @@ def _refractive_estimate(
         jig,
         noise_mm=dent.noise_mm,
         part_diameter_mm=part_diameter_mm,
-        edge_face_depth_mm=face_depth_mm(points_J, dent, plane)[outside],
+        edge_face_depth_mm=plane_depth[outside],
     )
     part_centre = (
         None

@@ -80,16 +80,17 @@ from __future__ import annotations
 
 import itertools
 import math
+import threading
 from dataclasses import dataclass
 from statistics import NormalDist
 
+import numba
 import numpy as np
-from scipy.spatial import ConvexHull, QhullError
 from scipy.stats import t as student_t
 
 from softjig.checks import positive_float
 from softjig.errors import InputError
-from softjig.geometry import PlaneFit, fit_plane_svd
+from softjig.geometry import PlaneFit, _inside_hull_kernel, fit_plane_svd
 
 __all__ = ["RobustPlaneFit", "fit_plane_robust"]
 
@@ -179,8 +180,8 @@ def fit_plane_robust(
     -----
     Distances are signed along the plane's normal ``n`` (``n_z > 0``, into the part): lifted-off markers
     have negative residuals, wall markers positive ones. The inlier threshold is symmetric; only the
-    choice between refined candidates and the final scale are one-sided. Takes about 2-3 ms for 150
-    points.
+    choice between refined candidates and the final scale are one-sided. Takes about 0.3 ms for 150
+    points with a given threshold, 2 ms with the automatic one (measured).
 
     Examples
     --------
@@ -201,29 +202,20 @@ def fit_plane_robust(
     need = max(3, int(min_inliers))
     if n < need:
         raise InputError(f"robust plane fit needs at least {need} points (min_inliers), got {n}.")
-    generator = np.random.default_rng(rng)
+    generator = _generator(rng)
     centred = pts - pts.mean(axis=0)  # work centred: offsets stay small, residuals precise
 
     normals, offsets, iterations = _hypotheses(centred, generator, threshold_mm, int(max_iterations))
     if len(normals) == 0:
         raise InputError(f"the {n} points lie on a line or a point and do not define a plane.")
-    residuals = normals @ centred.T + offsets[:, None]  # (H, N)
-
     auto = threshold_mm is None
     if auto:
-        threshold_mm = _threshold_from_lqs(centred, residuals)
+        threshold_mm = _threshold_from_lqs(centred, normals @ centred.T + offsets[:, None])
     t = float(threshold_mm)
-    cost = np.minimum(residuals**2, t * t).sum(axis=1)
 
-    candidates = []  # (inlier mask, residuals, threshold) of each refined candidate
-    for mask in _diverse_inlier_sets(np.abs(residuals) <= t, cost):
-        refined = _refine(centred, mask, t)
-        if refined is None or any(np.array_equal(refined[0], c[0]) for c in candidates):
-            continue
-        candidates.append(refined)
-    if not candidates:
+    best = _best_candidate(centred, _diverse_inlier_sets_of(centred, normals, offsets, t), t, one_sided)
+    if best is None:
         raise InputError(f"no hypothesis plane's inliers among the {n} points define a plane.")
-    best = min(candidates, key=lambda c: _selection_cost(centred, c, t, one_sided))
     if auto:  # re-estimate the scale about the chosen plane and refine again, until t settles
         settled = _settle_scale(centred, best, t, one_sided)
         if settled is not None:
@@ -246,6 +238,27 @@ def fit_plane_robust(
 
 
 # ------------------------------------------------------------------------------------------ steps
+
+
+_SEEDED = threading.local()  # per thread: {seed: (generator, its initial state)}
+
+
+def _generator(rng: int | np.random.Generator | None) -> np.random.Generator:
+    """``np.random.default_rng(rng)``; for an integer seed, a generator made once (per thread) and reset
+    to the seed's initial state, which draws the same numbers: seeding took 18 us per fit, the reset
+    3 us (measured)."""
+    if not isinstance(rng, (int, np.integer)) or isinstance(rng, bool):
+        return np.random.default_rng(rng)
+    seeded = getattr(_SEEDED, "generators", None)
+    if seeded is None:
+        seeded = _SEEDED.generators = {}
+    entry = seeded.get(int(rng))
+    if entry is None:
+        generator = np.random.default_rng(rng)
+        entry = seeded[int(rng)] = (generator, generator.bit_generator.state)
+    generator, state = entry
+    generator.bit_generator.state = state
+    return generator
 
 
 def _check_points(points_mm) -> np.ndarray:
@@ -287,6 +300,71 @@ def _planes_from_triples(points: np.ndarray, triples: np.ndarray) -> tuple[np.nd
     return normals, offsets
 
 
+@numba.njit(cache=True)
+def _score_batch(
+    points: np.ndarray, triples: np.ndarray, threshold_mm: float, lqs_factor: float, h: int
+) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """The planes through ``triples`` (as :func:`_planes_from_triples`, skipping triples with a repeated
+    point) and the best one's score.
+
+    Returns ``(normals, offsets, key, ratio)``: the least key of the batch (the MSAC cost
+    ``sum min(r^2, t^2)`` when ``threshold_mm > 0``, else the LQS key, the ``h``-th smallest ``|r|``)
+    and the share of points within the threshold of that plane (``2.5 max(lqs_factor key, 0.05 mm)``
+    for LQS); ``key = inf`` when no triple gives a plane.
+    """
+    m, n = triples.shape[0], points.shape[0]
+    normals = np.empty((m, 3))
+    offsets = np.empty(m)
+    k = 0
+    for j in range(m):
+        a, b, c = triples[j, 0], triples[j, 1], triples[j, 2]
+        if (a - b) * (a - c) * (b - c) == 0:  # a repeated point
+            continue
+        e10, e11, e12 = points[b, 0] - points[a, 0], points[b, 1] - points[a, 1], points[b, 2] - points[a, 2]
+        e20, e21, e22 = points[c, 0] - points[a, 0], points[c, 1] - points[a, 1], points[c, 2] - points[a, 2]
+        c0 = e11 * e22 - e12 * e21
+        c1 = e12 * e20 - e10 * e22
+        c2 = e10 * e21 - e11 * e20
+        norm = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
+        scale = np.sqrt(e10 * e10 + e11 * e11 + e12 * e12) * np.sqrt(e20 * e20 + e21 * e21 + e22 * e22)
+        if not norm > 1e-6 * scale:
+            continue
+        n0, n1, n2 = c0 / norm, c1 / norm, c2 / norm
+        if not abs(n2) > 1e-6:
+            continue
+        if n2 < 0:
+            n0, n1, n2 = -n0, -n1, -n2
+        normals[k, 0], normals[k, 1], normals[k, 2] = n0, n1, n2
+        offsets[k] = -(n0 * points[a, 0] + n1 * points[a, 1] + n2 * points[a, 2])
+        k += 1
+    best_key, best_ratio = np.inf, 0.0
+    abs_r = np.empty(n)
+    for j in range(k):
+        for i in range(n):
+            abs_r[i] = abs(
+                normals[j, 0] * points[i, 0]
+                + normals[j, 1] * points[i, 1]
+                + normals[j, 2] * points[i, 2]
+                + offsets[j]
+            )
+        if threshold_mm > 0:
+            t2 = threshold_mm * threshold_mm
+            key = 0.0
+            for i in range(n):
+                key += min(abs_r[i] * abs_r[i], t2)
+            limit = threshold_mm
+        else:
+            key = np.sort(abs_r)[h - 1]
+            limit = _THRESHOLD_SIGMAS * max(lqs_factor * key, _MIN_SCALE_MM)
+        if key < best_key:
+            best_key = key
+            inside = 0
+            for i in range(n):
+                inside += abs_r[i] <= limit
+            best_ratio = inside / n
+    return normals[:k], offsets[:k], best_key, best_ratio
+
+
 def _required_iterations(inlier_ratio: float) -> float:
     w3 = min(max(inlier_ratio, 1e-6), 1.0) ** 3
     if w3 >= 1.0:
@@ -305,37 +383,25 @@ def _hypotheses(
         return normals, offsets, len(triples)
 
     h = _lqs_order(n)
+    t_batch = -1.0 if threshold_mm is None else float(threshold_mm)
+    lqs_factor = float(_lqs_scale(1.0, n)) if threshold_mm is None else 0.0  # 10 us of NormalDist
     all_normals, all_offsets = [], []
     drawn = 0
     best_key = math.inf
     best_ratio = 0.0
     while drawn < max_iterations:
         count = min(_BATCH, max_iterations - drawn)
-        triples = rng.integers(0, n, size=(count, 3))
-        distinct = (
-            (triples[:, 0] != triples[:, 1])
-            & (triples[:, 0] != triples[:, 2])
-            & (triples[:, 1] != triples[:, 2])
-        )
+        triples = rng.integers(0, n, size=(count, 3))  # those with a repeated point are skipped
         drawn += count
-        normals, offsets = _planes_from_triples(points, triples[distinct])
+        # One compiled pass per batch: planes, their scores, the best one's inlier ratio (the NumPy
+        # version of the same steps took 0.1-0.2 ms per batch on 30 points, measured; this, 10 us).
+        normals, offsets, key, ratio = _score_batch(points, triples, t_batch, lqs_factor, h)
         if len(normals):
             all_normals.append(normals)
             all_offsets.append(offsets)
-            abs_r = np.abs(normals @ points.T + offsets[:, None])
-            if threshold_mm is None:
-                key = np.partition(abs_r, h - 1, axis=1)[:, h - 1]  # LQS, scale-free
-                i = int(np.argmin(key))
-                if key[i] < best_key:
-                    best_key = float(key[i])
-                    s0 = max(_lqs_scale(key[i], n), _MIN_SCALE_MM)
-                    best_ratio = float(np.mean(abs_r[i] <= _THRESHOLD_SIGMAS * s0))
-            else:
-                cost = np.minimum(abs_r**2, threshold_mm**2).sum(axis=1)
-                i = int(np.argmin(cost))
-                if cost[i] < best_key:
-                    best_key = float(cost[i])
-                    best_ratio = float(np.mean(abs_r[i] <= threshold_mm))
+            if key < best_key:  # LQS (scale-free) without a threshold, else the MSAC cost
+                best_key = key
+                best_ratio = ratio
         if drawn >= max(_MIN_ITERATIONS, _required_iterations(best_ratio)):
             break
     if not all_normals:
@@ -395,22 +461,76 @@ def _student_factor(dof: int) -> float:
     return float(student_t.ppf(_COVERAGE_QUANTILE, max(dof, 1)))
 
 
-def _diverse_inlier_sets(masks: np.ndarray, cost: np.ndarray) -> list[np.ndarray]:
-    """Inlier sets of the lowest-cost hypotheses, skipping sets too like one already taken.
+def _diverse_inlier_sets_of(
+    points: np.ndarray, normals: np.ndarray, offsets: np.ndarray, t: float
+) -> list[np.ndarray]:
+    """Inlier sets (``|r| <= t``) of the lowest-MSAC-cost hypotheses, skipping sets too like one already
+    taken (Jaccard index at least 0.8), at most :data:`_N_CANDIDATES`; among the 150 cheapest, those of
+    at least 3 points. Compiled (:func:`_diverse_kernel`): the ``(H, N)`` residuals, costs and a
+    vectorised NumPy loop took 0.1-0.2 ms per fit on 30 points, measured; this, 10 us."""
+    chosen = _diverse_kernel(
+        np.ascontiguousarray(points),
+        normals,
+        offsets,
+        t,
+        50 * _N_CANDIDATES,
+        _N_CANDIDATES,
+        _SAME_SET_JACCARD,
+    )
+    return list(chosen)
 
-    Vectorised over the candidates (each taken set rules out, at once, every later one within the
-    Jaccard limit): a per-pair loop cost 1-2 ms per fit.
-    """
-    order = np.argsort(cost, kind="stable")[: 50 * _N_CANDIDATES]
-    pool = masks[order]
-    pool = pool[pool.sum(axis=1) >= 3]
-    chosen: list[np.ndarray] = []
-    while len(pool) and len(chosen) < _N_CANDIDATES:
-        taken = pool[0]
-        chosen.append(taken)
-        union = (pool | taken).sum(axis=1)
-        pool = pool[(pool & taken).sum(axis=1) < _SAME_SET_JACCARD * union]
-    return chosen
+
+@numba.njit(cache=True)
+def _diverse_kernel(
+    points: np.ndarray,
+    normals: np.ndarray,
+    offsets: np.ndarray,
+    t: float,
+    pool_size: int,
+    n_candidates: int,
+    same_set_jaccard: float,
+) -> np.ndarray:
+    """The steps of :func:`_diverse_inlier_sets_of` from the planes; ``(K, N)`` inlier masks."""
+    h, n = normals.shape[0], points.shape[0]
+    masks = np.empty((h, n), dtype=np.bool_)
+    cost = np.empty(h)
+    t2 = t * t
+    for j in range(h):
+        total = 0.0
+        for i in range(n):
+            r = (
+                normals[j, 0] * points[i, 0]
+                + normals[j, 1] * points[i, 1]
+                + normals[j, 2] * points[i, 2]
+                + offsets[j]
+            )
+            masks[j, i] = abs(r) <= t
+            total += min(r * r, t2)
+        cost[j] = total
+    order = np.argsort(cost, kind="mergesort")[:pool_size]
+    alive = np.zeros(order.shape[0], dtype=np.bool_)
+    for q in range(order.shape[0]):
+        alive[q] = masks[order[q]].sum() >= 3
+    chosen = np.empty((n_candidates, n), dtype=np.bool_)
+    k = 0
+    for q in range(order.shape[0]):
+        if k >= n_candidates:
+            break
+        if not alive[q]:
+            continue
+        taken = masks[order[q]]
+        chosen[k] = taken
+        k += 1
+        for other in range(q, order.shape[0]):  # rule out the sets too like it (itself included)
+            if alive[other]:
+                row = masks[order[other]]
+                both, either = 0, 0
+                for i in range(n):
+                    both += row[i] and taken[i]
+                    either += row[i] or taken[i]
+                if not both < same_set_jaccard * either:
+                    alive[other] = False
+    return chosen[:k]
 
 
 def _lsq_plane(points: np.ndarray) -> tuple[np.ndarray, float] | None:
@@ -433,22 +553,71 @@ def _lsq_plane(points: np.ndarray) -> tuple[np.ndarray, float] | None:
 
 
 def _refine(points: np.ndarray, mask: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray] | None:
-    """Alternate least-squares refit and inlier re-selection until stable; ``(mask, residuals)``."""
-    residuals = None
-    for _ in range(_MAX_REFINE_ROUNDS):
-        if mask.sum() < 3:
-            return None
-        plane = _lsq_plane(points[mask])
-        if plane is None:
-            return None
-        residuals = points @ plane[0] + plane[1]
-        new = np.abs(residuals) <= t
-        if np.array_equal(new, mask):
+    """Alternate least-squares refit and inlier re-selection until stable; ``(mask, residuals)``.
+
+    Compiled (:func:`_refine_kernel`): the NumPy loop of :func:`_lsq_plane` fits took 0.1-0.2 ms per
+    candidate on 30 points, measured.
+    """
+    ok, mask, residuals = _refine_kernel(points, mask, float(t), _MAX_REFINE_ROUNDS)
+    return (mask, residuals) if ok else None
+
+
+@numba.njit(cache=True)
+def _refine_kernel(
+    points: np.ndarray, mask: np.ndarray, t: float, max_rounds: int
+) -> tuple[bool, np.ndarray, np.ndarray]:
+    """:func:`_refine`'s loop: ``(ok, mask, residuals)``, the planes as :func:`_lsq_plane`'s."""
+    n = points.shape[0]
+    residuals = np.zeros(n)
+    mask = mask.copy()
+    for _ in range(max_rounds):
+        m = 0
+        centroid = np.zeros(3)
+        for i in range(n):
+            if mask[i]:
+                m += 1
+                for k in range(3):
+                    centroid[k] += points[i, k]
+        if m < 3:
+            return False, mask, residuals
+        centroid /= m
+        scatter = np.zeros((3, 3))
+        for i in range(n):
+            if mask[i]:
+                d0, d1, d2 = (
+                    points[i, 0] - centroid[0],
+                    points[i, 1] - centroid[1],
+                    points[i, 2] - centroid[2],
+                )
+                scatter[0, 0] += d0 * d0
+                scatter[0, 1] += d0 * d1
+                scatter[0, 2] += d0 * d2
+                scatter[1, 1] += d1 * d1
+                scatter[1, 2] += d1 * d2
+                scatter[2, 2] += d2 * d2
+        scatter[1, 0], scatter[2, 0], scatter[2, 1] = scatter[0, 1], scatter[0, 2], scatter[1, 2]
+        eigval, eigvec = np.linalg.eigh(scatter)
+        if eigval[2] <= 0 or eigval[1] <= 1e-18 * eigval[2]:
+            return False, mask, residuals  # a line or a point
+        n0, n1, n2 = eigvec[0, 0], eigvec[1, 0], eigvec[2, 0]
+        if n2 < 0:
+            n0, n1, n2 = -n0, -n1, -n2
+        if n2 == 0:
+            return False, mask, residuals
+        offset = -(n0 * centroid[0] + n1 * centroid[1] + n2 * centroid[2])
+        same = True
+        for i in range(n):
+            residuals[i] = points[i, 0] * n0 + points[i, 1] * n1 + points[i, 2] * n2 + offset
+            inside = abs(residuals[i]) <= t
+            if inside != mask[i]:
+                same = False
+                mask[i] = inside
+        if same:
             break
-        mask = new
-    if mask.sum() < 3:
-        return None
-    return mask, residuals
+    m = 0
+    for i in range(n):
+        m += mask[i]
+    return m >= 3, mask, residuals
 
 
 def _settle_scale(
@@ -466,22 +635,71 @@ def _settle_scale(
     return refined, t
 
 
-def _penetrating(points: np.ndarray, mask: np.ndarray, residuals: np.ndarray, t: float) -> int:
-    """How many points lie more than ``t`` above the plane inside the ``(x, y)`` hull of its inliers."""
-    above = residuals > t
-    if not above.any():
-        return 0
-    try:
-        hull = ConvexHull(points[mask, :2])
-    except (QhullError, ValueError):
-        return 0  # inliers on a line: no footprint to penetrate
-    eq = hull.equations
-    inside = np.all(points[above, :2] @ eq[:, :2].T + eq[:, 2] <= 1e-9, axis=1)
-    return int(inside.sum())
+def _best_candidate(
+    points: np.ndarray, masks: list[np.ndarray], t: float, one_sided: bool
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Refine each inlier set (:func:`_refine`), drop repeated results, and return the ``(mask,
+    residuals)`` of the lowest selection cost (the first of equals), or ``None`` if none refines. The
+    selection cost is the MSAC cost plus, with ``one_sided``, ``t^2`` per point more than ``t`` above the
+    plane inside the ``(x, y)`` hull of its inliers (it would penetrate the part).
+
+    Compiled (:func:`_best_candidate_kernel`): the same steps in NumPy took 50 us per fit, measured.
+    """
+    if not masks:
+        return None
+    ok, mask, residuals = _best_candidate_kernel(
+        np.ascontiguousarray(points), np.stack(masks), float(t), one_sided, _MAX_REFINE_ROUNDS, _ABOVE_PENALTY
+    )
+    return (mask, residuals) if ok else None
 
 
-def _selection_cost(points: np.ndarray, candidate: tuple[np.ndarray, np.ndarray], t: float, one_sided: bool):
-    """MSAC cost of a refined candidate, plus ``t^2`` per penetrating point when ``one_sided``."""
-    mask, residuals = candidate
-    n_pen = _penetrating(points, mask, residuals, t) if one_sided else 0
-    return float(np.minimum(residuals**2, t * t).sum()) + _ABOVE_PENALTY * t * t * n_pen
+@numba.njit(cache=True)
+def _best_candidate_kernel(
+    points: np.ndarray,
+    masks: np.ndarray,
+    t: float,
+    one_sided: bool,
+    max_rounds: int,
+    above_penalty: float,
+) -> tuple[bool, np.ndarray, np.ndarray]:
+    n = points.shape[0]
+    kept_masks = np.zeros((masks.shape[0], n), dtype=np.bool_)
+    n_kept = 0
+    best_cost = np.inf
+    best_mask = np.zeros(n, dtype=np.bool_)
+    best_residuals = np.zeros(n)
+    for q in range(masks.shape[0]):
+        ok, mask, residuals = _refine_kernel(points, masks[q], t, max_rounds)
+        if not ok:
+            continue
+        repeated = False
+        for other in range(n_kept):
+            if np.array_equal(kept_masks[other], mask):
+                repeated = True
+                break
+        if repeated:
+            continue
+        kept_masks[n_kept] = mask
+        n_kept += 1
+        # The selection cost: MSAC plus t^2 per point above the plane inside the (x, y) hull of the
+        # inliers (none when the inliers lie on a line).
+        cost = 0.0
+        n_above = 0
+        for i in range(n):
+            cost += min(residuals[i] * residuals[i], t * t)
+            n_above += residuals[i] > t
+        if one_sided and n_above > 0:
+            above = np.empty((n_above, 2))
+            inliers = np.empty((mask.sum(), 2))
+            a, b = 0, 0
+            for i in range(n):
+                if residuals[i] > t:
+                    above[a, 0], above[a, 1] = points[i, 0], points[i, 1]
+                    a += 1
+                if mask[i]:
+                    inliers[b, 0], inliers[b, 1] = points[i, 0], points[i, 1]
+                    b += 1
+            cost += above_penalty * t * t * _inside_hull_kernel(inliers, above, 1e-9).sum()
+        if cost < best_cost:
+            best_cost, best_mask, best_residuals = cost, mask, residuals
+    return n_kept > 0, best_mask, best_residuals

@@ -27,8 +27,10 @@ flat sample from claiming an implausibly small uncertainty.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from softjig.checks import finite_float, positive_float
@@ -162,7 +164,9 @@ def normal_uncertainty(
     pts = np.asarray(points_mm, dtype=float)
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise InputError(f"normal_uncertainty needs (N, 3) points, got shape {pts.shape}.")
-    if not np.all(np.isfinite(pts)):
+    normal = np.ascontiguousarray(plane.normal, dtype=float)
+    finite, rss, xtx = _moments(np.ascontiguousarray(pts), normal, float(plane.offset_mm))
+    if not finite:
         raise InputError("normal_uncertainty got non-finite points (NaN or inf); drop them first.")
     floor = finite_float(floor_mm, "floor_mm")
     if floor < 0:
@@ -175,37 +179,69 @@ def normal_uncertainty(
         )
     if n_pts < 3:
         raise InputError(f"normal_uncertainty needs at least 3 points, got {n_pts}.")
-    normal = np.asarray(plane.normal, dtype=float)
-    if normal.shape != (3,) or not np.all(np.isfinite(normal)) or normal[2] <= 0:
+    if normal.shape != (3,) or not all(math.isfinite(v) for v in normal.tolist()) or normal[2] <= 0:
         raise InputError(f"the plane's normal must be a finite 3-vector with n_z > 0, got {normal}.")
 
-    a, b = -normal[0] / normal[2], -normal[1] / normal[2]
+    # Scalar arithmetic on Python floats from here: the same formulas as with 2x2 NumPy arrays, without
+    # 15 NumPy calls (60 us, measured).
+    n0, n1, n2 = normal.tolist()
+    a, b = -n0 / n2, -n1 / n2
     if point_sigma_mm is None:
-        z_resid = -(pts @ normal + float(plane.offset_mm)) / normal[2]  # vertical residuals
-        s = float(np.sqrt(z_resid @ z_resid / (n_pts - 3)))
+        s = float(np.sqrt(rss / (n_pts - 3)))  # vertical residuals, 3 fitted parameters
     else:
         s = positive_float(point_sigma_mm, "point_sigma_mm")
     s = max(s, floor)
 
-    X = pts[:, :2] - pts[:, :2].mean(axis=0)
-    xtx = X.T @ X
-    eig = np.linalg.eigvalsh(xtx)
-    if eig[0] <= 1e-12 * max(eig[1], 1e-300):
+    # The 2x2 eigenvalues and inverse in closed form (NumPy's eigvalsh and inv took 20 us, measured).
+    (sxx, sxy), (_, syy) = xtx.tolist()
+    half_trace, det = 0.5 * (sxx + syy), sxx * syy - sxy * sxy
+    root = math.hypot(0.5 * (sxx - syy), sxy)
+    if half_trace - root <= 1e-12 * max(half_trace + root, 1e-300):
         raise InputError(f"the {n_pts} points' (x, y) lie on a line: the plane's tilt across it is unknown.")
-    cov_ab = s * s * np.linalg.inv(xtx)
+    scale = s * s / det
+    cov_aa, cov_ab, cov_bb = scale * syy, -scale * sxy, scale * sxx  # s^2 (X^T X)^-1
 
     _, jac_n = normal_from_slopes(a, b)
-    _, jac_t = tilt_angles_from_slopes(a, b)
-    cov_n = jac_n @ cov_ab @ jac_n.T
+    cov_n = jac_n @ np.array([[cov_aa, cov_ab], [cov_ab, cov_bb]]) @ jac_n.T
     cov_n = 0.5 * (cov_n + cov_n.T)
-    cov_t = jac_t @ cov_ab @ jac_t.T
+    # Tilt angles: d(Ax, Ay)/d(a, b) = [[0, 1 / (1 + b^2)], [-1 / (1 + a^2), 0]] (tilt_angles_from_slopes).
+    var_x = cov_bb / (1.0 + b * b) ** 2
+    var_y = cov_aa / (1.0 + a * a) ** 2
     return NormalUncertainty(
         covariance=cov_n,
-        tilt_sigma_x_rad=float(np.sqrt(cov_t[0, 0])),
-        tilt_sigma_y_rad=float(np.sqrt(cov_t[1, 1])),
-        tilt_sigma_rad=float(np.sqrt(np.trace(cov_n))),
+        tilt_sigma_x_rad=math.sqrt(var_x),
+        tilt_sigma_y_rad=math.sqrt(var_y),
+        tilt_sigma_rad=math.sqrt(cov_n[0, 0] + cov_n[1, 1] + cov_n[2, 2]),
         residual_sigma_mm=s,
     )
+
+
+@numba.njit(cache=True, error_model="numpy")  # n_z = 0 gives inf, reported below, not an exception
+def _moments(points: np.ndarray, normal: np.ndarray, offset: float) -> tuple[bool, float, np.ndarray]:
+    """Whether all points are finite, the sum of squared vertical residuals to the plane
+    ``normal . p + offset = 0``, and ``X^T X`` of the centred ``(x, y)`` (compiled: 10 NumPy calls)."""
+    n = points.shape[0]
+    mx, my, rss = 0.0, 0.0, 0.0
+    for i in range(n):
+        if not (np.isfinite(points[i, 0]) and np.isfinite(points[i, 1]) and np.isfinite(points[i, 2])):
+            return False, 0.0, np.zeros((2, 2))
+        mx += points[i, 0]
+        my += points[i, 1]
+        r = (
+            -(points[i, 0] * normal[0] + points[i, 1] * normal[1] + points[i, 2] * normal[2] + offset)
+            / normal[2]
+        )
+        rss += r * r
+    mx /= max(n, 1)
+    my /= max(n, 1)
+    xtx = np.zeros((2, 2))
+    for i in range(n):
+        dx, dy = points[i, 0] - mx, points[i, 1] - my
+        xtx[0, 0] += dx * dx
+        xtx[0, 1] += dx * dy
+        xtx[1, 1] += dy * dy
+    xtx[1, 0] = xtx[0, 1]
+    return True, rss, xtx
 
 
 def with_spread_between(
@@ -222,20 +258,20 @@ def with_spread_between(
     """
     a, b = np.asarray(normal_a, dtype=float), np.asarray(normal_b, dtype=float)
     half_n = (a - b) / 2.0
-    half_t = (np.array(_tilts(a)) - np.array(_tilts(b))) / 2.0
+    (ax_a, ay_a), (ax_b, ay_b) = _tilts(a.tolist()), _tilts(b.tolist())  # floats: 10 us fewer, measured
     covariance = uncertainty.covariance + np.outer(half_n, half_n)
     return NormalUncertainty(
         covariance=covariance,
-        tilt_sigma_x_rad=float(np.hypot(uncertainty.tilt_sigma_x_rad, half_t[0])),
-        tilt_sigma_y_rad=float(np.hypot(uncertainty.tilt_sigma_y_rad, half_t[1])),
-        tilt_sigma_rad=float(np.sqrt(np.trace(covariance))),
+        tilt_sigma_x_rad=math.hypot(uncertainty.tilt_sigma_x_rad, (ax_a - ax_b) / 2.0),
+        tilt_sigma_y_rad=math.hypot(uncertainty.tilt_sigma_y_rad, (ay_a - ay_b) / 2.0),
+        tilt_sigma_rad=math.sqrt(covariance[0, 0] + covariance[1, 1] + covariance[2, 2]),
         residual_sigma_mm=uncertainty.residual_sigma_mm,
     )
 
 
-def _tilts(normal: np.ndarray) -> tuple[float, float]:
+def _tilts(normal) -> tuple[float, float]:
     """``(Ax, Ay)`` of a normal (rad), as :func:`softjig.geometry.tilt_angles`."""
-    return float(np.arctan2(-normal[1], normal[2])), float(np.arctan2(normal[0], normal[2]))
+    return math.atan2(-normal[1], normal[2]), math.atan2(normal[0], normal[2])
 
 
 def inflated(uncertainty: NormalUncertainty, factor: float) -> NormalUncertainty:
