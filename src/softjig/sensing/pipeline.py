@@ -703,18 +703,27 @@ def _refractive_estimate(
             raise EstimationError(f"no plane could be fitted to the pushed-in markers: {exc}") from None
         return robust.inliers, robust.plane
 
+    # The robust fits draw random triples by position in the list: in the reference markers' order, two
+    # runs whose markers differ only by rounding (the fast and the straightforward implementation, whose
+    # detections are listed by slightly different responses) draw the same triples.
+    order = _canonical_order(identities.ids, points_J)
+    in_order = Indentation(dent.depth_mm[order], dent.zero_mm, dent.noise_mm)
     if part_diameter_mm is not None:
-        used, plane = _contact_under_known_face(points_J, dent, part_diameter_mm / 2.0, fit, minimum)
+        used_in_order, plane = _contact_under_known_face(
+            points_J[order], in_order, part_diameter_mm / 2.0, fit, minimum
+        )
     else:
-        used, plane = grow_contact(
-            points_J,
-            dent,
-            candidates,
+        used_in_order, plane = grow_contact(
+            points_J[order],
+            in_order,
+            candidates[order],
             pitch_mm=jig.markers.pitch_mm,
             fit_plane=fit,
             threshold_mm=threshold,
             min_points=minimum,
         )
+    used = np.empty_like(used_in_order)
+    used[order] = used_in_order
     if used.sum() < minimum:
         raise EstimationError(
             f"only {int(used.sum())} markers are in contact; at least {minimum} are needed "
@@ -808,6 +817,11 @@ def _refractive_estimate(
         contact,
         uncertainty,
     )
+
+
+def _canonical_order(ids: np.ndarray, points_J: np.ndarray) -> np.ndarray:
+    """The markers ordered by their reference marker's index; those without one last, by ``x`` then ``y``."""
+    return np.lexsort((points_J[:, 1], points_J[:, 0], np.where(ids >= 0, ids, np.iinfo(np.intp).max)))
 
 
 class _StageClock:
