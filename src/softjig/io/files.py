@@ -43,10 +43,10 @@ def write_bytes_atomic(path: str | os.PathLike[str], data: bytes, *, durable: bo
         Path(tmp).unlink(missing_ok=True)
         raise
     if durable:
-        _fsync_folder(path.parent)
+        fsync_folder(path.parent)
 
 
-def _fsync_folder(folder: Path) -> None:
+def fsync_folder(folder: Path) -> None:
     """Make a rename durable across a power cut (POSIX: fsync the folder's entry table)."""
     try:
         fd = os.open(folder, os.O_RDONLY)

@@ -40,6 +40,7 @@ from softjig.calibration.tilt import TiltCalibration
 from softjig.config import JigConfig
 from softjig.errors import EstimationError, InputError
 from softjig.io.dataset import Dataset, Frame
+from softjig.io.files import fsync_folder
 from softjig.sensing.identities import ReferenceMarkers
 from softjig.sensing.pipeline import DEFAULT_METHOD, estimate_pair, reference_from_pair, sensing_setup
 
@@ -371,21 +372,7 @@ class RowsWriter:
             tmp.unlink(missing_ok=True)
             message = f"cannot write {self.path}: {err.strerror or err}; choose another path"
             raise InputError(message) from None
-        _fsync_folder(self.path.parent)
-
-
-def _fsync_folder(folder: Path) -> None:
-    """Make a rename durable across a power cut (POSIX: fsync the folder's entry table)."""
-    try:
-        fd = os.open(folder, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass  # some filesystems cannot fsync a folder; the rename is still atomic
-    finally:
-        os.close(fd)
+        fsync_folder(self.path.parent)
 
 
 def write_rows(rows: Iterable[dict], path: str | os.PathLike[str]) -> int:
