@@ -2,8 +2,10 @@
 
 Both methods share the front end, each stage in its own module:
 
-1. markers in each image: LoG at the scale implied by the markers' size in the image, local maxima,
-   least-squares quadratic sub-pixel refinement (:mod:`softjig.sensing.detect`);
+1. markers in each image: LoG at the scale implied by the markers' size in the image, local maxima
+   (on a downsampled pyramid level), and a maximum-likelihood fit of the marker model for the sub-pixel
+   centre (:mod:`softjig.sensing.detect`, :mod:`softjig.sensing.subpixel`; the paper's quadratic fit
+   with ``refine="quadratic"``);
 2. the cameras' pose in J from the fiducials, or the config's (:mod:`softjig.sensing.jigframe`), and the
    markers on the fiducials dropped;
 3. stereo matching on rows within a tolerance and a disparity window implied by the jig's geometry, as
@@ -22,11 +24,16 @@ sees it, so zero push reads zero, and stays compressed by the same factor.
 - the contact region is found from each marker's indentation against the unloaded jig (a reference
   frame, or the nominal rest shape), not from a part size (:mod:`softjig.sensing.contact`); when the
   part's size is given, only under the tilted face's elliptical footprint;
-- the plane is fitted robustly, so markers where the part lifts off do not pull it
-  (:mod:`softjig.sensing.robust`), and partial contact is flagged;
+- the plane is fitted robustly, and the markers where the face would not reach below the unloaded
+  membrane are dropped, so markers where the part lifts off do not pull it
+  (:mod:`softjig.sensing.robust`, :func:`~softjig.sensing.contact.drop_lifted_off`), and partial contact
+  is flagged;
 - the normal comes with its covariance and 1-sigma tilt errors (:mod:`softjig.sensing.uncertainty`);
-- the contact footprint gives the part's position (x, y) on the jig, and every marker an identity and a
-  3-D displacement (:mod:`softjig.sensing.identities`).
+- the contact footprint gives the contact's position (x, y) on the jig, and, when the part's size is
+  given, the centre of its face; every marker gets an identity and a 3-D displacement
+  (:mod:`softjig.sensing.identities`).
+
+``fast=False`` runs the straightforward implementation of every stage, to check the fast one against.
 """
 
 from __future__ import annotations
