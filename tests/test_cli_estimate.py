@@ -37,8 +37,16 @@ def test_pair_json_has_the_contract_keys(sweep):
     result = runner.invoke(app, ["estimate", *_pair_args(sweep), "--part-diameter", "50", "--json"])
     assert result.exit_code == 0, result.output
     data = json.loads(result.stdout)
-    for key in ("normal", "tilt_x_deg", "tilt_y_deg", "push_depth_mm", "n_points", "rms_residual_mm",
-                "frame_source", "warnings"):
+    for key in (
+        "normal",
+        "tilt_x_deg",
+        "tilt_y_deg",
+        "push_depth_mm",
+        "n_points",
+        "rms_residual_mm",
+        "frame_source",
+        "warnings",
+    ):
         assert key in data
     assert data["frame_source"] == "fiducials" and data["n_points"] > 20
     assert data["normal"][2] > 0.9
@@ -46,8 +54,9 @@ def test_pair_json_has_the_contract_keys(sweep):
 
 def test_pair_table_and_overlay(sweep, tmp_path):
     overlay = tmp_path / "overlay.png"
-    result = runner.invoke(app, ["estimate", *_pair_args(sweep), "--part-diameter", "50",
-                                 "--overlay", str(overlay)])
+    result = runner.invoke(
+        app, ["estimate", *_pair_args(sweep), "--part-diameter", "50", "--overlay", str(overlay)]
+    )
     assert result.exit_code == 0, result.output
     assert "tilt Ax / Ay" in result.stdout and "fiducials" in result.stdout
     picture = cv2.imread(str(overlay))
@@ -58,17 +67,23 @@ def test_pair_table_and_overlay(sweep, tmp_path):
 def test_pair_calibration_is_applied(sweep, tmp_path):
     cal = tmp_path / "cal.json"
     cal.write_text(json.dumps({"offset_x_deg": 0.0, "offset_y_deg": 0.0, "scale": 2.0}))
-    plain = json.loads(runner.invoke(app, ["estimate", *_pair_args(sweep), "--part-diameter", "50",
-                                           "--json"]).stdout)
-    scaled = json.loads(runner.invoke(app, ["estimate", *_pair_args(sweep), "--part-diameter", "50",
-                                            "--json", "--calibration", str(cal)]).stdout)
+    plain = json.loads(
+        runner.invoke(app, ["estimate", *_pair_args(sweep), "--part-diameter", "50", "--json"]).stdout
+    )
+    scaled = json.loads(
+        runner.invoke(
+            app,
+            ["estimate", *_pair_args(sweep), "--part-diameter", "50", "--json", "--calibration", str(cal)],
+        ).stdout
+    )
     assert scaled["calibrated"] and scaled["tilt_x_deg"] == pytest.approx(2 * plain["tilt_x_deg"])
 
 
 def test_dataset_jsonl_and_csv(sweep, tmp_path):
     out = tmp_path / "results.jsonl"
-    result = runner.invoke(app, ["estimate", str(sweep.root), "--out", str(out), "--workers", "2",
-                                 "--no-progress"])
+    result = runner.invoke(
+        app, ["estimate", str(sweep.root), "--out", str(out), "--workers", "2", "--no-progress"]
+    )
     assert result.exit_code == 0, result.output
     rows = [json.loads(line) for line in out.read_text().splitlines()]
     assert [row["index"] for row in rows] == [frame.index for frame in sweep]
@@ -76,8 +91,20 @@ def test_dataset_jsonl_and_csv(sweep, tmp_path):
     assert all("normal" in row for row in rows[1:])
     assert "estimated 4 of 4 loaded frames" in result.output
     csv_out = tmp_path / "results.csv"
-    result = runner.invoke(app, ["estimate", str(sweep.root), "--out", str(csv_out), "--workers", "1",
-                                 "--part-diameter", "50", "--no-progress"])
+    result = runner.invoke(
+        app,
+        [
+            "estimate",
+            str(sweep.root),
+            "--out",
+            str(csv_out),
+            "--workers",
+            "1",
+            "--part-diameter",
+            "50",
+            "--no-progress",
+        ],
+    )
     assert result.exit_code == 0, result.output
     lines = csv_out.read_text().splitlines()
     assert lines[0].startswith("index,normal_x") and len(lines) == 1 + len(sweep)
@@ -87,8 +114,9 @@ def test_workers_give_identical_results(sweep, tmp_path):
     outs = []
     for workers in ("1", "2"):
         out = tmp_path / f"r{workers}.jsonl"
-        result = runner.invoke(app, ["estimate", str(sweep.root), "--out", str(out), "--workers", workers,
-                                     "--no-progress"])
+        result = runner.invoke(
+            app, ["estimate", str(sweep.root), "--out", str(out), "--workers", workers, "--no-progress"]
+        )
         assert result.exit_code == 0, result.output
         outs.append(out.read_text())
     assert len(outs[0].splitlines()) == len(sweep)
@@ -114,18 +142,48 @@ def test_pair_errors_and_exit_codes(sweep, extra, code, message):
 
 def test_bad_files(sweep, tmp_path):
     left = sweep[1].left_path
-    result = runner.invoke(app, ["estimate", str(left), str(tmp_path / "none.png"), "--config",
-                                 str(sweep.root / "rig.toml"), "--part-diameter", "50"])
+    result = runner.invoke(
+        app,
+        [
+            "estimate",
+            str(left),
+            str(tmp_path / "none.png"),
+            "--config",
+            str(sweep.root / "rig.toml"),
+            "--part-diameter",
+            "50",
+        ],
+    )
     assert result.exit_code == 2 and "does not exist" in result.output
     corrupt = tmp_path / "corrupt.png"
     corrupt.write_bytes(b"\x89PNG not really")
-    result = runner.invoke(app, ["estimate", str(left), str(corrupt), "--config",
-                                 str(sweep.root / "rig.toml"), "--part-diameter", "50"])
+    result = runner.invoke(
+        app,
+        [
+            "estimate",
+            str(left),
+            str(corrupt),
+            "--config",
+            str(sweep.root / "rig.toml"),
+            "--part-diameter",
+            "50",
+        ],
+    )
     assert result.exit_code == 2
     small = tmp_path / "small.png"
     cv2.imwrite(str(small), np.zeros((100, 100), np.uint8))
-    result = runner.invoke(app, ["estimate", str(left), str(small), "--config",
-                                 str(sweep.root / "rig.toml"), "--part-diameter", "50"])
+    result = runner.invoke(
+        app,
+        [
+            "estimate",
+            str(left),
+            str(small),
+            "--config",
+            str(sweep.root / "rig.toml"),
+            "--part-diameter",
+            "50",
+        ],
+    )
     assert result.exit_code == 2 and "right one is 100x100" in result.output
     result = runner.invoke(app, ["estimate", str(left), str(left), "--part-diameter", "50"])
     assert result.exit_code == 2 and "--config" in result.output
@@ -139,8 +197,10 @@ def test_fiducials_required_but_hidden_exit_3(sweep, tmp_path):
     left[:, 1000:] = 25
     hidden = tmp_path / "hidden.png"
     cv2.imwrite(str(hidden), left)
-    result = runner.invoke(app, ["estimate", str(hidden), str(sweep[1].right_path), "--config", str(strict),
-                                 "--part-diameter", "50"])
+    result = runner.invoke(
+        app,
+        ["estimate", str(hidden), str(sweep[1].right_path), "--config", str(strict), "--part-diameter", "50"],
+    )
     assert result.exit_code == 3 and "fiducials" in result.output
 
 
@@ -150,10 +210,12 @@ def test_pair_tilt_agrees_with_the_truth(sweep):
 
     for k in (1, 2, 3, 4):
         frame = sweep[k]
-        data = json.loads(runner.invoke(app, ["estimate", *_pair_args(sweep, k), "--part-diameter", "50",
-                                              "--json"]).stdout)
-        ax, ay = np.degrees(tilt_angles(normal_from_tilt(np.radians(frame.alpha_deg),
-                                                          np.radians(frame.theta_deg))))
+        data = json.loads(
+            runner.invoke(app, ["estimate", *_pair_args(sweep, k), "--part-diameter", "50", "--json"]).stdout
+        )
+        ax, ay = np.degrees(
+            tilt_angles(normal_from_tilt(np.radians(frame.alpha_deg), np.radians(frame.theta_deg)))
+        )
         for measured, true in ((data["tilt_x_deg"], ax), (data["tilt_y_deg"], ay)):
             if abs(true) > 5:
                 assert np.sign(measured) == np.sign(true)
@@ -163,11 +225,13 @@ def test_pair_tilt_agrees_with_the_truth(sweep):
 
 
 def test_outputs_that_are_folders_exit_2(sweep, tmp_path):
-    result = runner.invoke(app, ["estimate", *_pair_args(sweep), "--part-diameter", "50",
-                                 "--overlay", str(tmp_path)])
+    result = runner.invoke(
+        app, ["estimate", *_pair_args(sweep), "--part-diameter", "50", "--overlay", str(tmp_path)]
+    )
     assert result.exit_code == 2 and "is a folder" in result.output
-    result = runner.invoke(app, ["estimate", str(sweep.root), "--out", str(tmp_path), "--no-progress",
-                                 "--workers", "1"])
+    result = runner.invoke(
+        app, ["estimate", str(sweep.root), "--out", str(tmp_path), "--no-progress", "--workers", "1"]
+    )
     assert result.exit_code == 2 and "is a folder" in result.output
 
 
@@ -179,12 +243,36 @@ def test_dataset_rejects_pair_only_options(sweep):
 def test_a_calibration_applies_to_its_own_method_only(sweep, tmp_path):
     """`softjig calibrate` records the method it calibrated; another method refuses it (exit 2)."""
     out = tmp_path / "cal.json"
-    result = runner.invoke(app, ["calibrate", str(sweep.root), "--out", str(out), "--method", "paper",
-                                 "--workers", "1", "--no-progress"])
+    result = runner.invoke(
+        app,
+        [
+            "calibrate",
+            str(sweep.root),
+            "--out",
+            str(out),
+            "--method",
+            "paper",
+            "--workers",
+            "1",
+            "--no-progress",
+        ],
+    )
     assert result.exit_code == 0, result.output
     assert json.loads(out.read_text())["method"] == "paper"
     refused = runner.invoke(app, ["estimate", *_pair_args(sweep), "--calibration", str(out)])
     assert refused.exit_code == 2 and "does not apply" in refused.output
-    accepted = runner.invoke(app, ["estimate", *_pair_args(sweep), "--calibration", str(out), "--method",
-                                   "paper", "--part-diameter", "50", "--json"])
+    accepted = runner.invoke(
+        app,
+        [
+            "estimate",
+            *_pair_args(sweep),
+            "--calibration",
+            str(out),
+            "--method",
+            "paper",
+            "--part-diameter",
+            "50",
+            "--json",
+        ],
+    )
     assert accepted.exit_code == 0 and json.loads(accepted.stdout)["calibrated"]

@@ -18,8 +18,20 @@ from softjig.errors import ConfigError, EstimationError, InputError
 from softjig.io.dataset import Dataset
 
 runner = CliRunner()
-SMALL = ["simulate", "--scenario", "paper-sweep", "--diameters", "50", "--alphas", "10",
-         "--theta-step", "90", "--no-progress", "--workers", "1"]
+SMALL = [
+    "simulate",
+    "--scenario",
+    "paper-sweep",
+    "--diameters",
+    "50",
+    "--alphas",
+    "10",
+    "--theta-step",
+    "90",
+    "--no-progress",
+    "--workers",
+    "1",
+]
 
 
 def _stderr(result) -> str:
@@ -43,14 +55,43 @@ def test_simulate_small_sweep(tmp_path):
 
 
 def test_simulate_single_and_cube(tmp_path):
-    result = runner.invoke(app, ["simulate", "--scenario", "single", "--part-diameter", "40",
-                                 "--alpha", "15", "--theta", "30", "--out", str(tmp_path / "one"),
-                                 "--no-progress", "--workers", "1"])
+    result = runner.invoke(
+        app,
+        [
+            "simulate",
+            "--scenario",
+            "single",
+            "--part-diameter",
+            "40",
+            "--alpha",
+            "15",
+            "--theta",
+            "30",
+            "--out",
+            str(tmp_path / "one"),
+            "--no-progress",
+            "--workers",
+            "1",
+        ],
+    )
     assert result.exit_code == 0, result.output
     (frame,) = Dataset.open(tmp_path / "one")
     assert frame.part.diameter_mm == 40 and frame.alpha_deg == pytest.approx(15)
-    result = runner.invoke(app, ["simulate", "--scenario", "cube", "--frames", "2", "--out",
-                                 str(tmp_path / "cube"), "--no-progress", "--workers", "1"])
+    result = runner.invoke(
+        app,
+        [
+            "simulate",
+            "--scenario",
+            "cube",
+            "--frames",
+            "2",
+            "--out",
+            str(tmp_path / "cube"),
+            "--no-progress",
+            "--workers",
+            "1",
+        ],
+    )
     assert result.exit_code == 0, result.output
     ds = Dataset.open(tmp_path / "cube")
     assert len(ds) == 3 and ds[1].part.kind == "box"
@@ -77,13 +118,16 @@ def test_config_writes_the_default_jig(tmp_path):
     assert runner.invoke(app, ["config", "--out", str(out), "--overwrite"]).exit_code == 0
 
 
-@pytest.mark.parametrize(("args", "message"), [
-    (["--diameters", "a,b"], "--diameters expects comma-separated numbers"),
-    (["--alphas", "95"], "alpha must be in [0, 90)"),
-    (["--theta-step", "0"], "theta step"),
-    (["--part-diameter", "40"], "--part-diameter do(es) not apply"),
-    (["--config", "/nonexistent/rig.toml"], "does not exist"),
-])
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--diameters", "a,b"], "--diameters expects comma-separated numbers"),
+        (["--alphas", "95"], "alpha must be in [0, 90)"),
+        (["--theta-step", "0"], "theta step"),
+        (["--part-diameter", "40"], "--part-diameter do(es) not apply"),
+        (["--config", "/nonexistent/rig.toml"], "does not exist"),
+    ],
+)
 def test_simulate_bad_input_exits_2(tmp_path, args, message):
     result = runner.invoke(app, [*SMALL, "--out", str(tmp_path / "x"), *args])
     assert result.exit_code == 2, result.output
@@ -121,11 +165,17 @@ def test_error_handler_exit_codes():
     @demo.command()
     @handle_errors
     def fail(kind: str) -> None:
-        raise {"input": InputError("bad image x.png"), "config": ConfigError("markers.pitch_mm: bad"),
-               "estimate": EstimationError("too few markers")}[kind]
+        raise {
+            "input": InputError("bad image x.png"),
+            "config": ConfigError("markers.pitch_mm: bad"),
+            "estimate": EstimationError("too few markers"),
+        }[kind]
 
-    for kind, code, text in [("input", 2, "bad image x.png"), ("config", 2, "markers.pitch_mm: bad"),
-                             ("estimate", 3, "too few markers")]:
+    for kind, code, text in [
+        ("input", 2, "bad image x.png"),
+        ("config", 2, "markers.pitch_mm: bad"),
+        ("estimate", 3, "too few markers"),
+    ]:
         result = runner.invoke(demo, [kind])
         assert result.exit_code == code
         assert _stderr(result).strip() == f"error: {text}"
@@ -137,9 +187,25 @@ def test_installed_console_script(tmp_path):
     assert script.exists(), "install the package (pip install -e .) to get the softjig script"
     out = tmp_path / "tmp"
     proc = subprocess.run(
-        [str(script), "simulate", "--scenario", "paper-sweep", "--diameters", "50", "--alphas", "10",
-         "--theta-step", "90", "--out", str(out), "--seed", "1"],
-        capture_output=True, text=True, timeout=120,
+        [
+            str(script),
+            "simulate",
+            "--scenario",
+            "paper-sweep",
+            "--diameters",
+            "50",
+            "--alphas",
+            "10",
+            "--theta-step",
+            "90",
+            "--out",
+            str(out),
+            "--seed",
+            "1",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
     )
     assert proc.returncode == 0, proc.stderr
     ds = Dataset.open(out)
@@ -151,8 +217,12 @@ def test_installed_console_script(tmp_path):
     for a, b in zip(ds, again, strict=True):
         np.testing.assert_array_equal(a.load_left(), b.load_left())
         np.testing.assert_array_equal(a.load_right(), b.load_right())
-    bad = subprocess.run([str(script), "simulate", "--config", str(tmp_path / "none.toml"), "--out",
-                          str(tmp_path / "y")], capture_output=True, text=True, timeout=60)
+    bad = subprocess.run(
+        [str(script), "simulate", "--config", str(tmp_path / "none.toml"), "--out", str(tmp_path / "y")],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert bad.returncode == 2 and "error:" in bad.stderr and "Traceback" not in bad.stderr
 
 

@@ -27,8 +27,10 @@ H, W = 48, 64
 def _images(rng: np.random.Generator, dtype=np.uint8, color: bool = False) -> tuple[np.ndarray, np.ndarray]:
     shape = (H, W, 3) if color else (H, W)
     hi = np.iinfo(dtype).max
-    return (rng.integers(0, hi, shape, endpoint=True).astype(dtype),
-            rng.integers(0, hi, shape, endpoint=True).astype(dtype))
+    return (
+        rng.integers(0, hi, shape, endpoint=True).astype(dtype),
+        rng.integers(0, hi, shape, endpoint=True).astype(dtype),
+    )
 
 
 def _truth(rng: np.random.Generator, n: int = 7) -> dict[str, np.ndarray]:
@@ -50,8 +52,11 @@ def _meta(i: int) -> dict:
         "alpha_deg": 10.0,
         "theta_deg": 30.0 * i,
         "part": part_to_dict(part),
-        "truth": {"normal": [0.1, 0.0, float(np.sqrt(0.99))], "push_depth_mm": 3.0,
-                  "T_J_part": np.eye(4).tolist()},
+        "truth": {
+            "normal": [0.1, 0.0, float(np.sqrt(0.99))],
+            "push_depth_mm": 3.0,
+            "T_J_part": np.eye(4).tolist(),
+        },
         "custom": {"note": f"frame {i}"},
     }
 
@@ -80,8 +85,9 @@ def _write(path: Path, jig, n: int = 3, *, dtype=np.uint8, color=False, truth=Tr
 # ------------------------------------------------------------------------------------- round trip
 
 
-@pytest.mark.parametrize(("dtype", "color"), [(np.uint8, False), (np.uint16, False), (np.uint8, True),
-                                              (np.uint16, True)])
+@pytest.mark.parametrize(
+    ("dtype", "color"), [(np.uint8, False), (np.uint16, False), (np.uint8, True), (np.uint16, True)]
+)
 def test_round_trip_is_bit_exact(tmp_path, jig, dtype, color):
     written = _write(tmp_path / "ds", jig, 3, dtype=dtype, color=color)
     ds = Dataset.open(tmp_path / "ds")
@@ -92,8 +98,12 @@ def test_round_trip_is_bit_exact(tmp_path, jig, dtype, color):
         assert got_l.dtype == dtype and got_l.shape == left.shape
         np.testing.assert_array_equal(got_l, left)
         np.testing.assert_array_equal(got_r, right)
-        expected = {"index": frame.index, "left": f"left/{frame.index:06d}.png",
-                    "right": f"right/{frame.index:06d}.png", **json.loads(json.dumps(meta))}
+        expected = {
+            "index": frame.index,
+            "left": f"left/{frame.index:06d}.png",
+            "right": f"right/{frame.index:06d}.png",
+            **json.loads(json.dumps(meta)),
+        }
         expected.setdefault("truth", {})["markers"] = f"truth/{frame.index:06d}.npz"
         assert frame.meta == expected
 
@@ -181,8 +191,7 @@ def test_open_reads_no_image(tmp_path, jig, monkeypatch):
 @pytest.mark.parametrize("newline", [False, True])
 def test_killed_writer_leaves_complete_frames(tmp_path, jig, newline):
     written = _write(tmp_path / "ds", jig, 4)
-    line = json.dumps({"index": 4, "left": "left/000004.png", "right": "right/000004.png",
-                       "alpha_deg": 10.0})
+    line = json.dumps({"index": 4, "left": "left/000004.png", "right": "right/000004.png", "alpha_deg": 10.0})
     with open(tmp_path / "ds" / "frames.jsonl", "a") as fh:
         fh.write(line[: len(line) // 2] + ("\n" if newline else ""))
     with pytest.warns(DatasetTruncationWarning, match="line 5"):
@@ -244,15 +253,18 @@ def test_corrupt_line_in_the_middle_is_named(tmp_path, jig):
         Dataset.open(tmp_path / "ds")
 
 
-@pytest.mark.parametrize(("line", "match"), [
-    ('[1, 2]', "expected a JSON object"),
-    ('{"index": 0, "left": "left/000000.png"}', "lacks right"),
-    ('{"index": -1, "left": "a.png", "right": "b.png"}', "index must be"),
-    ('{"index": 0, "left": 3, "right": "b.png"}', "left must be"),
-    ('{"index": 0, "left": "a", "right": "b", "alpha_deg": "ten"}', "alpha_deg must be"),
-    ('{"index": 0, "left": "a", "right": "b", "part": {"kind": "sphere"}}', "part.kind"),
-    ('{"index": 0, "left": "a", "right": "b", "truth": {"normal": [0, 1]}}', "truth.normal"),
-])
+@pytest.mark.parametrize(
+    ("line", "match"),
+    [
+        ("[1, 2]", "expected a JSON object"),
+        ('{"index": 0, "left": "left/000000.png"}', "lacks right"),
+        ('{"index": -1, "left": "a.png", "right": "b.png"}', "index must be"),
+        ('{"index": 0, "left": 3, "right": "b.png"}', "left must be"),
+        ('{"index": 0, "left": "a", "right": "b", "alpha_deg": "ten"}', "alpha_deg must be"),
+        ('{"index": 0, "left": "a", "right": "b", "part": {"kind": "sphere"}}', "part.kind"),
+        ('{"index": 0, "left": "a", "right": "b", "truth": {"normal": [0, 1]}}', "truth.normal"),
+    ],
+)
 def test_invalid_frame_objects(tmp_path, jig, line, match):
     _write(tmp_path / "ds", jig, 1)
     with open(tmp_path / "ds" / "frames.jsonl", "a") as fh:
@@ -313,8 +325,10 @@ def test_refuses_to_overwrite_a_dataset(tmp_path, jig):
 def test_refuses_a_non_dataset_folder_even_with_overwrite(tmp_path, jig):
     (tmp_path / "stuff").mkdir()
     (tmp_path / "stuff" / "thesis.tex").write_text("precious")
-    with pytest.raises(InputError, match="not a softjig dataset"), \
-            DatasetWriter(tmp_path / "stuff", jig, overwrite=True):
+    with (
+        pytest.raises(InputError, match="not a softjig dataset"),
+        DatasetWriter(tmp_path / "stuff", jig, overwrite=True),
+    ):
         pass
     assert (tmp_path / "stuff" / "thesis.tex").read_text() == "precious"
     (tmp_path / "afile").write_text("x")

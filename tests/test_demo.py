@@ -18,8 +18,15 @@ runner = CliRunner()
 
 def _tiny(out, **kwargs):
     """One diameter, one tilt, theta every 60 deg (3 frames to calibrate, 3 held out), 3 cube frames."""
-    params = {"diameters_mm": (50.0,), "alphas_deg": (10.0,), "theta_step_deg": 60.0, "cube_frames": 3,
-              "workers": 2, "progress": False, "quick": True}
+    params = {
+        "diameters_mm": (50.0,),
+        "alphas_deg": (10.0,),
+        "theta_step_deg": 60.0,
+        "cube_frames": 3,
+        "workers": 2,
+        "progress": False,
+        "quick": True,
+    }
     params.update(kwargs)
     return ExperimentSettings(out_dir=out, seed=3, **params)
 
@@ -42,10 +49,19 @@ def test_demo_writes_the_report_and_prints_the_grid(demo_run):
     assert result.exit_code == 0, result.output
     assert "RMSE (deg), calibrated" in result.stdout and "uncalibrated" in result.stdout
     assert "held out" in result.stdout
-    for name in ("report.md", "summary.json", "calibration.json", "calibration-per-diameter.json",
-                 "figures/tilt_before.png", "figures/tilt_after.png", "figures/rmse_grid.png",
-                 "figures/cube_normals.png", "figures/stereo_pair.png", "data/cube/mocap.csv",
-                 "data/sweep/estimates.jsonl"):
+    for name in (
+        "report.md",
+        "summary.json",
+        "calibration.json",
+        "calibration-per-diameter.json",
+        "figures/tilt_before.png",
+        "figures/tilt_after.png",
+        "figures/rmse_grid.png",
+        "figures/cube_normals.png",
+        "figures/stereo_pair.png",
+        "data/cube/mocap.csv",
+        "data/sweep/estimates.jsonl",
+    ):
         assert (out / name).is_file(), name
     report = (out / "report.md").read_text()
     assert "held out" in report and "![RMSE grid](figures/rmse_grid.png)" in report

@@ -33,8 +33,9 @@ def test_rmse_pools_both_axes():
 def test_grid_groups_cells_and_counts_failures():
     d = [30, 30, 30, 50, 50]
     a = [5, 5, 10, 5, 5]
-    grid = rmse_grid(d, a, [1, -1, 2, 0, 0], [3, 3, 0, 0, 2], failed_diameters_mm=[50, 80],
-                     failed_alphas_deg=[10, 5])
+    grid = rmse_grid(
+        d, a, [1, -1, 2, 0, 0], [3, 3, 0, 0, 2], failed_diameters_mm=[50, 80], failed_alphas_deg=[10, 5]
+    )
     assert grid.diameters_mm.tolist() == [30, 50, 80] and grid.alphas_deg.tolist() == [5, 10]
     assert grid.cell(30, 5) == pytest.approx(np.sqrt(5))
     assert grid.cell(30, 10) == pytest.approx(np.sqrt(2))

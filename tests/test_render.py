@@ -60,8 +60,9 @@ def centroid_errors(jig: JigConfig, pair: RenderedPair) -> tuple[np.ndarray, np.
         isolated = np.all(gap >= reach[:, None] + reach[None, :], axis=1)
         fid_centre = corners.mean(axis=1)
         fid_reach = np.linalg.norm(corners[:, 0] - corners[:, 2], axis=1) * 8 / 12  # + quiet zone
-        far = np.all(np.linalg.norm(px[:, None] - fid_centre[None], axis=2)
-                     > fid_reach[None] + reach[:, None], axis=1)
+        far = np.all(
+            np.linalg.norm(px[:, None] - fid_centre[None], axis=2) > fid_reach[None] + reach[:, None], axis=1
+        )
         h, w = image.shape
         inside = np.all((px - reach[:, None] > 0) & (px + reach[:, None] < [w - 1, h - 1]), axis=1)
         excess = image.astype(float) - jig.imaging.background_level * top
@@ -116,9 +117,15 @@ def test_pair_shapes_and_truth(default_pair):
     assert pair.markers.in_contact.any()
 
 
-@pytest.mark.parametrize(("bit_depth", "color", "dtype"), [
-    (8, False, np.uint8), (16, False, np.uint16), (8, True, np.uint8), (16, True, np.uint16),
-])
+@pytest.mark.parametrize(
+    ("bit_depth", "color", "dtype"),
+    [
+        (8, False, np.uint8),
+        (16, False, np.uint16),
+        (8, True, np.uint8),
+        (16, True, np.uint16),
+    ],
+)
 def test_output_dtype_and_shape(bit_depth, color, dtype):
     jig = exact_jig()
     jig = jig.replace(imaging=replace(jig.imaging, bit_depth=bit_depth))
@@ -189,7 +196,7 @@ def test_marker_size_and_disparity_range():
     # The marker's image: the pixels well above the membrane (the lit hemisphere).
     apex = int(np.argmin(np.hypot(m.xyz_mm[:, 0], m.xyz_mm[:, 1])))
     u0, v0 = np.rint(m.left_px[apex]).astype(int)
-    level = (pair.left[v0 - 15 : v0 + 16, u0 - 15 : u0 + 16] / 65535.0 - jig.imaging.background_level)
+    level = pair.left[v0 - 15 : v0 + 16, u0 - 15 : u0 + 16] / 65535.0 - jig.imaging.background_level
     lit = level > 0.25 * (jig.imaging.marker_level - jig.imaging.background_level)
     diameter = 2.0 * np.sqrt(lit.sum() / np.pi)
     assert 13.0 < diameter < 18.0
@@ -217,8 +224,10 @@ def test_fiducials_detected_at_their_truth(default_pair):
     params = cv2.aruco.DetectorParameters()
     params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
     detector = cv2.aruco.ArucoDetector(aruco_dictionary(jig.fiducials.dictionary), params)
-    for image, truth in ((pair.left, pair.fiducial_corners_left_px),
-                         (pair.right, pair.fiducial_corners_right_px)):
+    for image, truth in (
+        (pair.left, pair.fiducial_corners_left_px),
+        (pair.right, pair.fiducial_corners_right_px),
+    ):
         corners, ids, _ = detector.detectMarkers(image)
         assert ids is not None and sorted(ids.ravel().tolist()) == sorted(jig.fiducials.ids)
         for marker_id, found in zip(ids.ravel(), corners, strict=True):

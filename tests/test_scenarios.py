@@ -54,10 +54,18 @@ def test_theta_values():
     assert len(theta_values_deg(10)) == 36
 
 
-@pytest.mark.parametrize("kwargs", [
-    {"diameters_mm": [0]}, {"diameters_mm": []}, {"alphas_deg": [95]}, {"alphas_deg": [-1]},
-    {"theta_step_deg": 0}, {"theta_step_deg": float("nan")}, {"push_depth_mm": float("inf")},
-])
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        {"diameters_mm": [0]},
+        {"diameters_mm": []},
+        {"alphas_deg": [95]},
+        {"alphas_deg": [-1]},
+        {"theta_step_deg": 0},
+        {"theta_step_deg": float("nan")},
+        {"push_depth_mm": float("inf")},
+    ],
+)
 def test_paper_sweep_rejects_bad_values(kwargs):
     with pytest.raises(InputError):
         list(paper_sweep(**kwargs))
@@ -96,8 +104,9 @@ def test_frame_truth_definition():
     for alpha_deg, theta_deg in [(0, 0), (10, 30), (20, 200)]:
         pose = PartPose(math.radians(alpha_deg), math.radians(theta_deg), 3.0)
         truth = frame_truth(jig, pose)
-        np.testing.assert_allclose(truth["normal"], normal_from_tilt(pose.alpha_rad, pose.theta_rad),
-                                   atol=1e-12)
+        np.testing.assert_allclose(
+            truth["normal"], normal_from_tilt(pose.alpha_rad, pose.theta_rad), atol=1e-12
+        )
         expected = 3.0 + t * (1 / math.cos(pose.alpha_rad) - 1)
         assert truth["push_depth_mm"] == pytest.approx(expected, abs=1e-9)
         assert np.asarray(truth["T_J_part"]).shape == (4, 4)
@@ -173,8 +182,7 @@ def test_workers_do_not_change_the_result(sim_w1, small_specs, tmp_path):
 
 
 def test_seed_changes_the_result(sim_w1, small_specs, tmp_path):
-    out = simulate_dataset(tmp_path / "s8", small_specs[:2], default_jig(), seed=8, workers=1,
-                           progress=False)
+    out = simulate_dataset(tmp_path / "s8", small_specs[:2], default_jig(), seed=8, workers=1, progress=False)
     a, b = Dataset.open(sim_w1), Dataset.open(out)
     assert not np.array_equal(a[1].load_left(), b[1].load_left())
 

@@ -38,10 +38,22 @@ def _sweep(diameters=(30.0, 50.0, 80.0), alphas=(5.0, 10.0, 15.0, 20.0), step=10
         g = (gain or GAIN)[d]
         for a in alphas:
             for t in np.arange(0.0, 360.0, step):
-                frames.append(SimpleNamespace(index=index, alpha_deg=a, theta_deg=float(t),
-                                              part=CylinderPart(diameter_mm=d), reference=False))
-                rows.append({"index": index, "raw_tilt_x_deg": a / g * np.sin(np.radians(t)) + OX,
-                             "raw_tilt_y_deg": a / g * np.cos(np.radians(t)) + OY})
+                frames.append(
+                    SimpleNamespace(
+                        index=index,
+                        alpha_deg=a,
+                        theta_deg=float(t),
+                        part=CylinderPart(diameter_mm=d),
+                        reference=False,
+                    )
+                )
+                rows.append(
+                    {
+                        "index": index,
+                        "raw_tilt_x_deg": a / g * np.sin(np.radians(t)) + OX,
+                        "raw_tilt_y_deg": a / g * np.cos(np.radians(t)) + OY,
+                    }
+                )
                 index += 1
     return frames, rows
 
@@ -149,13 +161,26 @@ def test_cli_calibrate_from_a_results_file(tmp_path):
     tiny = np.zeros((4, 4), np.uint8)
     with DatasetWriter(root, default_jig()) as writer:  # the images are never read with --results
         for f in frames:
-            meta = {"reference": True} if f.reference else {
-                "alpha_deg": f.alpha_deg, "theta_deg": f.theta_deg, "part": part_to_dict(f.part)}
+            meta = (
+                {"reference": True}
+                if f.reference
+                else {"alpha_deg": f.alpha_deg, "theta_deg": f.theta_deg, "part": part_to_dict(f.part)}
+            )
             writer.add_frame(tiny, tiny, meta)
     write_rows(rows, root / "estimates.jsonl")
     out = tmp_path / "cal.json"
-    result = runner.invoke(app, ["calibrate", str(root), "--out", str(out), "--results",
-                                 str(root / "estimates.jsonl"), "--per-diameter"])
+    result = runner.invoke(
+        app,
+        [
+            "calibrate",
+            str(root),
+            "--out",
+            str(out),
+            "--results",
+            str(root / "estimates.jsonl"),
+            "--per-diameter",
+        ],
+    )
     assert result.exit_code == 0, result.output
     data = json.loads(out.read_text())
     assert data["scale"] == pytest.approx(1.5, abs=1e-9)

@@ -151,6 +151,4 @@ def pose_from_json(data: dict, key: str, path: Path) -> np.ndarray:
         T[:3, :3] = Rotation.from_quat(np.asarray(data["quaternion_xyzw"], float)).as_matrix()
         T[:3, 3] = np.asarray(data["position_mm"], float)
         return T
-    raise InputError(
-        f"{path}: give {key} (a 4x4 matrix) or position_mm and quaternion_xyzw (x, y, z, w)"
-    )
+    raise InputError(f"{path}: give {key} (a 4x4 matrix) or position_mm and quaternion_xyzw (x, y, z, w)")
