@@ -1,5 +1,7 @@
 """The contact's pure functions on synthetic markers: lift-off pruning and the face's centre."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -77,7 +79,7 @@ def test_face_centre_in_partial_contact_is_not_the_contact_centroid(centre):
     points = np.column_stack([xy, z])
     plane = fit_plane_svd(points[contact])
     region = describe_contact(points[contact, :2], plane, jig, noise_mm=0.05, part_diameter_mm=2 * radius)
-    region = type(region)(**{**region.__dict__, "partial": True})  # the jig's dome is not our flat membrane
+    region = replace(region, partial=True)  # the jig's dome is not our flat membrane
     estimate = face_centre_xy(points[contact, :2], region, plane, radius, pitch_mm=PITCH)
     centroid_error = np.hypot(*(np.asarray(region.centroid_xy_mm) - centre))
     assert centroid_error > 10.0

@@ -56,12 +56,15 @@ class SweepEvaluation:
 
 
 def evaluate_sweep(
-    samples: SweepSamples, calibration: SweepCalibration | TiltCalibration, *, selection: str = "all"
+    samples: SweepSamples,
+    calibration: SweepCalibration | TiltCalibration | None,
+    *,
+    selection: str = "all",
 ) -> SweepEvaluation:
     """The RMSE grids (diameter x alpha) of the ``selection`` of ``samples``, calibrated and not.
 
     Use a ``selection`` disjoint from the calibration's (``"odd"`` after fitting on ``"even"``) for a
-    held-out evaluation.
+    held-out evaluation. With ``calibration=None`` both grids are the uncalibrated one.
     """
     used = samples.select(selection)
     cmd_x, cmd_y = commanded_tilt_angles_deg(used.alpha_deg, used.theta_deg)

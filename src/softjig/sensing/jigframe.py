@@ -30,6 +30,7 @@ import numba
 import numpy as np
 from scipy.optimize import least_squares
 
+from softjig.caching import cached_by_identity
 from softjig.config import CameraConfig, JigConfig
 from softjig.errors import EstimationError
 from softjig.geometry import invert_pose, pose_from_rotvec_translation
@@ -211,23 +212,9 @@ class _FastConstants:
     pinhole: _PinholeConstants
 
 
-_FAST_CONSTANTS: dict[int, tuple[JigConfig, _FastConstants]] = {}
-
-
+@cached_by_identity()
 def _fast_constants(jig: JigConfig) -> _FastConstants:
-    """The fast path's constants of this jig object, cached by identity: hashing a JigConfig (as
-    ``lru_cache`` does) walks the whole config, ~10-70 us per frame (measured, cold caches)."""
-    hit = _FAST_CONSTANTS.get(id(jig))
-    if hit is not None and hit[0] is jig:
-        return hit[1]
-    constants = _build_fast_constants(jig)
-    if len(_FAST_CONSTANTS) >= 16:
-        _FAST_CONSTANTS.clear()
-    _FAST_CONSTANTS[id(jig)] = (jig, constants)
-    return constants
-
-
-def _build_fast_constants(jig: JigConfig) -> _FastConstants:
+    """The fast path's constants of this jig, built once per jig object."""
     expected = jig_frame_from_config(jig)
     corners = fiducial_corners_J(jig.fiducials).reshape(-1, 3)
     points = np.concatenate([corners, corners])
