@@ -11,11 +11,11 @@ estimation build on.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from functools import lru_cache
 
 import numba
 import numpy as np
 
+from softjig.caching import cached_by_identity
 from softjig.config import JigConfig
 from softjig.jig_shape import marker_layout_xy, rest_inner_height_mm
 
@@ -57,7 +57,7 @@ def rest_shape_reference(jig: JigConfig) -> ReferenceMarkers:
     return _rest_shape_reference(jig)
 
 
-@lru_cache(maxsize=16)
+@cached_by_identity()
 def _rest_shape_reference(jig: JigConfig) -> ReferenceMarkers:
     xy = marker_layout_xy(jig)
     z = rest_inner_height_mm(jig, xy[:, 0], xy[:, 1])
