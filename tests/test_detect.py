@@ -578,3 +578,20 @@ def test_pipeline_normals_fast_equal_straightforward(default_pairs, monkeypatch)
     for fast, full in zip(normals("pyramid"), normals("full"), strict=True):
         angle = np.degrees(np.arccos(np.clip(fast @ full, -1.0, 1.0)))
         assert angle < 0.05
+
+
+def test_check_image_content_on_full_frames_reads_a_subsample_faithfully():
+    """A 1280x720 frame is judged on a 1-in-64 subsample: the same verdicts as on every pixel."""
+    rng = np.random.default_rng(1)
+    frame = quantise(0.3 + 0.05 * rng.standard_normal((720, 1280)))
+    check_image_content(frame)
+    dark = np.full((720, 1280), 20, np.uint8)
+    dark[::7, ::7] = 21  # varies, but by far less than 1e-3 of full scale on average
+    with pytest.raises(InputError, match="blank"):
+        check_image_content(dark)
+    saturated = frame.copy()
+    saturated[:400] = 255  # 56 % of the rows
+    with pytest.raises(InputError, match=r"saturated: 5[5-7]%"):
+        check_image_content(saturated)
+    saturated[:300] = frame[:300]  # 42 %: overexposed in places, but usable
+    check_image_content(saturated)

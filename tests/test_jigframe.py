@@ -119,3 +119,29 @@ def test_a_head_far_off_takes_the_general_path_once(monkeypatch):
     again = jig_frame_from_fiducials(pair.left, pair.right, JIG)
     mm, deg = _pose_difference(first.T_J_left, again.T_J_left)
     assert mm < 1e-3 and deg < 1e-4
+
+
+def _inside_fiducials_numpy(xy, quads, quiet_zone=1.0 / 3.0):
+    """The straightforward test: same side of all four edges of each grown quad (the former NumPy code)."""
+    centres = quads.mean(axis=1, keepdims=True)
+    grown = centres + (quads - centres) * (1.0 + quiet_zone)
+    edges = np.roll(grown, -1, axis=1) - grown
+    rel = xy[:, None, None, :] - grown[None]
+    cross = edges[None, ..., 0] * rel[..., 1] - edges[None, ..., 1] * rel[..., 0]
+    return (np.all(cross >= 0, axis=2) | np.all(cross <= 0, axis=2)).any(axis=1)
+
+
+def test_inside_fiducials_matches_the_straightforward_test():
+    rng = np.random.default_rng(3)
+    angle = rng.uniform(0, 2 * np.pi, (5, 1))
+    square = np.array([[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]])
+    quads = np.empty((5, 4, 2))
+    for q in range(5):  # rotated, sheared squares in both windings
+        c, s = np.cos(angle[q, 0]), np.sin(angle[q, 0])
+        shape = square @ np.array([[c, -s], [s, c]]).T @ np.array([[1.0, 0.3], [0.0, 1.0]])
+        quads[q] = rng.uniform(50, 500, 2) + 30 * (shape if q % 2 else shape[::-1])
+    xy = np.concatenate([rng.uniform(0, 560, (4000, 2)), quads.reshape(-1, 2)])  # and the corners
+    inside = jigframe.inside_fiducials(xy, quads)
+    assert np.array_equal(inside, _inside_fiducials_numpy(xy, quads))
+    assert 0 < inside.sum() < len(xy)
+    assert not jigframe.inside_fiducials(xy, np.empty((0, 4, 2))).any()

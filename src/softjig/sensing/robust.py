@@ -80,8 +80,9 @@ from __future__ import annotations
 
 import itertools
 import math
-import threading
+from collections.abc import Callable
 from dataclasses import dataclass
+from functools import lru_cache
 from statistics import NormalDist
 
 import numba
@@ -202,10 +203,10 @@ def fit_plane_robust(
     need = max(3, int(min_inliers))
     if n < need:
         raise InputError(f"robust plane fit needs at least {need} points (min_inliers), got {n}.")
-    generator = _generator(rng)
     centred = pts - pts.mean(axis=0)  # work centred: offsets stay small, residuals precise
 
-    normals, offsets, iterations = _hypotheses(centred, generator, threshold_mm, int(max_iterations))
+    draw = _triple_source(rng, n, int(max_iterations))
+    normals, offsets, iterations = _hypotheses(centred, draw, threshold_mm, int(max_iterations))
     if len(normals) == 0:
         raise InputError(f"the {n} points lie on a line or a point and do not define a plane.")
     auto = threshold_mm is None
@@ -240,25 +241,28 @@ def fit_plane_robust(
 # ------------------------------------------------------------------------------------------ steps
 
 
-_SEEDED = threading.local()  # per thread: {seed: (generator, its initial state)}
+def _triple_source(
+    rng: int | np.random.Generator | None, n: int, max_iterations: int
+) -> Callable[[int, int], np.ndarray]:
+    """``draw(start, count)``: the random triples ``start .. start + count`` of ``N = n`` points, as
+    ``np.random.default_rng(rng).integers(0, n, size=(count, 3))`` drawn in turn would give them.
+
+    For an integer seed (the default) the whole sequence is drawn once per ``(seed, n, max_iterations)``
+    and sliced (batches drawn in turn are the rows of one draw of all of them): making or resetting a
+    seeded generator and two draws took about 50 us per fit in the pipeline (measured).
+    """
+    if isinstance(rng, (int, np.integer)) and not isinstance(rng, bool):
+        table = _seeded_triples(int(rng), n, max_iterations)
+        return lambda start, count: table[start : start + count]
+    generator = np.random.default_rng(rng)
+    return lambda start, count: generator.integers(0, n, size=(count, 3))
 
 
-def _generator(rng: int | np.random.Generator | None) -> np.random.Generator:
-    """``np.random.default_rng(rng)``; for an integer seed, a generator made once (per thread) and reset
-    to the seed's initial state, which draws the same numbers: seeding took 18 us per fit, the reset
-    3 us (measured)."""
-    if not isinstance(rng, (int, np.integer)) or isinstance(rng, bool):
-        return np.random.default_rng(rng)
-    seeded = getattr(_SEEDED, "generators", None)
-    if seeded is None:
-        seeded = _SEEDED.generators = {}
-    entry = seeded.get(int(rng))
-    if entry is None:
-        generator = np.random.default_rng(rng)
-        entry = seeded[int(rng)] = (generator, generator.bit_generator.state)
-    generator, state = entry
-    generator.bit_generator.state = state
-    return generator
+@lru_cache(maxsize=512)
+def _seeded_triples(seed: int, n: int, count: int) -> np.ndarray:
+    triples = np.random.default_rng(seed).integers(0, n, size=(count, 3))
+    triples.flags.writeable = False
+    return triples
 
 
 def _check_points(points_mm) -> np.ndarray:
@@ -373,7 +377,10 @@ def _required_iterations(inlier_ratio: float) -> float:
 
 
 def _hypotheses(
-    points: np.ndarray, rng: np.random.Generator, threshold_mm: float | None, max_iterations: int
+    points: np.ndarray,
+    draw: Callable[[int, int], np.ndarray],
+    threshold_mm: float | None,
+    max_iterations: int,
 ) -> tuple[np.ndarray, np.ndarray, int]:
     """Draw and keep hypothesis planes until the adaptive count is reached (vectorised per batch)."""
     n = len(points)
@@ -391,7 +398,7 @@ def _hypotheses(
     best_ratio = 0.0
     while drawn < max_iterations:
         count = min(_BATCH, max_iterations - drawn)
-        triples = rng.integers(0, n, size=(count, 3))  # those with a repeated point are skipped
+        triples = draw(drawn, count)  # those with a repeated point are skipped
         drawn += count
         # One compiled pass per batch: planes, their scores, the best one's inlier ratio (the NumPy
         # version of the same steps took 0.1-0.2 ms per batch on 30 points, measured; this, 10 us).
