@@ -12,6 +12,7 @@ correlation length of 1 px, markers on a 40 px grid.
 
 from __future__ import annotations
 
+import math
 import re
 import time
 from dataclasses import replace
@@ -218,6 +219,20 @@ def test_border_excludes_cut_markers():
     markers = detect_markers(image, sigma_px=SIGMA_PX)
     assert len(markers) == 1
     assert_allclose(markers.xy_px[0], [50.0, 50.0], atol=0.05)
+
+
+def test_border_is_tested_on_fitted_centres_so_both_candidate_paths_keep_the_same_markers():
+    """Markers straddling the border margin: the pyramid's and the full LoG's candidates lie on either
+    side of it for some, their model fits do not."""
+    sigma = SIGMA_PX
+    border = math.ceil(math.sqrt(2.0) * sigma)
+    v = border + np.linspace(-1.0, 1.0, 9)  # fitted centres on both sides of the margin
+    truth = np.column_stack([40.0 + 30.0 * np.arange(9), v])
+    image = quantise(render_markers((80, 300), truth, seed=3))
+    found = [detect_markers(image, sigma_px=sigma, candidates=c).xy_px for c in ("pyramid", "full")]
+    assert len(found[0]) == len(found[1]) > 0
+    assert_allclose(np.sort(found[0], axis=0), np.sort(found[1], axis=0), atol=1e-9)
+    assert np.all(np.floor(found[0][:, 1] + 0.5) >= border)
 
 
 def test_detection_timing(nominal_frame):

@@ -369,7 +369,10 @@ def detect_markers(
         Peaks closer than this to the image edge are discarded (>= 0). Default
         ``ceil(sqrt(2) * sigma_px)``, one matched marker radius, so that markers cut by
         the image edge (biased centres) are not reported. At least 1 is always used,
-        because the refinement needs the 3x3 neighbourhood.
+        because the refinement needs the 3x3 neighbourhood. With ``refine="model"`` the
+        fitted centres are tested (the pixel nearest each), not the candidates, and a
+        candidate whose fit failed within the fit's window of the edge is dropped: both
+        ``candidates`` then keep the same markers, as their fits agree to rounding.
     refine : {"model", "quadratic", None}, optional
         ``"model"`` (default): prewhitened least-squares fit of the marker's image model to
         the ``(2 h + 1)^2`` pixels around each peak (:func:`softjig.sensing.subpixel.refine_centres`,
@@ -478,15 +481,26 @@ def detect_markers(
 
     gray, full_scale = gray_image(image)
     border = max(int(border_px), 1)
+    # The model fit's centres are tested against the border instead of the candidates, which differ
+    # between the pyramid and the full-resolution LoG (23 markers at the image edge of the default sweep
+    # were kept by one and not the other, measured).
+    model_fit = refine == "model"
+    candidate_border = 1 if model_fit else border
     if candidates == "full":
-        xy, peak = _full_candidates(gray, full_scale, sigma, thr, int(min_dist), border, refine)
+        xy, peak = _full_candidates(gray, full_scale, sigma, thr, int(min_dist), candidate_border, refine)
     else:
-        xy, peak = _pyramid_candidates(gray, full_scale, sigma, thr, int(min_dist), border, refine)
+        xy, peak = _pyramid_candidates(gray, full_scale, sigma, thr, int(min_dist), candidate_border, refine)
     if exclude is not None and len(xy) > 0:
         keep = ~np.asarray(exclude(xy), dtype=bool)
         xy, peak = xy[keep], peak[keep]
-    if refine == "model" and len(xy) > 0:
-        xy = refine_centres(gray, xy, model if model is not None else MarkerModel.for_sigma(sigma)).xy_px
+    if model_fit and len(xy) > 0:
+        model = model if model is not None else MarkerModel.for_sigma(sigma)
+        fit = refine_centres(gray, xy, model)
+        xy = fit.xy_px
+        # A failed fit keeps its candidate; one whose window was cut by the image's edge is dropped.
+        h, w = gray.shape
+        keep = _inside_border(xy, w, h, border) & (fit.ok | _inside_border(xy, w, h, model.half_width_px + 1))
+        xy, peak = xy[keep], peak[keep]
     order = np.argsort(-peak, kind="stable")
     return Markers(xy_px=xy[order], response=peak[order], sigma_px=sigma)
 
