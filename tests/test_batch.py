@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 import json
+import multiprocessing
+import os
 
 import pytest
 
+import softjig.io.dataset as dataset_module
 import softjig.sensing.batch as batch
 from softjig.config import default_jig
 from softjig.errors import InputError
@@ -77,6 +80,39 @@ def test_workers_and_chunks_give_identical_rows(dataset, settings, rows):
     assert list(estimate_dataset(dataset, settings, workers=2)) == rows
     assert list(estimate_dataset(dataset, settings, workers=2, chunk_frames=1)) == rows
     assert list(estimate_dataset(dataset, settings, workers=2, chunk_frames=3)) == rows
+
+
+@pytest.mark.skipif("fork" not in multiprocessing.get_all_start_methods(), reason="needs fork")
+def test_the_parent_warms_up_on_the_first_loaded_frame_and_the_workers_read_the_rest(
+    dataset, settings, rows, monkeypatch
+):
+    real_estimate, real_parse = batch.estimate_frame, dataset_module._frame_from_json
+    parsed_here = []
+
+    def tagged(frame, settings):  # the forked workers inherit the patch
+        return {**real_estimate(frame, settings), "pid": os.getpid()}
+
+    monkeypatch.setattr(batch, "estimate_frame", tagged)
+    monkeypatch.setattr(
+        dataset_module, "_frame_from_json", lambda *a: parsed_here.append(1) or real_parse(*a)
+    )
+    got = list(estimate_dataset(dataset, settings, workers=2))
+    assert [{k: v for k, v in row.items() if k != "pid"} for row in got] == rows
+    # frame 0 is the unloaded reference, frame 1 the first loaded one: both estimated here, then forked
+    assert [row["pid"] == os.getpid() for row in got] == [True, True, False, False, False]
+    assert len(parsed_here) == 2  # the workers parsed their frames' lines themselves
+
+
+def test_chunks_shrink_towards_the_end():
+    assert [batch._chunk_size(remaining, 2) for remaining in (10_000, 64, 20, 8, 7, 1)] == [8, 8, 2, 1, 1, 1]
+    assert batch._chunk_size(10_000, 2) == batch.MAX_CHUNK_FRAMES
+
+
+def test_spawned_workers_give_identical_rows(dataset, settings, rows, monkeypatch):
+    """Where workers cannot be forked (macOS, Windows) they are spawned: no warm-up in the parent, and the
+    dataset (its line offsets) is pickled to each worker once."""
+    monkeypatch.setattr(batch, "_pool_context", lambda: multiprocessing.get_context("spawn"))
+    assert list(estimate_dataset(dataset, settings, workers=2, chunk_frames=2)) == rows
 
 
 class _Stop(Exception):

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import gc
 import json
+import pickle
+import tracemalloc
 from pathlib import Path
 
 import cv2
@@ -16,6 +19,7 @@ from softjig.io.dataset import (
     Dataset,
     DatasetTruncationWarning,
     DatasetWriter,
+    Frame,
     encode_png,
     load_image,
 )
@@ -183,6 +187,80 @@ def test_open_reads_no_image(tmp_path, jig, monkeypatch):
     frames = list(ds)
     assert len(frames) == 5 and ds[3].index == 3
     assert calls == []
+
+
+def _long_frames_file(root: Path, jig, n: int) -> None:
+    """A dataset of ``n`` frames (two parts, truth poses, blank lines here and there) whose images do not
+    exist: opening and reading frames never touches them."""
+    _write(root, jig, 1)
+    parts = [part_to_dict(CylinderPart(50.0)), part_to_dict(CylinderPart(30.0))]
+    with open(root / "frames.jsonl", "a") as fh:
+        for i in range(1, n):
+            record = {"index": i, "left": f"left/{i:06d}.png", "right": f"right/{i:06d}.png",
+                      "alpha_deg": 10.0, "theta_deg": float(i % 360), "part": parts[i % 2],
+                      "truth": {"normal": [0.0, 0.0, 1.0], "T_J_part": np.eye(4).tolist()}}  # fmt: skip
+            fh.write(json.dumps(record) + ("\n\n" if i % 1000 == 0 else "\n"))
+
+
+def test_open_holds_line_offsets_not_frames(tmp_path, jig):
+    n = 5000
+    _long_frames_file(tmp_path / "ds", jig, n)
+    gc.collect()
+    tracemalloc.start()
+    try:
+        before = tracemalloc.get_traced_memory()[0]
+        ds = Dataset.open(tmp_path / "ds")
+        held = tracemalloc.get_traced_memory()[0] - before
+    finally:
+        tracemalloc.stop()
+    assert len(ds) == n
+    # 16 bytes a frame (its line's offset and number); a parsed frame with its meta is over 2 KB.
+    assert held < 32 * n + 64 * 1024, f"{held / n:.0f} bytes held per frame"
+    alive = [o for o in gc.get_objects() if isinstance(o, Frame) and o.root == ds.root]
+    assert alive == []  # no frame of it exists after open
+
+
+def test_frames_are_parsed_when_asked(tmp_path, jig, monkeypatch):
+    _long_frames_file(tmp_path / "ds", jig, 3000)
+    ds = Dataset.open(tmp_path / "ds")
+    parsed = []
+    real = ds_mod._frame_from_json
+    monkeypatch.setattr(ds_mod, "_frame_from_json", lambda *a: parsed.append(a[1]["index"]) or real(*a))
+    assert len(ds) == 3000 and parsed == []
+    assert ds[2500].index == 2500 and ds[-1].index == 2999 and parsed == [2500, 2999]
+    assert ds[-1] is ds[2999] and parsed == [2500, 2999]  # the last frame asked for is kept
+    assert [f.index for f in ds.iter_frames(998, 1003)] == [998, 999, 1000, 1001, 1002]  # a blank line
+    assert [f.index for f in ds[1999:2002]] == [1999, 2000, 2001]
+    assert [f.index for f in ds[10:16:5]] == [10, 15]
+    assert len(parsed) == 2 + 5 + 3 + 2
+    assert [f.index for f in ds] == list(range(3000))
+    with pytest.raises(IndexError, match="out of range"):
+        ds[3000]
+    assert ds[1].part is ds[3].part and ds[1].part != ds[2].part  # one Part per distinct part
+    np.testing.assert_array_equal(ds[7].truth.T_J_part, np.eye(4))
+
+
+def test_a_dataset_pickles_small_for_spawned_workers(tmp_path, jig):
+    _long_frames_file(tmp_path / "ds", jig, 2000)
+    ds = Dataset.open(tmp_path / "ds")
+    data = pickle.dumps(ds)
+    assert len(data) < 16 * 2000 + 32 * 1024
+    back = pickle.loads(data)
+    assert len(back) == 2000 and back[1234] == ds[1234] and back.jig == ds.jig
+
+
+def test_frames_appended_after_open_are_not_seen_and_a_rewrite_is_caught(tmp_path, jig):
+    _write(tmp_path / "ds", jig, 3)
+    ds = Dataset.open(tmp_path / "ds")
+    path = tmp_path / "ds" / "frames.jsonl"
+    with open(path, "a") as fh:  # a recorder still running
+        fh.write(json.dumps({"index": 3, "left": "left/000003.png", "right": "right/000003.png"}) + "\n")
+    assert len(ds) == 3 and [f.index for f in ds] == [0, 1, 2]
+    path.write_text(path.read_text().splitlines()[2] + "\n")  # rewritten: frame 2's line only
+    with pytest.raises(InputError, match="changed since the dataset was opened"):
+        list(ds)
+    with pytest.raises(InputError, match="changed since the dataset was opened"):
+        ds[1]
 
 
 # ----------------------------------------------------------------------------------- crash safety

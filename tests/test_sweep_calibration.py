@@ -143,6 +143,17 @@ def test_json_is_versioned_records_its_source_and_estimate_reads_it(tmp_path):
     assert back.frames == cal.frames
 
 
+def test_samples_join_one_pass_streams_of_frames_and_rows():
+    """The frames and the rows are each read once, in one pass (a dataset streams its frames, estimate
+    rows may stream from the workers); only the raw tilts and errors of the rows are kept."""
+    frames, rows = _sweep(diameters=(50.0,), alphas=(10.0,), step=30.0)
+    whole = sweep_samples(frames, rows)
+    streamed = sweep_samples(iter(frames), ({**row, "normal": [0.0, 0.0, 1.0]} for row in rows))
+    assert streamed.index.tolist() == whole.index.tolist()
+    np.testing.assert_array_equal(streamed.raw_x_deg, whole.raw_x_deg)
+    np.testing.assert_array_equal(streamed.raw_y_deg, whole.raw_y_deg)
+
+
 @pytest.mark.parametrize("suffix", [".jsonl", ".csv"])
 def test_result_rows_round_trip(tmp_path, suffix):
     frames, rows = _sweep(diameters=(50.0,), alphas=(10.0,), step=30.0)

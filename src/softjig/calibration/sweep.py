@@ -28,14 +28,13 @@ from __future__ import annotations
 
 import csv
 import datetime as _dt
-import io
 import json
 import math
 import os
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import numpy as np
 
@@ -197,11 +196,13 @@ def sweep_samples(frames: Iterable[Any], rows: Iterable[dict]) -> SweepSamples:
         A sweep frame without a row (a results file of another dataset, or a partial one), a row with
         neither raw tilt angles nor an error, or no sweep frame at all.
     """
-    by_index: dict[int, dict] = {}
+    # Only what the join needs is kept of each row (rows may be a stream of whole estimate rows).
+    by_index: dict[int, tuple[float | None, float | None, Any]] = {}
     for row in rows:
         if not isinstance(row, dict) or not isinstance(row.get("index"), int):
             raise InputError(f"an estimate row lacks an integer 'index': {str(row)[:120]}")
-        by_index[row["index"]] = row
+        ax, ay = _finite(row.get("raw_tilt_x_deg")), _finite(row.get("raw_tilt_y_deg"))
+        by_index[row["index"]] = (ax, ay, row.get("error"))
     ok: list[tuple[int, float, float, float, float, float]] = []
     bad: list[tuple[int, float, float, float, str]] = []
     skipped = 0
@@ -209,21 +210,21 @@ def sweep_samples(frames: Iterable[Any], rows: Iterable[dict]) -> SweepSamples:
         if frame.reference or frame.alpha_deg is None or frame.theta_deg is None or frame.part is None:
             skipped += 1
             continue
-        row = by_index.get(frame.index)
-        if row is None:
+        joined = by_index.get(frame.index)
+        if joined is None:
             raise InputError(
                 f"frame {frame.index} has no estimate row: the results file is not of this dataset or is "
                 "incomplete; re-run `softjig estimate DATASET --out RESULTS.jsonl` (or omit --results)"
             )
         diameter = float(frame.part.diameter_mm)
-        ax, ay = _finite(row.get("raw_tilt_x_deg")), _finite(row.get("raw_tilt_y_deg"))
-        if row.get("error") or ax is None or ay is None:
-            if not row.get("error"):
+        ax, ay, error = joined
+        if error or ax is None or ay is None:
+            if not error:
                 raise InputError(
                     f"the estimate row of frame {frame.index} has neither raw_tilt_x_deg/raw_tilt_y_deg nor "
                     "an error: write it with `softjig estimate DATASET --out RESULTS.jsonl`"
                 )
-            bad.append((frame.index, diameter, frame.alpha_deg, frame.theta_deg, str(row["error"])))
+            bad.append((frame.index, diameter, frame.alpha_deg, frame.theta_deg, str(error)))
             continue
         ok.append((frame.index, diameter, frame.alpha_deg, frame.theta_deg, ax, ay))
     if not ok and not bad:
@@ -452,16 +453,22 @@ def load_result_rows(path: str | os.PathLike[str]) -> list[dict]:
     """
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        # newline="": the csv module handles line ends itself (a quoted field may hold one).
+        with open(path, encoding="utf-8", newline="") as fh:
+            return _read_rows(fh, path)
     except FileNotFoundError:
         raise InputError(
             f"results file {path} does not exist: write it with `softjig estimate DATASET --out {path}`"
         ) from None
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"cannot read results file {path}: {exc}") from None
+
+
+def _read_rows(fh: IO[str], path: Path) -> list[dict]:
+    """The rows of an open results file, read line by line (:func:`load_result_rows`)."""
     rows: list[dict] = []
     if path.suffix.lower() == ".csv":
-        for n, raw in enumerate(csv.DictReader(io.StringIO(text)), start=2):
+        for n, raw in enumerate(csv.DictReader(fh), start=2):
             row: dict[str, Any] = {k: v for k, v in raw.items() if v not in (None, "")}
             try:
                 row["index"] = int(row["index"])
@@ -469,7 +476,7 @@ def load_result_rows(path: str | os.PathLike[str]) -> list[dict]:
                 raise InputError(f"{path}, line {n}: no integer 'index'") from None
             rows.append(row)
         return rows
-    for n, line in enumerate(text.splitlines(), start=1):
+    for n, line in enumerate(fh, start=1):
         if not line.strip():
             continue
         try:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import time
 from enum import StrEnum
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.console import Console
@@ -13,6 +13,9 @@ from rich.console import Console
 from softjig.cli.app import app, handle_errors, load_config, stderr_console, warn
 from softjig.errors import InputError
 from softjig.sensing.pipeline import DEFAULT_METHOD
+
+if TYPE_CHECKING:
+    from softjig.calibration.tilt import TiltCalibration
 
 
 class Method(StrEnum):
@@ -200,8 +203,22 @@ def estimate(
 
 
 def _estimate_dataset(
-    path, config, part_diameter, cal, method, out, workers, progress, use_reference
+    path: Path,
+    config: Path | None,
+    part_diameter: float | None,
+    cal: TiltCalibration | None,
+    method: str,
+    out: Path | None,
+    workers: int | None,
+    progress: bool,
+    use_reference: bool,
 ) -> None:
+    """Estimate every frame of a dataset on ``workers`` processes, streaming the rows to ``out``.
+
+    This process opens the dataset (one pass over ``frames.jsonl``, only line offsets kept), computes the
+    reference markers (refractive method; this also loads the Numba caches) and estimates up to the first
+    loaded frame; the workers it then forks inherit that warm state and read and decode their frames
+    themselves (:func:`softjig.sensing.batch.estimate_dataset`)."""
     from rich.progress import Progress
 
     from softjig.io.dataset import Dataset

@@ -163,21 +163,32 @@ class ExperimentResult:
 # ----------------------------------------------------------------------------------------- pieces
 
 
+#: What the experiment reads of an estimate row (:func:`sweep_samples`, :func:`compare_with_mocap`); the
+#: whole rows stream to ``estimates.jsonl`` and only these keys are kept in memory.
+_ROW_KEYS = ("index", "raw_tilt_x_deg", "raw_tilt_y_deg", "error", "exit_code", "reference", "method")
+
+
 def _estimate_rows(dataset: Any, *, workers: int | None, progress: bool, label: str) -> list[dict]:
-    """Estimate every frame (paper's method, nominal jig, uncalibrated) with a progress bar."""
+    """Estimate every frame (paper's method, nominal jig, uncalibrated) with a progress bar; the rows
+    stream to ``estimates.jsonl`` in the dataset's folder and come back reduced to :data:`_ROW_KEYS`."""
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from softjig.sensing.batch import BatchSettings, estimate_dataset, write_rows
+    from softjig.sensing.batch import BatchSettings, estimate_dataset_to_file
 
     settings = BatchSettings(jig=dataset.jig, method="paper")
     columns = (TextColumn(label), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
+    rows: list[dict] = []
+
+    def keep(row: dict) -> None:
+        rows.append({k: row[k] for k in _ROW_KEYS if k in row})
+        bar.advance(task)
+
     with Progress(*columns, console=Console(stderr=True), disable=not progress) as bar:
         task = bar.add_task(label, total=len(dataset))
-        rows = list(
-            estimate_dataset(dataset, settings, workers=workers, on_row=lambda _row: bar.advance(task))
+        estimate_dataset_to_file(
+            dataset, settings, dataset.root / "estimates.jsonl", workers=workers, on_row=keep
         )
-    write_rows(rows, dataset.root / "estimates.jsonl")
     return rows
 
 
@@ -205,13 +216,16 @@ def write_simulated_mocap(dataset: Any, path: Path) -> None:
     The mocap is exact (no marker noise): the comparison measures the jig alone."""
     from softjig.evaluation.mocap import write_motive_csv
 
-    frames = list(dataset)
-    n = max((f.index for f in frames), default=-1) + 1
+    T_J_part: dict[int, np.ndarray] = {}  # one pass over the frames, keeping only the poses
+    n = 0
+    for frame in dataset:
+        n = max(n, frame.index + 1)
+        if frame.truth is not None and frame.truth.T_J_part is not None:
+            T_J_part[frame.index] = frame.truth.T_J_part
     T_j = np.repeat(_T_mocap_jig()[None], n, axis=0)
     T_o = np.full((n, 4, 4), np.nan)
-    for frame in frames:
-        if frame.truth is not None and frame.truth.T_J_part is not None:
-            T_o[frame.index] = T_j[frame.index] @ frame.truth.T_J_part
+    for index, pose in T_J_part.items():
+        T_o[index] = T_j[index] @ pose
     write_motive_csv(path, {JIG_BODY: T_j, CUBE_BODY: T_o}, units="Meters", take_name=dataset.root.name)
 
 
@@ -247,11 +261,11 @@ def compare_with_mocap(
 
     take = read_motive_csv(mocap_csv)
     by_index = {row["index"]: row for row in rows}
-    loaded = [f for f in dataset if not f.reference and f.part is not None]
-    ok_rows = [by_index.get(f.index) for f in loaded]
+    loaded = [f.index for f in dataset if not f.reference and f.part is not None]
+    ok_rows = [by_index.get(i) for i in loaded]
     n_failed = sum(1 for r in ok_rows if r is None or "error" in r)
-    pairs = [(f, r) for f, r in zip(loaded, ok_rows, strict=True) if r is not None and "error" not in r]
-    index = np.array([f.index for f, _ in pairs], dtype=int)
+    pairs = [(i, r) for i, r in zip(loaded, ok_rows, strict=True) if r is not None and "error" not in r]
+    index = np.array([i for i, _ in pairs], dtype=int)
     truth = normals_at(take, jig_body=jig_body, object_body=object_body, frames=index + frame_offset)
     tracked = np.isfinite(truth).all(axis=1)
     if not tracked.any():
@@ -290,8 +304,10 @@ def _stereo_pair_figure(dataset: Any, samples: SweepSamples, path: Path) -> int 
         + np.abs(samples.alpha_deg - 10.0) * 5
         + np.abs(np.mod(samples.theta_deg - 30.0 + 180.0, 360.0) - 180.0)
     )
-    frames = {f.index: f for f in dataset}
-    for k in np.argsort(score, kind="stable")[:5]:
+    candidates = np.argsort(score, kind="stable")[:5]
+    wanted = {int(samples.index[k]) for k in candidates}
+    frames = {f.index: f for f in dataset if f.index in wanted}  # one pass, the candidates kept
+    for k in candidates:
         frame = frames[int(samples.index[k])]
         left, right = frame.load_left(), frame.load_right()
         try:

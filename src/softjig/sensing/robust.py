@@ -87,7 +87,6 @@ from statistics import NormalDist
 
 import numba
 import numpy as np
-from scipy.stats import t as student_t
 
 from softjig.checks import positive_float
 from softjig.errors import InputError
@@ -465,7 +464,16 @@ def _student_factor(dof: int) -> float:
     """The threshold in units of an estimated scale with ``dof`` degrees of freedom: the Student-t quantile
     of the two-sided coverage that 2.5 sigma has for a known scale (98.8 %): 2.5 for many points, 3.9
     for 6 degrees of freedom, 9.3 for 2 (a scale from a handful of points must not reject points)."""
-    return float(student_t.ppf(_COVERAGE_QUANTILE, max(dof, 1)))
+    return _student_quantile(max(dof, 1))
+
+
+@lru_cache(maxsize=256)
+def _student_quantile(dof: int) -> float:
+    # scipy.stats is imported here, on the first fit: at module level it took 0.8 s of every command's
+    # start-up (measured).
+    from scipy.stats import t as student_t
+
+    return float(student_t.ppf(_COVERAGE_QUANTILE, dof))
 
 
 def _diverse_inlier_sets_of(
