@@ -22,13 +22,7 @@ def write_bytes_atomic(path: str | os.PathLike[str], data: bytes, *, durable: bo
         The path is a folder or cannot be written (permissions, missing drive, disk full).
     """
     path = Path(path)
-    if path.is_dir():
-        raise InputError(f"cannot write {path}: it is a folder; give a file name inside it")
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    except OSError as exc:
-        raise InputError(f"cannot write {path}: {exc.strerror or exc}; choose another path") from None
+    fd, tmp = temp_file_beside(path)
     try:
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
@@ -44,6 +38,25 @@ def write_bytes_atomic(path: str | os.PathLike[str], data: bytes, *, durable: bo
         raise
     if durable:
         fsync_folder(path.parent)
+
+
+def temp_file_beside(path: Path) -> tuple[int, Path]:
+    """A new temporary file in ``path``'s folder (made if missing), to be renamed onto ``path`` when
+    complete: its open descriptor and its path.
+
+    Raises
+    ------
+    InputError
+        The path is a folder or its folder cannot be written (permissions, missing drive, disk full).
+    """
+    if path.is_dir():
+        raise InputError(f"cannot write {path}: it is a folder; give a file name inside it")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    except OSError as exc:
+        raise InputError(f"cannot write {path}: {exc.strerror or exc}; choose another path") from None
+    return fd, Path(tmp)
 
 
 def fsync_folder(folder: Path) -> None:

@@ -38,7 +38,6 @@ import json
 import multiprocessing
 import multiprocessing.context
 import os
-import tempfile
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import Future, ProcessPoolExecutor
@@ -52,7 +51,7 @@ from softjig.calibration.tilt import TiltCalibration
 from softjig.config import JigConfig
 from softjig.errors import EstimationError, InputError
 from softjig.io.dataset import Dataset, Frame
-from softjig.io.files import fsync_folder
+from softjig.io.files import fsync_folder, temp_file_beside
 from softjig.sensing.identities import ReferenceMarkers
 from softjig.sensing.pipeline import DEFAULT_METHOD, estimate_pair, reference_from_pair, sensing_setup
 
@@ -415,14 +414,7 @@ class RowsWriter:
 
     def __enter__(self) -> RowsWriter:
         path = self.path
-        if path.is_dir():
-            raise InputError(f"cannot write {path}: it is a folder; give a file name inside it")
-        try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-        except OSError as exc:
-            raise InputError(f"cannot write {path}: {exc.strerror or exc}; choose another path") from None
-        self._tmp = Path(tmp)
+        fd, self._tmp = temp_file_beside(path)
         # newline="": the text is written byte for byte as rows_to_text makes it (CSV's \r\n kept).
         self._fh = open(fd, "w", encoding="utf-8", newline="")
         if _is_csv(path):

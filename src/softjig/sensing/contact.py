@@ -594,20 +594,9 @@ class ContactRegion:
     edge_clearance_mm: float
 
 
-def _polygon_area_centroid(polygon: np.ndarray) -> tuple[float, np.ndarray]:
-    x, y = polygon[:, 0], polygon[:, 1]
-    cross = x * np.roll(y, -1) - np.roll(x, -1) * y
-    area = cross.sum() / 2.0
-    if abs(area) < 1e-12:
-        return 0.0, polygon.mean(axis=0)
-    cx = ((x + np.roll(x, -1)) * cross).sum() / (6.0 * area)
-    cy = ((y + np.roll(y, -1)) * cross).sum() / (6.0 * area)
-    return abs(area), np.array([cx, cy])
-
-
 @numba.njit(cache=True)
 def _footprint(hull: np.ndarray, half_pitch: float) -> tuple[float, np.ndarray, float, np.ndarray]:
-    """Area and centroid (as :func:`_polygon_area_centroid`), perimeter, and the vertices moved out by
+    """Area and centroid (shoelace formulas), perimeter, and the vertices moved out by
     ``half_pitch`` away from the centroid, of a polygon of at least 3 vertices."""
     k = hull.shape[0]
     twice_area, cx, cy, perimeter = 0.0, 0.0, 0.0, 0.0

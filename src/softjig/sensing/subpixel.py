@@ -280,13 +280,6 @@ def _poly_terms(t: np.ndarray, degree: int) -> np.ndarray:
     return np.column_stack([u**i * v ** (d - i) for d in range(degree + 1) for i in range(d, -1, -1)])
 
 
-def _cubic_terms(t: np.ndarray) -> np.ndarray:
-    """:func:`_poly_terms` of degree 3, with explicit products (12x faster for a few hundred rows)."""
-    u, v = t[:, 0], t[:, 1]
-    uu, uv, vv = u * u, u * v, v * v
-    return np.column_stack([np.ones_like(u), u, v, uu, uv, vv, uu * u, uu * v, u * vv, vv * v])
-
-
 def _poly_derivative_terms(t: np.ndarray, degree: int) -> tuple[np.ndarray, np.ndarray]:
     """d/du and d/dv of :func:`_poly_terms`."""
     u, v = t[:, 0], t[:, 1]
@@ -453,7 +446,6 @@ def refine_centres(
     return SubpixelFit(xy_px=xy, amplitude=amp, ok=ok)
 
 
-_BLOCK = 4  # windows per block of _block_product
 _BLOCK_ROWS = 5  # table rows per block of _block_product: the 30 coefficients, no padding
 _CHUNK = 32  # windows gathered at a time: 55 kB of float32 for 21x21 windows
 
