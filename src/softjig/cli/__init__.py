@@ -6,6 +6,7 @@ from softjig.cli import (  # noqa: F401 - importing a command's module registers
     calibrate_stereo,
     compare,
     config_cmd,
+    convert,
     demo,
     estimate,
     fiducials_cmd,

@@ -77,7 +77,8 @@ def estimate(
     inputs: Annotated[
         list[Path],
         typer.Argument(
-            help="LEFT.png RIGHT.png (one stereo pair) or DATASET (a folder with frames.jsonl).",
+            help="LEFT.png RIGHT.png (one stereo pair), DATASET (a folder with frames.jsonl) or BAG (a "
+            "ROS 2 bag's folder or .mcap).",
             show_default=False,
         ),
     ],
@@ -135,6 +136,15 @@ def estimate(
         int | None, typer.Option(min=1, help="DATASET: processes.", show_default="all CPUs")
     ] = None,
     progress: Annotated[bool, typer.Option(help="DATASET: show a progress bar on stderr.")] = True,
+    left_topic: Annotated[
+        str | None, typer.Option(help="BAG: topic of the left images.", show_default="picked by name")
+    ] = None,
+    right_topic: Annotated[
+        str | None, typer.Option(help="BAG: topic of the right images.", show_default="picked by name")
+    ] = None,
+    stamp_tolerance: Annotated[
+        float, typer.Option(min=0.0, help="BAG: largest header stamp difference of a stereo pair (s).")
+    ] = 0.015,
 ) -> None:
     """Estimate the part's principal normal, tilt angles and push depth from a stereo pair or a dataset."""
     import json
@@ -154,6 +164,18 @@ def estimate(
         given = [name for name, value in pair_only.items() if value]
         if given:
             raise InputError(f"{', '.join(given)} apply to a stereo pair; a DATASET's results go to --out")
+        from softjig.io.rosbag import is_bag
+
+        if is_bag(inputs[0]):  # a ROS 2 bag: its folder or its .mcap (softjig.cli.estimate_bag)
+            from softjig.cli.estimate_bag import estimate_bag
+
+            estimate_bag(
+                inputs[0], config, part_diameter, cal, method_name, out, workers, progress, use_reference,
+                left_topic, right_topic, stamp_tolerance,
+            )  # fmt: skip
+            return
+        if left_topic is not None or right_topic is not None:
+            raise InputError("--left-topic and --right-topic apply to a ROS 2 bag (a folder or .mcap)")
         _estimate_dataset(
             inputs[0], config, part_diameter, cal, method_name, out, workers, progress, use_reference
         )

@@ -1,0 +1,138 @@
+"""`softjig estimate BAG`: every stereo pair of a ROS 2 bag to estimates (the bag branch of ``estimate``).
+
+The rows are those of a dataset (:mod:`softjig.sensing.batch`: the estimate contract's fields and the
+frame's ``index``, or its ``error`` and ``exit_code``) plus each pair's header stamps, ``stamp_left_ns``
+and ``stamp_right_ns`` (JSON Lines; a CSV keeps the dataset's columns). A softjig bag (``/softjig/frame``)
+gives each pair its dataset index, part and reference flag, so estimating it equals estimating the
+dataset it came from; another bag's pairs are numbered from 0, and loaded.
+"""
+
+from __future__ import annotations
+
+import itertools
+import time
+from collections import deque
+from collections.abc import Iterator
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import typer
+
+from softjig.cli.app import load_config, stderr_console, warn
+from softjig.errors import InputError
+
+if TYPE_CHECKING:
+    from softjig.calibration.tilt import TiltCalibration
+    from softjig.io.rosbag import BagPair
+
+
+class _Pairs:
+    """The bag's pairs as :func:`~softjig.sensing.batch.estimate_dataset` takes them: sized (by an upper
+    bound, the smaller topic's message count; the estimation ends when the pairs do) and iterable once.
+    Each pair's stamps are queued for its row, which comes back in the same order."""
+
+    def __init__(self, pairs: Iterator[BagPair], upper_bound: int) -> None:
+        self._pairs, self._n = pairs, max(upper_bound, 1)
+        self.stamps: deque[dict[str, int]] = deque()
+
+    def __len__(self) -> int:
+        return self._n
+
+    def __iter__(self) -> Iterator[BagPair]:
+        for pair in self._pairs:
+            self.stamps.append(pair.stamps)
+            yield pair
+
+
+def estimate_bag(
+    path: Path,
+    config: Path | None,
+    part_diameter: float | None,
+    cal: TiltCalibration | None,
+    method: str,
+    out: Path | None,
+    workers: int | None,
+    progress: bool,
+    use_reference: bool,
+    left_topic: str | None,
+    right_topic: str | None,
+    stamp_tolerance_s: float,
+) -> None:
+    """Estimate every pair of a bag and stream the rows to ``out`` (default ``BAG_estimates.jsonl`` beside
+    the bag). The reference frame (refractive method) is a softjig bag's reference pair that comes before
+    its first loaded pair, as simulations and recordings write it."""
+    from rich.progress import Progress
+
+    from softjig.io.bag_convert import no_pairs_error
+    from softjig.io.rosbag import BagReader
+    from softjig.sensing.batch import BatchSettings, RowsWriter, estimate_dataset
+    from softjig.sensing.pipeline import reference_from_pair
+
+    if out is None:
+        out = path.parent / f"{path.stem if path.is_file() else path.name}_estimates.jsonl"
+    t0 = time.perf_counter()
+    with BagReader(path) as reader:
+        for note in reader.notes:
+            warn(note)
+        topics = reader.choose_topics(left_topic, right_topic)
+        if topics.reason != "given":
+            warn(f"reading left images from {topics.left}, right from {topics.right} ({topics.reason})")
+        jig = load_config(config) if config else reader.rig()
+        if jig is None:
+            raise InputError(
+                f"{path} carries no softjig rig (/softjig/rig): pass --config RIG.toml (the cameras' rig)"
+            )
+        stream = reader.pairs(topics, tolerance_s=stamp_tolerance_s)
+        pairs = iter(stream)
+        lead = []
+        reference = None
+        for pair in pairs:  # a reference pair before the first loaded one
+            lead.append(pair)
+            if not pair.reference:
+                break
+            if reference is None and use_reference and method == "refractive":
+                reference = reference_from_pair(pair.left, pair.right, jig)
+        if not lead:
+            raise no_pairs_error(path, topics, stream)
+        settings = BatchSettings(
+            jig=jig, part_diameter_mm=part_diameter, calibration=cal, method=method, reference=reference
+        )
+        sized = _Pairs(itertools.chain(lead, pairs), stream.upper_bound or len(lead))
+        n_rows = n_loaded = n_failed = 0
+        late_references = 0
+        first_failure = None
+        with (
+            RowsWriter(out) as writer,
+            Progress(console=stderr_console(), disable=not progress, transient=True) as bar,
+        ):
+            task = bar.add_task("estimating", total=len(sized))
+            for row in estimate_dataset(sized, settings, workers=workers):
+                row = {**row, **sized.stamps.popleft()}
+                writer.write(row)
+                bar.advance(task)
+                n_rows += 1
+                if row.get("reference") is True:
+                    late_references += n_loaded > 0
+                    continue
+                n_loaded += 1
+                if "error" in row:
+                    n_failed += 1
+                    first_failure = first_failure or row
+    typer.echo(
+        f"estimated {n_loaded - n_failed} of {n_loaded} loaded pairs of {path} in "
+        f"{time.perf_counter() - t0:.1f} s ({method}"
+        + (", indentations against the reference frame" if reference is not None else "")
+        + f"); wrote {out}"
+    )
+    if stream.unpaired:
+        warn(
+            f"{stream.unpaired} images of {topics.left} / {topics.right} found no partner within "
+            f"{stamp_tolerance_s * 1000:g} ms and were skipped (--stamp-tolerance)"
+        )
+    if late_references:
+        warn(f"{late_references} reference frames after the first loaded one were not used as the reference")
+    if first_failure is not None:
+        warn(
+            f"{n_failed} pairs gave no estimate (see their 'error' in {out}), e.g. pair "
+            f"{first_failure['index']}: {first_failure['error']}"
+        )
