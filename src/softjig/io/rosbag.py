@@ -125,8 +125,22 @@ class BagTruncationWarning(UserWarning):
     were read."""
 
 
+#: How to get what bags need, for the error when it is missing.
+INSTALL_HINT = "ROS 2 bag support needs the ros extra: pip install 'softjig[ros]' (rosbags and mcap)"
+
+
+def require_bag_support() -> None:
+    """Raise an :class:`~softjig.errors.InputError` saying how to install rosbags and mcap if missing."""
+    try:
+        import mcap.writer  # noqa: F401
+        import rosbags.highlevel  # noqa: F401
+    except ImportError as exc:
+        raise InputError(f"{INSTALL_HINT}; missing: {exc.name}") from None
+
+
 def _typestore() -> Any:
     """The ROS 2 Humble message definitions (``rosbags``); one per reader or writer (60 ms to build)."""
+    require_bag_support()
     from rosbags.typesys import Stores, get_typestore
 
     return get_typestore(Stores.ROS2_HUMBLE)
@@ -316,6 +330,7 @@ class BagReader:
 
     # -- lifecycle
     def open(self) -> BagReader:
+        require_bag_support()
         from rosbags.highlevel import AnyReader, AnyReaderError
 
         if not self.path.exists():
@@ -881,6 +896,7 @@ class BagWriter:
 
     # -- lifecycle
     def open(self) -> BagWriter:
+        require_bag_support()
         from mcap.writer import CompressionType, Writer
 
         if self._writer is not None:
@@ -1180,6 +1196,7 @@ def repair_bag(src: str | os.PathLike[str], dst: str | os.PathLike[str]) -> int:
     InputError
         ``src`` is not an MCAP bag, or ``dst`` exists and is not empty.
     """
+    require_bag_support()
     from mcap.writer import CompressionType, Writer
 
     from softjig.io.files import write_text_atomic
