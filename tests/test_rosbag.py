@@ -605,3 +605,53 @@ def test_a_truncated_file_that_is_not_mcap_is_a_clear_error(tmp_path):
     bag.write_bytes(b"not a bag at all")
     result = runner.invoke(app, ["estimate", str(bag), "--config", str(_rig(tmp_path)), "--no-progress"])
     assert result.exit_code == 2 and "cannot read bag" in result.output
+
+
+def test_live_record_bag_records_every_pair_and_estimate_and_estimates_like_the_dataset(sweep, tmp_path):
+    bag, rows_bag, rows_ds = tmp_path / "live_bag", tmp_path / "bag.jsonl", tmp_path / "ds.jsonl"
+    result = runner.invoke(
+        app,
+        [
+            "live",
+            "--replay",
+            str(sweep.root),
+            "--rate",
+            "fast",
+            "--record-bag",
+            str(bag),
+            "--method",
+            "refractive",
+        ],
+    )
+    assert result.exit_code == 0, result.output
+    assert "5 recorded to" in result.output
+    with BagReader(bag) as reader:
+        assert not reader.truncated
+        assert reader.topics[TOPIC_LEFT][1] == 5
+        assert reader.topics[TOPIC_PART_POSE][1] == 4  # the reference frame has no part: no estimate
+        stamps = [p.stamp_left_ns for p in reader.pairs(reader.choose_topics())]
+    assert stamps == sorted(stamps) and stamps[0] > 1_600_000_000 * 10**9  # wall-clock stamps
+    r1 = runner.invoke(app, ["estimate", str(bag), "--out", str(rows_bag), "--workers", "1", "--no-progress"])
+    r2 = runner.invoke(
+        app, ["estimate", str(sweep.root), "--out", str(rows_ds), "--workers", "1", "--no-progress"]
+    )
+    assert r1.exit_code == 0 and r2.exit_code == 0, r1.output + r2.output
+    a = [json.loads(line) for line in rows_ds.read_text().splitlines()]
+    b = [
+        {k: v for k, v in json.loads(line).items() if not k.startswith("stamp_")}
+        for line in rows_bag.read_text().splitlines()
+    ]
+    assert a == b
+    both = runner.invoke(
+        app,
+        [
+            "live",
+            "--replay",
+            str(sweep.root),
+            "--record",
+            str(tmp_path / "d"),
+            "--record-bag",
+            str(tmp_path / "b"),
+        ],
+    )
+    assert both.exit_code == 2 and "not both" in both.output

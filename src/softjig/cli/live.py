@@ -38,6 +38,13 @@ def live(
         Path | None,
         typer.Option(help="Record every captured pair to this dataset folder.", show_default=False),
     ] = None,
+    record_bag: Annotated[
+        Path | None,
+        typer.Option(
+            help="Record every captured pair and its estimate to this ROS 2 bag folder (ros2 bag play).",
+            show_default=False,
+        ),
+    ] = None,
     overwrite: Annotated[
         bool, typer.Option(help="Replace an existing --record dataset or --mcap file.")
     ] = False,
@@ -153,9 +160,19 @@ def live(
             sinks.append(viewer)
             if view:
                 typer.echo(f"live view: open ws://127.0.0.1:{viewer.port} in the Foxglove app", err=True)
+        if record is not None and record_bag is not None:
+            raise InputError(
+                "give --record DIR or --record-bag OUT, not both (softjig convert turns one into the other)"
+            )
         if record is not None:
             default_part = part_to_dict(CylinderPart(part_diameter)) if part_diameter else None
             recorder = Recorder(record, jig, default_part=default_part, overwrite=overwrite)
+        if record_bag is not None:  # a recorder of pairs and a sink of estimates (softjig.live.record_bag)
+            from softjig.live.record_bag import BagRecorder
+
+            default_part = part_to_dict(CylinderPart(part_diameter)) if part_diameter else None
+            recorder = BagRecorder(record_bag, jig, default_part=default_part, overwrite=overwrite)
+            sinks.append(recorder)
     except BaseException:
         for sink in sinks:
             sink.close()
@@ -183,7 +200,7 @@ def live(
         f"{final.processed} estimated ({final.estimated} with an estimate, {final.failed} without), "
         f"{final.dropped} dropped while busy, latency median {median} / p95 {p95}, "
         f"{summary.throughput_hz:.1f} frames/s"
-        + (f", {final.recorded} recorded to {record}" if record else "")
+        + (f", {final.recorded} recorded to {record or record_bag}" if record or record_bag else "")
         + (f" ({final.not_recorded} not recorded)" if final.not_recorded else "")
         + (f", {final.camera_errors} camera errors" if final.camera_errors else ""),
         err=True,
