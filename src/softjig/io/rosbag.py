@@ -53,7 +53,7 @@ import warnings
 from collections import deque
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
+from pathlib import Path, PurePath
 from typing import TYPE_CHECKING, Any
 
 import cv2
@@ -327,6 +327,7 @@ class BagReader:
         self._stream_file: Path | None = None
         self._typestore: Any = None
         self._channels: dict[str, _Channel] = {}
+        self._mcap_files: list[Path] | None = None
 
     # -- lifecycle
     def open(self) -> BagReader:
@@ -355,6 +356,7 @@ class BagReader:
             return self
         self._reader = reader
         self._typestore = reader.typestore
+        self._mcap_files = _plain_mcap_files(target)
         for conn in reader.connections:
             known = self._channels.get(conn.topic)
             count = conn.msgcount + (known.count or 0 if known else 0)
@@ -426,7 +428,17 @@ class BagReader:
         )
 
     def _messages(self, topics: Sequence[str]) -> Iterator[tuple[str, str, int, Any]]:
-        """``(topic, msgtype, log_time_ns, raw CDR)`` of ``topics``, in log-time order."""
+        """``(topic, msgtype, log_time_ns, raw CDR)`` of ``topics``: in log-time order through rosbags, or,
+        for MCAP storage without rosbag2-level compression, in file order (the order a recorder received
+        them) through the mcap library, which decompresses zstd chunks about 3x faster than rosbags'
+        ``backports.zstd`` and skips its CRC pass (measured: 2.0 against 5.7 ms of CPU for a
+        1280x720 pair's chunk, loaded machine)."""
+        if self._mcap_files is not None:
+            for path in self._mcap_files:
+                for kind, record in _stream_records(path, with_messages=True, topics=set(topics)):
+                    if kind == "message":
+                        yield record.topic, record.msgtype, record.log_time, record.data
+            return
         if self._reader is not None:
             conns = [c for c in self._reader.connections if c.topic in topics]
             if not conns:
@@ -435,7 +447,10 @@ class BagReader:
                 yield conn.topic, conn.msgtype, timestamp, raw
             return
         assert self._stream_file is not None
-        for kind, record in _stream_records(self._stream_file, with_messages=True, topics=set(topics)):
+        stream = _stream_records(
+            self._stream_file, with_messages=True, topics=set(topics), validate_crcs=True
+        )
+        for kind, record in stream:
             if kind == "message":
                 yield record.topic, record.msgtype, record.log_time, record.data
 
@@ -665,6 +680,25 @@ class _Record:
     sequence: int = 0
 
 
+def _plain_mcap_files(target: Path) -> list[Path] | None:
+    """The MCAP files of a bag whose messages can be streamed as they are (MCAP storage, no rosbag2
+    file or message compression), in order; ``None`` for any other bag (rosbags reads those)."""
+    if target.is_file():
+        return [target] if target.suffix.lower() == ".mcap" else None
+    try:
+        from ruamel.yaml import YAML
+
+        info = YAML(typ="safe").load((target / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+        if info.get("storage_identifier") != "mcap":
+            return None
+        if str(info.get("compression_mode") or "").lower() not in ("", "none"):
+            return None
+        files = [target / PurePath(str(p)).name for p in info["relative_file_paths"]]
+    except Exception:  # rosbags opened it: anything unusual here just means the general path
+        return None
+    return files if files and all(f.suffix == ".mcap" and f.is_file() for f in files) else None
+
+
 def _looks_truncated(path: Path, exc: Exception) -> bool:
     """Whether a read failure is a summary-less MCAP (magic at the start, none at the end)."""
     try:
@@ -687,12 +721,14 @@ def _stream_records(
     with_messages: bool,
     headers_only: bool = False,
     topics: set[str] | None = None,
+    validate_crcs: bool = False,
 ) -> Iterator[tuple[str, _Record]]:
     """The schema, channel and (optionally) message records of an MCAP file in file order, up to the
     first record that is cut short (a truncated file ends there).
 
     ``headers_only`` leaves messages' data out; ``topics`` keeps only those topics' messages. Messages
-    are those of complete chunks (a chunk's CRC is checked), or written outside chunks.
+    are those of complete chunks (with ``validate_crcs``, a chunk whose CRC fails ends the stream), or
+    written outside chunks.
     """
     from mcap.exceptions import McapError
     from mcap.records import Channel, Chunk, Message, Schema
@@ -703,7 +739,7 @@ def _stream_records(
 
     def records_of(record: Any) -> Iterable[Any]:
         if isinstance(record, Chunk):
-            return breakup_chunk(record, validate_crc=True)
+            return breakup_chunk(record, validate_crc=validate_crcs)
         return (record,)
 
     with open(path, "rb") as fh:

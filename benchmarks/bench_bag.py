@@ -1,0 +1,113 @@
+"""Estimating a ROS 2 bag of mono8 pairs against the same frames as a PNG dataset, on one worker.
+
+Simulates a paper sweep (1280x720 mono8, the default jig), converts it to a bag (``softjig convert``'s
+:func:`~softjig.io.bag_convert.dataset_to_bag`, zstd chunks), then for each source times, per frame:
+
+* ``read``: getting the pair's two images into memory (PNG decode; bag: zstd chunk, CDR, pairing),
+* ``read + estimate``: that and :func:`~softjig.sensing.pipeline.estimate_pair` (refractive method,
+  against the reference frame), what ``softjig estimate --workers 1`` spends per frame.
+
+One warm-up pass first (Numba caches, per-jig tables), then one timed run; medians over the loaded
+frames. Target (issue 15): a bag's ``read + estimate`` at most 6 ms a frame.
+
+Run: ``python benchmarks/bench_bag.py [--frames-per-alpha 12] [--out DIR]``. The numbers depend on the
+machine's load (the shared development machine runs several sessions at once): quote medians and say so.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import os
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+
+def _time_source(frames, jig, reference, *, estimate: bool) -> tuple[list[float], list[float]]:
+    """Wall and CPU seconds per loaded frame: from asking for the frame to having its images (and its
+    estimate). The source's opening (a bag's metadata and type definitions, ~0.1-0.3 s once) falls on the
+    first frame, which the medians ignore."""
+    from softjig.errors import SoftjigError
+    from softjig.sensing.pipeline import estimate_pair
+
+    wall, cpu = [], []
+    it = iter(frames)
+    while True:
+        t0, c0 = time.perf_counter(), time.process_time()
+        frame = next(it, None)
+        if frame is None:
+            break
+        left, right = frame.load_left(), frame.load_right()
+        if not frame.reference and estimate:
+            with contextlib.suppress(SoftjigError):
+                estimate_pair(left, right, jig, reference=reference, method="refractive")
+        if not frame.reference:
+            wall.append(time.perf_counter() - t0)
+            cpu.append(time.process_time() - c0)
+    return wall, cpu
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames-per-alpha", type=int, default=12, help="theta steps per tilt (4 tilts)")
+    parser.add_argument("--out", type=Path, default=None, help="keep the dataset and bag here")
+    args = parser.parse_args()
+
+    import cv2
+
+    cv2.setNumThreads(1)
+    from softjig.config import default_jig
+    from softjig.io.bag_convert import dataset_to_bag
+    from softjig.io.dataset import Dataset
+    from softjig.io.rosbag import BagReader
+    from softjig.sensing.batch import dataset_reference
+    from softjig.sim.scenarios import paper_sweep, simulate_dataset
+
+    root = args.out or Path(tempfile.mkdtemp(prefix="bench_bag_"))
+    ds_path, bag_path = root / "dataset", root / "bag"
+    step = 360.0 / args.frames_per_alpha
+    if not (ds_path / "frames.jsonl").exists():
+        specs = list(paper_sweep(diameters_mm=(50,), alphas_deg=(5, 10, 15, 20), theta_step_deg=step))
+        simulate_dataset(ds_path, specs, default_jig(), seed=7, workers=os.cpu_count(), progress=False)
+    dataset = Dataset.open(ds_path)
+    jig = dataset.jig
+    if not (bag_path / "metadata.yaml").exists():
+        dataset_to_bag(dataset, bag_path, estimate=False, start_unix_s=1.7e9)
+    reference = dataset_reference(dataset, jig)
+    png_mb = sum(p.stat().st_size for p in (ds_path / "left").iterdir()) * 2 / 2**20
+    bag_mb = sum(p.stat().st_size for p in bag_path.glob("*.mcap")) / 2**20
+
+    def bag_frames():
+        with BagReader(bag_path) as reader:
+            yield from reader.pairs(reader.choose_topics())
+
+    _time_source(dataset, jig, reference, estimate=True)  # warm-up: Numba, tables, page cache
+    _time_source(bag_frames(), jig, reference, estimate=True)
+    results = {}
+    for name, source in (("PNG dataset", lambda: dataset), ("ROS 2 bag", bag_frames)):
+        read, read_cpu = _time_source(source(), jig, reference, estimate=False)
+        full, full_cpu = _time_source(source(), jig, reference, estimate=True)
+        med = statistics.median
+        results[name] = (med(read), med(read_cpu), med(full), med(full_cpu), len(full))
+    print(f"{len(dataset)} frames, 1280x720 mono8, one worker, one OpenCV thread; PNG {png_mb:.0f} MiB, "
+          f"bag {bag_mb:.0f} MiB (zstd chunks)")  # fmt: skip
+    print(f"{'source':<12} {'read ms/frame':>20} {'read+estimate ms/frame':>24} {'frames':>7}")
+    print(f"{'':<12} {'wall / CPU':>20} {'wall / CPU':>24}")
+    for name, (read, read_cpu, full, full_cpu, n) in results.items():
+        print(
+            f"{name:<12} {1000 * read:>10.2f} / {1000 * read_cpu:>6.2f} "
+            f"{1000 * full:>14.2f} / {1000 * full_cpu:>6.2f} {n:>7}"
+        )
+    print(
+        "medians of one run; wall times suffer from the shared machine's load (CPU time, this process "
+        f"only, less so); load average now {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs"
+    )
+
+
+if __name__ == "__main__":
+    main()
