@@ -12,6 +12,7 @@ from softjig.cli import (  # noqa: F401 - importing a command's module registers
     fiducials_cmd,
     jig_cmd,
     live,
+    serve,
     simulate,
     sweep_plan,
 )

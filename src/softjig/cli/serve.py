@@ -1,0 +1,148 @@
+"""`softjig serve`: a warm estimation service a robot asks over ZeroMQ REP (``docs/ros2.md``)."""
+
+from __future__ import annotations
+
+import signal
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from softjig.cli.app import app, handle_errors, load_config, warn
+from softjig.errors import InputError
+from softjig.sensing.pipeline import DEFAULT_METHOD
+
+
+@app.command()
+@handle_errors
+def serve(
+    replay: Annotated[
+        Path | None,
+        typer.Option(help="Serve from this dataset, replayed as the cameras.", show_default=False),
+    ] = None,
+    source: Annotated[
+        str | None,
+        typer.Option(
+            help="Cameras: realsense, realsense:LEFT_SERIAL,RIGHT_SERIAL, or opencv:LEFT,RIGHT.",
+            show_default=False,
+        ),
+    ] = None,
+    bind: Annotated[
+        str, typer.Option(help="ZeroMQ REP endpoint to answer on (loopback unless --allow-remote).")
+    ] = "tcp://127.0.0.1:5556",
+    pump: Annotated[
+        str | None,
+        typer.Option(
+            help="Serial port of the pump controller, for the fix and release requests.",
+            envvar="SOFTJIG_PUMP_PORT",
+            show_default=False,
+        ),
+    ] = None,
+    config: Annotated[
+        Path | None,
+        typer.Option(
+            help="The nominal jig (rig.toml).", show_default="the replay's rig.toml, else the default"
+        ),
+    ] = None,
+    part_diameter: Annotated[
+        float | None,
+        typer.Option(help="Diameter of the part's base in mm.", show_default="each replayed frame's part"),
+    ] = None,
+    calibration: Annotated[
+        Path | None, typer.Option(help="Tilt calibration JSON.", show_default=False)
+    ] = None,
+    method: Annotated[
+        str | None,
+        typer.Option(
+            help="refractive (ours) or paper (as published).", show_default="the estimator's default"
+        ),
+    ] = None,
+    rate: Annotated[
+        str, typer.Option(help="Replay: 'recorded' (its own rate, like cameras) or 'fast'.")
+    ] = "recorded",
+    loop: Annotated[bool, typer.Option(help="Replay: start again at the first frame after the last.")] = True,
+    fps: Annotated[float, typer.Option(min=0.1, help="Camera frame rate (Hz).")] = 30.0,
+    settle_s: Annotated[
+        float,
+        typer.Option(min=0.0, help="settled: how long the estimate must stay within its sigma (s)."),
+    ] = 0.5,
+    settle_sigmas: Annotated[
+        float, typer.Option(min=0.0, help="settled: the band, in the estimates' own 1-sigma uncertainties.")
+    ] = 3.0,
+    max_request_bytes: Annotated[int, typer.Option(min=1, help="Longer requests get an error reply.")] = 64
+    * 1024,
+    pump_timeout: Annotated[
+        float, typer.Option(min=0.1, help="fix/release: how long to wait for the jig to hold (s).")
+    ] = 10.0,
+    allow_remote: Annotated[
+        bool, typer.Option(help="Allow --bind on a non-loopback address (trusted networks only).")
+    ] = False,
+) -> None:
+    """Answer estimate, settled, fix, release and health requests (JSON over ZeroMQ REP) until Ctrl-C."""
+    from softjig.calibration.tilt import load_tilt_calibration
+    from softjig.io.cameras import ReplaySource, open_source
+    from softjig.io.stream import check_endpoint
+    from softjig.live.loop import LiveSettings
+    from softjig.live.serve import EstimationService, LoopingReplay, PumpAdapter, ServeSettings, warm_up
+
+    if (replay is None) == (source is None):
+        raise InputError("give either --replay DATASET or --source CAMERAS (e.g. --source opencv:0,1)")
+    check_endpoint(bind, allow_remote=allow_remote)
+    settings = ServeSettings(
+        endpoint=bind,
+        allow_remote=allow_remote,
+        settle_s=settle_s,
+        settle_sigmas=settle_sigmas,
+        max_request_bytes=max_request_bytes,
+        pump_timeout_s=pump_timeout,
+    )
+    cal = load_tilt_calibration(calibration) if calibration else None
+    first_pair = None
+    if replay is not None:
+
+        def make() -> ReplaySource:
+            return ReplaySource(replay, rate=rate, fps=fps)
+
+        cameras = LoopingReplay(make) if loop else make()
+        dataset = make().dataset
+        jig = load_config(config) if config else dataset.jig
+        for frame in dataset:  # warm up on the first loaded frame
+            if not frame.reference:
+                diameter = None if frame.part is None else float(frame.part.diameter_mm)
+                first_pair = (frame.load_left(), frame.load_right(), diameter)
+                break
+    else:
+        if rate != "recorded":
+            raise InputError("--rate applies to --replay, not to cameras")
+        if config is None:
+            warn("no --config: using the default (the paper's) jig; pass the rig.toml of your cameras")
+        jig = load_config(config)
+        if part_diameter is None and (method or DEFAULT_METHOD) == "paper":
+            raise InputError("the paper's method on live cameras needs --part-diameter MM")
+        cam = jig.cameras.left
+        cameras = open_source(source, width_px=cam.width_px, height_px=cam.height_px, fps=fps)
+    live = LiveSettings(jig=jig, part_diameter_mm=part_diameter, calibration=cal, method=method)
+    pump_adapter = PumpAdapter(pump, timeout_s=pump_timeout) if pump else None
+    try:
+        service = EstimationService(
+            cameras, live, settings, pump=pump_adapter
+        )  # binds: a busy port fails here
+    except BaseException:
+        if pump_adapter is not None:
+            pump_adapter.close()
+        raise
+
+    def on_signal(_signum, _frame) -> None:
+        service.stop()
+
+    previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        seconds = warm_up(live, first_pair)  # before the cameras open: no warm-up at the robot's expense
+        service.start()
+        typer.echo(f"warmed up in {seconds:.2f} s; serving on {service.endpoint}", err=True)
+        service.serve_forever()
+    finally:
+        service.close()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    typer.echo(f"stopped: answered {service.answered} requests", err=True)
