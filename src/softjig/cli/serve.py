@@ -77,6 +77,14 @@ def serve(
     allow_remote: Annotated[
         bool, typer.Option(help="Allow --bind on a non-loopback address (trusted networks only).")
     ] = False,
+    warm: Annotated[
+        bool,
+        typer.Option(
+            "--warm-up/--no-warm-up",
+            help="Estimate one pair before the cameras open, so the first request is as fast as the rest "
+            "(--no-warm-up only to measure what it saves).",
+        ),
+    ] = True,
 ) -> None:
     """Answer estimate, settled, fix, release and health requests (JSON over ZeroMQ REP) until Ctrl-C."""
     from softjig.calibration.tilt import load_tilt_calibration
@@ -137,9 +145,10 @@ def serve(
 
     previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
-        seconds = warm_up(live, first_pair)  # before the cameras open: no warm-up at the robot's expense
+        if warm:  # before the cameras open: no warm-up at the robot's expense
+            typer.echo(f"warmed up in {warm_up(live, first_pair):.2f} s", err=True)
         service.start()
-        typer.echo(f"warmed up in {seconds:.2f} s; serving on {service.endpoint}", err=True)
+        typer.echo(f"serving on {service.endpoint}", err=True)
         service.serve_forever()
     finally:
         service.close()

@@ -3,10 +3,10 @@
 Pure: :func:`settled_since` looks at a run of timestamped estimates and says whether the latest
 ``settle_s`` seconds of them stayed within their own uncertainty.
 
-Criterion: the estimates of the window ``[t_last - settle_s, t_last]`` (the window must be covered: the
-run's first estimate is at least ``settle_s`` older than its last) all gave an estimate, and each one's
-normal lies within ``k * sigma_i`` of the window's mean normal, with ``sigma_i`` the estimate's own 1-sigma
-angular uncertainty (``tilt_sigma_deg``, an RMS angle). For an estimate that only jitters with its own
+Criterion: the estimates of the window from the newest one at least ``settle_s`` older than the last, to
+the last (so the window spans ``settle_s`` however sparse the samples: a busy estimator drops frames),
+all gave an estimate, and each one's normal lies within ``k * sigma_i`` of the window's mean normal, with
+``sigma_i`` the estimate's own 1-sigma angular uncertainty (``tilt_sigma_deg``, an RMS angle). For an estimate that only jitters with its own
 noise the angle to the mean exceeds ``k`` sigma with probability ``exp(-k^2)`` (Rayleigh): ``k = 3`` lets
 through a window of 30 still frames with probability 0.997, while a creep of more than ``3 sigma`` over the
 window fails it.
@@ -49,9 +49,10 @@ def settled_since(samples: Sequence[Sample], settle_s: float, *, k: float = DEFA
     if not samples or settle_s < 0:
         return False
     t_last = samples[-1].t_s
-    if t_last - samples[0].t_s < settle_s:
+    old_enough = [i for i, s in enumerate(samples) if t_last - s.t_s >= settle_s]
+    if not old_enough:
         return False
-    window = [s for s in samples if s.t_s >= t_last - settle_s]
+    window = samples[old_enough[-1] :]  # from the newest sample at least settle_s old: both ends seen
     if any(s.normal is None or s.sigma_deg is None or not math.isfinite(s.sigma_deg) for s in window):
         return False
     normals = np.array([s.normal for s in window], dtype=float)
