@@ -3,13 +3,13 @@
 Pure: :func:`settled_since` looks at a run of timestamped estimates and says whether the latest
 ``settle_s`` seconds of them stayed within their own uncertainty.
 
-Criterion: the estimates of the window from the newest one at least ``settle_s`` older than the last, to
-the last (so the window spans ``settle_s`` however sparse the samples: a busy estimator drops frames),
-all gave an estimate, and each one's normal lies within ``k * sigma_i`` of the window's mean normal, with
-``sigma_i`` the estimate's own 1-sigma angular uncertainty (``tilt_sigma_deg``, an RMS angle). For an estimate that only jitters with its own
-noise the angle to the mean exceeds ``k`` sigma with probability ``exp(-k^2)`` (Rayleigh): ``k = 3`` lets
-through a window of 30 still frames with probability 0.997, while a creep of more than ``3 sigma`` over the
-window fails it.
+Criterion: the estimates of the window from the newest one at least ``settle_s`` older than the last, to the
+last (so the window spans ``settle_s`` however sparse the samples: a busy estimator drops frames), all gave
+an estimate, and each one's normal lies within ``k * sigma_i`` of the window's mean normal, with ``sigma_i``
+the estimate's own 1-sigma angular uncertainty (``tilt_sigma_deg``, an RMS angle). For an estimate that only
+jitters with its own noise the angle to the mean exceeds ``k`` sigma with probability ``exp(-k^2)``
+(Rayleigh): ``k = 3`` lets through a window of 30 still frames with probability 0.997, while a creep of more
+than ``3 sigma`` over the window fails it.
 """
 
 from __future__ import annotations
