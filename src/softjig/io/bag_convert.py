@@ -9,9 +9,11 @@ truth stays where it is labelled as truth. A bag becomes a dataset with the pair
 topics, their ``/softjig/frame`` objects (if it is softjig's), the stamps (``t_left_s``, ``t_right_s``,
 ``time_s`` from the first pair, ``capture_time_unix_s``) and the rig it carries (or the one given).
 
-Stamps of a converted dataset: a frame's ``capture_time_unix_s`` plus its recorded ``t_left_s``/
-``t_right_s`` where it has them (live recordings); else ``start_unix_s`` plus its ``time_s`` (or its
-position over the frame rate).
+Stamps of a converted dataset: a frame's ``capture_time_unix_s`` (when the pair was complete: its later
+image) less each image's lead on the later one (``t_left_s``, ``t_right_s``) where it has them (live
+recordings, as :mod:`softjig.live.record_bag` stamps them); else ``start_unix_s`` plus its ``time_s`` (or
+its position over the frame rate). A bag's pair becomes a frame with ``capture_time_unix_s`` its later
+stamp, so a round trip keeps the stamps.
 """
 
 from __future__ import annotations
@@ -69,15 +71,20 @@ def frame_stamps_ns(
         return float(value) if ok else None
 
     tl, tr, wall = num("t_left_s"), num("t_right_s"), num("capture_time_unix_s")
-    if wall is not None:
+
+    def ns(seconds: float) -> int:
+        return round(seconds * 1e9)
+
+    if wall is not None:  # when the pair was complete (its later image), less each image's lead on it
         if tl is not None and tr is not None:
-            mid = 0.5 * (tl + tr)
-            return round((wall + tl - mid) * 1e9), round((wall + tr - mid) * 1e9)
-        return round(wall * 1e9), round(wall * 1e9)
-    t = frame.time_s if frame.time_s is not None else position / fps
+            latest = max(tl, tr)
+            return ns(wall) - ns(latest - tl), ns(wall) - ns(latest - tr)
+        return ns(wall), ns(wall)
+    start = ns(start_unix_s)  # separately: a float of ~1.7e9 s holds only ~0.2 us
     if tl is not None and tr is not None:
-        return round((start_unix_s + tl) * 1e9), round((start_unix_s + tr) * 1e9)
-    return round((start_unix_s + t) * 1e9), round((start_unix_s + t) * 1e9)
+        return start + ns(tl), start + ns(tr)
+    t = frame.time_s if frame.time_s is not None else position / fps
+    return start + ns(t), start + ns(t)
 
 
 def dataset_to_bag(
@@ -196,11 +203,12 @@ def bag_to_dataset(
                 meta: dict[str, Any] = {
                     k: v for k, v in pair.meta.items() if k not in ("index", "left", "right", "stamp_ns")
                 }
+                mid_ns = (pair.stamp_left_ns + pair.stamp_right_ns) // 2  # integers: exact to the ns
                 meta.update(
-                    time_s=round((0.5 * (pair.stamp_left_ns + pair.stamp_right_ns) - t0) / 1e9, 9),
+                    time_s=round((mid_ns - t0) / 1e9, 9),
                     t_left_s=round((pair.stamp_left_ns - t0) / 1e9, 9),
                     t_right_s=round((pair.stamp_right_ns - t0) / 1e9, 9),
-                    capture_time_unix_s=0.5 * (pair.stamp_left_ns + pair.stamp_right_ns) / 1e9,
+                    capture_time_unix_s=max(pair.stamp_left_ns, pair.stamp_right_ns) / 1e9,
                     stamp_left_ns=pair.stamp_left_ns,
                     stamp_right_ns=pair.stamp_right_ns,
                 )
