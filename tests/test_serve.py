@@ -325,3 +325,35 @@ def test_sigterm_stops_it_cleanly_and_sends_the_pump_to_its_safe_state(service):
         rest.append(service["lines"].get())
     assert any("stopped: answered" in line for line in rest), rest
     assert sim.requests[-1] == "STOP" and sim.state == "safe"
+
+
+# ------------------------------------------------------------------------------------- in process
+
+
+def test_warm_up_without_a_pair_renders_one_of_the_jig():
+    """The cameras' path (--source): a pair of the nominal jig is rendered and estimated."""
+    from softjig.live.loop import LiveSettings
+    from softjig.live.serve import warm_up
+
+    assert warm_up(LiveSettings(jig=default_jig(), method="refractive")) > 0
+
+
+def test_handle_answers_anything_without_raising(creep):
+    from softjig.io.cameras import ReplaySource
+    from softjig.live.loop import LiveSettings
+    from softjig.live.serve import EstimationService, ServeSettings
+
+    service = EstimationService(
+        ReplaySource(creep), LiveSettings(jig=default_jig()), ServeSettings(endpoint="tcp://127.0.0.1:*")
+    )
+    try:
+        assert "one message frame" in service.handle([b'{"op": "health"}', b"x"])["error"]
+        assert "not JSON" in service.handle([b"\xff\xfe"])["error"]
+        assert "drives no pump" in service.handle([b'{"op": "release"}'])["error"]
+        assert "timeout_s" in service.handle([b'{"op": "estimate", "timeout_s": true}'])["error"]
+        # the loop was never started: an estimate times out, with a clear error
+        reply = service.handle([b'{"op": "estimate", "timeout_s": 0.05}'])
+        assert reply["ok"] is False and reply["error"].startswith("timeout after 0.05 s")
+        assert service.handle([b'{"op": "health"}'])["health"]["status"] == "starting"
+    finally:
+        service.close()
