@@ -110,7 +110,7 @@ def _colour(gray):
     return np.dstack([gray, gray // 2, 255 - gray])
 
 
-def _write_rosbags_folder(path, pairs, *, fmt="png"):
+def _write_rosbags_folder(path, pairs, *, fmt="png", storage="mcap"):
     """A rosbag2 folder (metadata.yaml + MCAP) written by rosbags' own Writer, CompressedImage on the left
     and raw bgr8 Image on the right."""
     from rosbags.rosbag2 import StoragePlugin, Writer
@@ -118,7 +118,8 @@ def _write_rosbags_folder(path, pairs, *, fmt="png"):
 
     ts = get_typestore(Stores.ROS2_HUMBLE)
     T = ts.types
-    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+    plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
+    with Writer(path, version=9, storage_plugin=plugin) as writer:
         cl = writer.add_connection("/cam_left/compressed", "sensor_msgs/msg/CompressedImage", typestore=ts)
         cr = writer.add_connection("/cam_right/image", "sensor_msgs/msg/Image", typestore=ts)
         for i, (a, b) in enumerate(pairs):
@@ -168,15 +169,15 @@ def test_pairs_from_an_mcap_written_by_mcap_ros2_support(tmp_path):
         assert pair.index == i and pair.meta == {} and not pair.reference
 
 
-@pytest.mark.parametrize("fmt", ["png", "jpg"])
-def test_pairs_from_a_rosbag2_folder_written_by_rosbags_compressed_and_bgr8(tmp_path, fmt):
+@pytest.mark.parametrize(("fmt", "storage"), [("png", "mcap"), ("jpg", "mcap"), ("png", "sqlite3")])
+def test_pairs_from_a_rosbag2_folder_written_by_rosbags_compressed_and_bgr8(tmp_path, fmt, storage):
     yy, xx = np.mgrid[0:24, 0:32]
     pairs = [
         ((xx * 6 + yy * 3 + 20 * i).astype(np.uint8), (xx * 3 + yy * 5 + 9 * i).astype(np.uint8))
         for i in range(3)
     ]
     bag = tmp_path / "folder"
-    _write_rosbags_folder(bag, pairs, fmt=fmt)
+    _write_rosbags_folder(bag, pairs, fmt=fmt, storage=storage)
     assert (bag / "metadata.yaml").is_file()
     with BagReader(bag) as reader:
         topics = reader.choose_topics()
@@ -468,8 +469,8 @@ def test_estimating_our_bag_equals_estimating_the_dataset(sweep, sweep_bag, tmp_
     r1 = runner.invoke(
         app, ["estimate", str(sweep.root), "--out", str(ds_out), "--workers", "1", "--no-progress"]
     )
-    r2 = runner.invoke(
-        app, ["estimate", str(sweep_bag), "--out", str(bag_out), "--workers", "1", "--no-progress"]
+    r2 = runner.invoke(  # two workers: the pairs travel to forked workers
+        app, ["estimate", str(sweep_bag), "--out", str(bag_out), "--workers", "2", "--no-progress"]
     )
     assert r1.exit_code == 0, r1.output
     assert r2.exit_code == 0, r2.output

@@ -10,6 +10,7 @@ dataset it came from; another bag's pairs are numbered from 0, and loaded.
 from __future__ import annotations
 
 import itertools
+import sys
 import time
 from collections import deque
 from collections.abc import Iterator
@@ -27,16 +28,17 @@ if TYPE_CHECKING:
 
 
 class _Pairs:
-    """The bag's pairs as :func:`~softjig.sensing.batch.estimate_dataset` takes them: sized (by an upper
-    bound, the smaller topic's message count; the estimation ends when the pairs do) and iterable once.
-    Each pair's stamps are queued for its row, which comes back in the same order."""
+    """The bag's pairs as :func:`~softjig.sensing.batch.estimate_dataset` takes them: iterable once, and
+    sized by a bound no bag reaches (the number of pairs is known only once they are read, and a bag's
+    message counts may be wrong: the estimation ends when the pairs do, never before). Each pair's stamps
+    are queued for its row, which comes back in the same order."""
 
-    def __init__(self, pairs: Iterator[BagPair], upper_bound: int) -> None:
-        self._pairs, self._n = pairs, max(upper_bound, 1)
+    def __init__(self, pairs: Iterator[BagPair]) -> None:
+        self._pairs = pairs
         self.stamps: deque[dict[str, int]] = deque()
 
     def __len__(self) -> int:
-        return self._n
+        return sys.maxsize
 
     def __iter__(self) -> Iterator[BagPair]:
         for pair in self._pairs:
@@ -97,7 +99,7 @@ def estimate_bag(
         settings = BatchSettings(
             jig=jig, part_diameter_mm=part_diameter, calibration=cal, method=method, reference=reference
         )
-        sized = _Pairs(itertools.chain(lead, pairs), stream.upper_bound or len(lead))
+        sized = _Pairs(itertools.chain(lead, pairs))
         n_rows = n_loaded = n_failed = 0
         late_references = 0
         first_failure = None
@@ -105,7 +107,7 @@ def estimate_bag(
             RowsWriter(out) as writer,
             Progress(console=stderr_console(), disable=not progress, transient=True) as bar,
         ):
-            task = bar.add_task("estimating", total=len(sized))
+            task = bar.add_task("estimating", total=stream.upper_bound)
             for row in estimate_dataset(sized, settings, workers=workers):
                 row = {**row, **sized.stamps.popleft()}
                 writer.write(row)
