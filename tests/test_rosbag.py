@@ -656,3 +656,12 @@ def test_live_record_bag_records_every_pair_and_estimate_and_estimates_like_the_
         ],
     )
     assert both.exit_code == 2 and "not both" in both.output
+
+
+def test_without_the_ros_extra_the_commands_say_how_to_install_it(tmp_path, monkeypatch):
+    bag = tmp_path / "other.mcap"
+    _write_mcap_ros2(bag, _images(2))
+    monkeypatch.setitem(sys.modules, "rosbags.highlevel", None)  # as if rosbags were not installed
+    result = runner.invoke(app, ["estimate", str(bag), "--config", str(_rig(tmp_path)), "--no-progress"])
+    assert result.exit_code == 2
+    assert "pip install 'softjig[ros]'" in result.output and "Traceback" not in result.output

@@ -89,6 +89,7 @@ def serve(
     """Answer estimate, settled, fix, release and health requests (JSON over ZeroMQ REP) until Ctrl-C."""
     from softjig.calibration.tilt import load_tilt_calibration
     from softjig.io.cameras import ReplaySource, open_source
+    from softjig.io.dataset import Dataset
     from softjig.io.stream import check_endpoint
     from softjig.live.loop import LiveSettings
     from softjig.live.serve import EstimationService, LoopingReplay, PumpAdapter, ServeSettings, warm_up
@@ -107,12 +108,12 @@ def serve(
     cal = load_tilt_calibration(calibration) if calibration else None
     first_pair = None
     if replay is not None:
+        dataset = Dataset.open(replay)  # once: each lap of a looping replay starts on the same index
 
         def make() -> ReplaySource:
-            return ReplaySource(replay, rate=rate, fps=fps)
+            return ReplaySource(dataset, rate=rate, fps=fps)
 
         cameras = LoopingReplay(make) if loop else make()
-        dataset = make().dataset
         jig = load_config(config) if config else dataset.jig
         for frame in dataset:  # warm up on the first loaded frame
             if not frame.reference:

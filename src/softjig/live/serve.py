@@ -33,6 +33,7 @@ requests. :meth:`EstimationService.stop` (SIGINT, SIGTERM) ends both, and sends 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import json
 import math
 import threading
@@ -183,10 +184,7 @@ class LoopingReplay(StereoSource):
         if frame is None:
             return None
         self._last_seq = frame.seq
-        return StereoFrame(
-            frame.left, frame.right, frame.t_left_s, frame.t_right_s, frame.seq + self._offset,
-            frame.received_s, frame.wall_time_s, frame.meta,
-        )  # fmt: skip
+        return dataclasses.replace(frame, seq=frame.seq + self._offset)
 
     def close(self) -> None:
         self._source.close()
