@@ -665,3 +665,30 @@ def test_without_the_ros_extra_the_commands_say_how_to_install_it(tmp_path, monk
     result = runner.invoke(app, ["estimate", str(bag), "--config", str(_rig(tmp_path)), "--no-progress"])
     assert result.exit_code == 2
     assert "pip install 'softjig[ros]'" in result.output and "Traceback" not in result.output
+
+
+def test_estimate_bag_refuses_to_write_over_the_bag_and_exits_3_when_nothing_estimates(sweep_bag, tmp_path):
+    meta = sweep_bag / "metadata.yaml"
+    before = meta.read_bytes()
+    result = runner.invoke(app, ["estimate", str(sweep_bag), "--out", str(meta), "--no-progress"])
+    assert result.exit_code == 2 and meta.read_bytes() == before
+    # a foreign bag of noise: every pair is read, none gives an estimate -> exit 3, every error written
+    bag, out = tmp_path / "noise.mcap", tmp_path / "noise.jsonl"
+    _write_mcap_ros2(bag, _images(3, shape=(720, 1280)))
+    result = runner.invoke(
+        app,
+        [
+            "estimate",
+            str(bag),
+            "--config",
+            str(_rig(tmp_path)),
+            "--out",
+            str(out),
+            "--workers",
+            "1",
+            "--no-progress",
+        ],
+    )
+    assert result.exit_code == 3, result.output
+    rows = [json.loads(line) for line in out.read_text().splitlines()]
+    assert len(rows) == 3 and all("error" in r and "stamp_left_ns" in r for r in rows)

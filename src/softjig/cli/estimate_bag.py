@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING
 import typer
 
 from softjig.cli.app import load_config, stderr_console, warn
-from softjig.errors import InputError
+from softjig.errors import EstimationError, InputError
 
 if TYPE_CHECKING:
     from softjig.calibration.tilt import TiltCalibration
@@ -72,6 +72,7 @@ def estimate_bag(
 
     if out is None:
         out = path.parent / f"{path.stem if path.is_file() else path.name}_estimates.jsonl"
+    _check_out(out, path)
     t0 = time.perf_counter()
     with BagReader(path) as reader:
         for note in reader.notes:
@@ -133,8 +134,22 @@ def estimate_bag(
         )
     if late_references:
         warn(f"{late_references} reference frames after the first loaded one were not used as the reference")
+    if n_loaded == 0:
+        raise EstimationError(f"{path} holds only unloaded reference frames: no pair with a part to estimate")
     if first_failure is not None:
-        warn(
+        message = (
             f"{n_failed} pairs gave no estimate (see their 'error' in {out}), e.g. pair "
             f"{first_failure['index']}: {first_failure['error']}"
         )
+        if n_failed == n_loaded:  # every error is written; the run itself failed (exit 3)
+            raise EstimationError(f"no pair of {path} gave an estimate: {message}")
+        warn(message)
+
+
+def _check_out(out: Path, bag: Path) -> None:
+    """An InputError if ``out`` is not a results file name or is one of the bag's own files."""
+    if out.suffix.lower() not in (".jsonl", ".json", ".ndjson", ".csv"):
+        raise InputError(f"--out {out}: the results file must end in .jsonl or .csv")
+    members = [bag] if bag.is_file() else [p for p in bag.iterdir() if p.is_file()]
+    if any(out.resolve() == member.resolve() for member in members):
+        raise InputError(f"--out {out} is one of the bag's own files: writing there would destroy it")
