@@ -587,6 +587,12 @@ def test_a_recorder_killed_mid_write_leaves_a_bag_that_reads_and_repairs(tmp_pat
     assert [p.index for p in pairs] == list(range(len(pairs)))  # complete, in order, none lost before the cut
     for p in pairs:
         np.testing.assert_array_equal(p.right, 255 - p.left)
+    # estimating it reads every complete pair too, says the bag is truncated and how to repair it
+    rows = tmp_path / "killed.jsonl"
+    result = runner.invoke(app, ["estimate", str(bag), "--out", str(rows), "--workers", "1", "--no-progress"])
+    assert "truncated" in result.output and "--repair" in result.output, result.output
+    assert result.exit_code == 3  # noise of the wrong size gives no estimate; every pair has its row
+    assert len(rows.read_text().splitlines()) == len(pairs)
     # the repaired copy reads with rosbags (what ROS 2 tools read), with the same pairs; the original stays
     size = next(bag.glob("*.mcap")).stat().st_size
     fixed = tmp_path / "fixed"

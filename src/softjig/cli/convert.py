@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 from typing import Annotated
 
@@ -80,8 +81,13 @@ def convert(
             typer.echo(f"repaired {src}: kept {kept} messages in complete chunks; wrote {out}")
             return
         from softjig.io.bag_convert import bag_to_dataset
+        from softjig.io.rosbag import BagTruncationWarning
 
-        with Progress(console=stderr_console(), disable=not progress, transient=True) as bar:
+        with (
+            warnings.catch_warnings(),  # a truncated bag's note is shown below, once, as a warning line
+            Progress(console=stderr_console(), disable=not progress, transient=True) as bar,
+        ):
+            warnings.simplefilter("ignore", BagTruncationWarning)
             task = bar.add_task("converting", total=None)
             summary = bag_to_dataset(
                 src,

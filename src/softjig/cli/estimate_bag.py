@@ -12,6 +12,7 @@ from __future__ import annotations
 import itertools
 import sys
 import time
+import warnings
 from collections import deque
 from collections.abc import Iterator
 from pathlib import Path
@@ -66,7 +67,7 @@ def estimate_bag(
     from rich.progress import Progress
 
     from softjig.io.bag_convert import no_pairs_error
-    from softjig.io.rosbag import BagReader
+    from softjig.io.rosbag import BagReader, BagTruncationWarning
     from softjig.sensing.batch import BatchSettings, RowsWriter, estimate_dataset
     from softjig.sensing.pipeline import reference_from_pair
 
@@ -74,7 +75,10 @@ def estimate_bag(
         out = path.parent / f"{path.stem if path.is_file() else path.name}_estimates.jsonl"
     _check_out(out, path)
     t0 = time.perf_counter()
-    with BagReader(path) as reader:
+    with warnings.catch_warnings():  # a truncated bag's note is shown below, once, as a warning line
+        warnings.simplefilter("ignore", BagTruncationWarning)
+        reader = BagReader(path).open()
+    with reader:
         for note in reader.notes:
             warn(note)
         topics = reader.choose_topics(left_topic, right_topic)

@@ -331,6 +331,9 @@ class BagReader:
 
     # -- lifecycle
     def open(self) -> BagReader:
+        """Open the bag (idempotent; called by ``with``)."""
+        if self._reader is not None or self._stream_file is not None:
+            return self
         require_bag_support()
         from rosbags.highlevel import AnyReader, AnyReaderError
 
