@@ -357,3 +357,23 @@ def test_handle_answers_anything_without_raising(creep):
         assert service.handle([b'{"op": "health"}'])["health"]["status"] == "starting"
     finally:
         service.close()
+
+
+def test_a_pump_that_cannot_be_opened_is_a_clear_error(creep, tmp_path):
+    from typer.testing import CliRunner
+
+    from softjig.cli import app
+
+    result = CliRunner().invoke(
+        app,
+        [
+            "serve",
+            "--replay",
+            str(creep),
+            "--bind",
+            f"tcp://127.0.0.1:{_free_port()}",
+            "--pump",
+            str(tmp_path / "no-such-tty"),
+        ],
+    )
+    assert result.exit_code == 2 and "serial port" in result.output, result.output

@@ -381,19 +381,20 @@ class BagReader:
         self._stream_file = mcap_file
         store = _typestore()
         types: dict[str, Any] = {}
-        for kind, record in _stream_records(mcap_file, with_messages=False):
-            if kind == "schema" and record.encoding == "ros2msg" and record.name not in store.fielddefs:
-                types.update(get_types_from_msg(record.data.decode("utf-8"), record.name))
-        if types:
-            store.register(types)
-        self._typestore = store
         counts: dict[str, int] = {}
         channel_types: dict[str, str] = {}
-        for kind, record in _stream_records(mcap_file, with_messages=True, headers_only=True):
-            if kind == "channel":
+        for kind, record in _stream_records(
+            mcap_file, with_messages=True, headers_only=True, validate_crcs=True
+        ):
+            if kind == "schema" and record.encoding == "ros2msg" and record.name not in store.fielddefs:
+                types.update(get_types_from_msg(record.data.decode("utf-8"), record.name))
+            elif kind == "channel":
                 channel_types[record.topic] = record.msgtype
             elif kind == "message":
                 counts[record.topic] = counts.get(record.topic, 0) + 1
+        if types:
+            store.register(types)
+        self._typestore = store
         self._channels = {t: _Channel(t, channel_types[t], counts.get(t, 0)) for t in channel_types}
         note = (
             f"bag {self.path} is truncated ({exc}; its recorder was probably killed): read its "
@@ -1258,7 +1259,7 @@ def repair_bag(src: str | os.PathLike[str], dst: str | os.PathLike[str]) -> int:
     with open(tmp, "wb") as fh:
         writer = Writer(fh, chunk_size=CHUNK_BYTES, compression=CompressionType.ZSTD)
         writer.start(profile="ros2", library="softjig repair")
-        for kind, record in _stream_records(mcap_file, with_messages=True):
+        for kind, record in _stream_records(mcap_file, with_messages=True, validate_crcs=True):
             if kind == "schema" and record.id not in schema_ids:
                 schema_ids[record.id] = writer.register_schema(record.name, record.encoding, record.data)
             elif kind == "channel" and record.id not in channel_ids:
