@@ -53,7 +53,7 @@ import warnings
 from collections import deque
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path, PurePath
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import cv2
@@ -359,7 +359,7 @@ class BagReader:
             return self
         self._reader = reader
         self._typestore = reader.typestore
-        self._mcap_files = _plain_mcap_files(target)
+        self._mcap_files = _plain_mcap_files(reader, target)
         for conn in reader.connections:
             known = self._channels.get(conn.topic)
             count = conn.msgcount + (known.count or 0 if known else 0)
@@ -684,23 +684,22 @@ class _Record:
     sequence: int = 0
 
 
-def _plain_mcap_files(target: Path) -> list[Path] | None:
-    """The MCAP files of a bag whose messages can be streamed as they are (MCAP storage, no rosbag2
-    file or message compression), in order; ``None`` for any other bag (rosbags reads those)."""
+def _plain_mcap_files(reader: Any, target: Path) -> list[Path] | None:
+    """The MCAP files of a bag opened by rosbags' ``AnyReader`` whose messages can be streamed as they are
+    (MCAP storage, no rosbag2 file or message compression), in order; ``None`` for any other bag (rosbags
+    reads those)."""
     if target.is_file():
         return [target] if target.suffix.lower() == ".mcap" else None
-    try:
-        from ruamel.yaml import YAML
-
-        info = YAML(typ="safe").load((target / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
-        if info.get("storage_identifier") != "mcap":
+    try:  # rosbags' own parse of metadata.yaml (a second parse costs ~0.1 s)
+        storage = reader.readers[0].storage
+        if storage.metadata.compression_mode:
             return None
-        if str(info.get("compression_mode") or "").lower() not in ("", "none"):
+        if not all(type(x).__name__ == "McapReader" for x in storage.storages):
             return None
-        files = [target / PurePath(str(p)).name for p in info["relative_file_paths"]]
-    except Exception:  # rosbags opened it: anything unusual here just means the general path
+        files = [Path(x.path) for x in storage.storages]
+    except (AttributeError, IndexError, TypeError):  # another rosbags version: the general path
         return None
-    return files if files and all(f.suffix == ".mcap" and f.is_file() for f in files) else None
+    return files if files and all(f.is_file() for f in files) else None
 
 
 def _looks_truncated(path: Path, exc: Exception) -> bool:
