@@ -113,3 +113,17 @@ def test_options_of_the_other_direction_are_refused(sweep, tmp_path):
     assert result.exit_code == 2 and "--repair applies to a ROS 2 bag" in result.output
     result = runner.invoke(app, ["convert", str(sweep.root), str(tmp_path / "b"), "--left-topic", "/x"])
     assert result.exit_code == 2 and "apply to a bag" in result.output
+
+
+def test_bag_to_dataset_to_bag_keeps_every_stamp(tmp_path):
+    from softjig.io.bag_convert import bag_to_dataset, dataset_to_bag
+
+    bag = tmp_path / "other.mcap"
+    _foreign_bag(bag, n=3, shape=(24, 32))
+    with BagReader(bag) as reader:
+        first = [(p.stamp_left_ns, p.stamp_right_ns) for p in reader.pairs(reader.choose_topics())]
+    bag_to_dataset(bag, tmp_path / "ds", jig=default_jig())
+    dataset_to_bag(tmp_path / "ds", tmp_path / "again", estimate=False)
+    with BagReader(tmp_path / "again") as reader:
+        again = [(p.stamp_left_ns, p.stamp_right_ns) for p in reader.pairs(reader.choose_topics())]
+    assert again == first

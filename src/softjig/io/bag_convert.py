@@ -12,8 +12,9 @@ topics, their ``/softjig/frame`` objects (if it is softjig's), the stamps (``t_l
 Stamps of a converted dataset: a frame's ``capture_time_unix_s`` (when the pair was complete: its later
 image) less each image's lead on the later one (``t_left_s``, ``t_right_s``) where it has them (live
 recordings, as :mod:`softjig.live.record_bag` stamps them); else ``start_unix_s`` plus its ``time_s`` (or
-its position over the frame rate). A bag's pair becomes a frame with ``capture_time_unix_s`` its later
-stamp, so a round trip keeps the stamps.
+its position over the frame rate). A bag's pair becomes a frame with its stamps (``stamp_left_ns``,
+``stamp_right_ns``, used as they are on the way back: a round trip keeps them to the nanosecond) and
+``capture_time_unix_s`` its later stamp.
 """
 
 from __future__ import annotations
@@ -70,6 +71,9 @@ def frame_stamps_ns(
         ok = isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
         return float(value) if ok else None
 
+    exact = meta.get("stamp_left_ns"), meta.get("stamp_right_ns")  # a frame that came from a bag
+    if all(isinstance(v, int) and not isinstance(v, bool) and v >= 0 for v in exact):
+        return int(exact[0]), int(exact[1])
     tl, tr, wall = num("t_left_s"), num("t_right_s"), num("capture_time_unix_s")
 
     def ns(seconds: float) -> int:
