@@ -3,9 +3,10 @@
 Reading (:class:`BagReader`) goes through `rosbags <https://gitlab.com/ternaris/rosbags>`_ (pure Python:
 rosbag2 folders with a ``metadata.yaml``, MCAP or SQLite storage, or a single ``.mcap`` file, with the
 message definitions the bag carries), so a bag recorded by ``ros2 bag record`` or by any other tool reads
-the same way. Left and right images (``sensor_msgs/msg/Image`` in ``mono8``, ``mono16``, ``rgb8``,
-``bgr8``; ``sensor_msgs/msg/CompressedImage`` in PNG or JPEG) are paired by their header stamps within a
-tolerance (:class:`~softjig.io.cameras.FramePairer`).
+the same way; the messages of MCAP storage are then streamed by the mcap library (faster zstd, see
+:meth:`BagReader._messages`) and deserialised by rosbags. Left and right images (``sensor_msgs/msg/Image``
+in ``mono8``, ``mono16``, ``rgb8``, ``bgr8``; ``sensor_msgs/msg/CompressedImage`` in PNG or JPEG) are paired
+by their header stamps within a tolerance (:class:`~softjig.io.cameras.FramePairer`).
 
 Writing (:class:`BagWriter`) goes through the `mcap <https://mcap.dev>`_ library, which gives control over
 the chunks: messages are CDR-serialised with the rosbags type store (ROS 2 Humble definitions, which
