@@ -25,6 +25,11 @@ import time
 from collections.abc import Callable
 from typing import Any, NoReturn
 
+try:
+    import termios
+except ImportError:  # pragma: no cover - Windows
+    termios = None  # type: ignore[assignment]
+
 from softjig.hardware.cycle import Command, CycleEvent, JigCycle
 from softjig.hardware.guard import signals_deferred
 from softjig.hardware.protocol import (
@@ -59,6 +64,8 @@ __all__ = [
 
 #: The longest a single serial read waits (s); the reply's deadline is enforced across reads.
 _READ_SLICE_S = 0.05
+#: Errors of the serial line besides pyserial's and OSError (termios.error is neither, on a vanished tty).
+_PLATFORM_ERRORS: tuple[type[BaseException], ...] = (termios.error,) if termios is not None else ()
 #: What the safe state means, for messages.
 SAFE_MEANING = "pump off, valve closed: the jig keeps what it holds; `softjig jig release` frees the part"
 
@@ -137,12 +144,12 @@ class PumpController:
             if chunk:
                 line += chunk
                 end = line.find(b"\n")
-                if end >= 0:
+                if 0 <= end < MAX_REPLY_BYTES:
                     return bytes(line[: end + 1])
-                if len(line) > MAX_REPLY_BYTES:
+                if end >= 0 or len(line) > MAX_REPLY_BYTES:
                     raise PumpError(
                         f"the pump controller on {self.port} answered {request} with a reply too long "
-                        f"(over {MAX_REPLY_BYTES} bytes without a newline: wrong baud rate, or not a "
+                        f"(over {MAX_REPLY_BYTES} bytes, newline included: wrong baud rate, or not a "
                         "softjig pump controller?)"
                     )
             if time.monotonic() >= deadline:
@@ -160,7 +167,7 @@ class PumpController:
             self._serial.reset_input_buffer()  # a late reply to an earlier request must not be taken
             self._serial.write(format_request(request))
             line = self._read_reply(request)
-        except (serial.SerialException, OSError) as exc:
+        except (serial.SerialException, OSError, *_PLATFORM_ERRORS) as exc:
             raise PumpError(
                 f"serial error talking to the pump controller on {self.port}: {exc} (unplugged? "
                 "check the cable and the port)"
