@@ -365,8 +365,7 @@ def test_hold_refuses_a_period_that_would_let_the_watchdog_expire(sim):
 
 CLI = (
     # An interactive shell's foreground job gets SIGINT with its default action, whatever pytest's is.
-    "import signal; signal.signal(signal.SIGINT, signal.SIG_DFL); "
-    "from softjig.cli import main; main()"
+    "import signal; signal.signal(signal.SIGINT, signal.SIG_DFL); from softjig.cli import main; main()"
 )
 
 

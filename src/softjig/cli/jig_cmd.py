@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 
 from softjig.cli.app import EXIT_BAD_INPUT, app, error, handle_errors
+from softjig.hardware.protocol import HEARTBEAT_PERIOD_S
 
 if TYPE_CHECKING:
     from softjig.hardware.pump import PumpController, PumpStatus
@@ -113,8 +114,8 @@ def hold(
     ] = 10.0,
     period: Annotated[
         float,
-        typer.Option(min=0.01, max=1.0, help="Seconds between heartbeats (STATUS polls)."),
-    ] = 0.5,
+        typer.Option(min=0.01, max=2 * HEARTBEAT_PERIOD_S, help="Seconds between heartbeats (STATUS polls)."),
+    ] = HEARTBEAT_PERIOD_S,
     duration: Annotated[
         float, typer.Option(min=0.0, help="Seconds to hold, then stop (0: until Ctrl-C or SIGTERM).")
     ] = 0.0,
