@@ -79,8 +79,9 @@ class Spewer(SimulatedPumpController):
     def respond(self, request):
         if request != "STATUS":
             return super().respond(request)
+        os.set_blocking(self.fd, False)  # a full line drops bytes: the firmware must hear the next request
         for _ in range(64):
-            if self._stop.is_set() or select.select([self.fd], [], [], 0.0)[0]:
+            if self._stop.is_set() or select.select([self.fd], [], [], 0.001)[0]:
                 return
             self.write(b"X" * 1024)
 
@@ -314,6 +315,40 @@ def test_cli_with_a_port_that_disappears_exits_2_without_a_traceback():
     assert result.exit_code == 2, result.output
     assert "serial error" in result.stderr and "NOT confirmed" in result.stderr
     assert "Traceback" not in result.output
+
+
+def test_a_controller_fault_mid_fix_stops_and_says_so():
+    simulator = start(fix_time_s=60.0)
+    try:
+        threading.Timer(0.5, simulator.set_fault, args=("overcurrent",)).start()
+        result = jig("fix", "--port", simulator.port, "--wait", "30")
+    finally:
+        simulator.stop()
+    assert result.exit_code == 2, result.output
+    assert "reports a fault (overcurrent" in result.stderr and "confirmed its safe state" in result.stderr
+    assert simulator.requests[-1] == "STOP" and simulator.state == "fault"
+
+
+class HalfReplyThenGone(SimulatedPumpController):
+    """Starts answering STATUS once fixing, then the line ends (EOF) mid-reply."""
+
+    def respond(self, request):
+        if request == "STATUS" and self.state == "fixing":
+            self.write(b"OK state=fix")
+            threading.Thread(target=self.disconnect).start()
+            return
+        return super().respond(request)
+
+
+def test_eof_mid_reply_is_a_fault_not_confirmed():
+    simulator = start(HalfReplyThenGone, fix_time_s=60.0)
+    try:
+        result = jig("fix", "--port", simulator.port, "--timeout", "0.5", "--wait", "30")
+    finally:
+        simulator.stop()
+    assert result.exit_code == 2, result.output
+    assert "NOT confirmed" in result.stderr and "Traceback" not in result.output
+    assert "FIX" in simulator.requests
 
 
 # ------------------------------------------------------------------------ watchdog and the heartbeat
