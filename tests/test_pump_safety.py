@@ -62,12 +62,12 @@ def after(requests: list[str], request: str) -> list[str]:
 
 
 class Dribbler(SimulatedPumpController):
-    """Answers STATUS one byte every 50 ms, never a newline, until the next request (4 s at most)."""
+    """Answers STATUS one byte every 50 ms, never a newline, until the next request (8 s at most)."""
 
     def respond(self, request):
         if request != "STATUS":
             return super().respond(request)
-        for _ in range(80):
+        for _ in range(160):
             if self._stop.is_set() or select.select([self.fd], [], [], 0.05)[0]:
                 return
             self.write(b"O")
@@ -93,7 +93,7 @@ def test_a_dribbling_pump_times_out_per_reply_not_per_byte():
             t0 = time.monotonic()
             with pytest.raises(PumpError, match=r"did not answer STATUS within 0.5 s \(only \d+ bytes"):
                 pump.status()
-            assert time.monotonic() - t0 < 1.5  # the old per-byte timeout waited the whole 4 s
+            assert time.monotonic() - t0 < 3.0  # the old per-byte timeout waited the whole 8 s
         wait_until(lambda: "STOP" in simulator.requests, 10.0, "STOP")
     finally:
         simulator.stop()
@@ -106,7 +106,7 @@ def test_a_spewing_pump_is_a_fault_reply_too_long():
             t0 = time.monotonic()
             with pytest.raises(PumpError, match=f"reply too long.*over {MAX_REPLY_BYTES} bytes"):
                 pump.status()
-            assert time.monotonic() - t0 < 2.0  # not the 5 s timeout, nor for ever
+            assert time.monotonic() - t0 < 3.0  # not the 5 s timeout, nor for ever
         wait_until(lambda: "STOP" in simulator.requests, 10.0, "STOP")
     finally:
         simulator.stop()
@@ -366,14 +366,14 @@ def test_without_a_heartbeat_the_watchdog_stops_the_pump_and_the_part_stays_held
 
 
 def test_jig_hold_keeps_the_watchdog_fed_then_stops_with_the_part_held():
-    simulator = start(watchdog_s=0.5)
+    simulator = start(watchdog_s=1.0)
     try:
-        result = jig("hold", "--port", simulator.port, "--period", "0.1", "--duration", "1.5")
+        result = jig("hold", "--port", simulator.port, "--period", "0.1", "--duration", "2.5")
         assert result.exit_code == 0, result.output
         assert result.stdout.startswith("fixed: -60 kPa")
-        assert simulator.watchdog_trips == 0  # 1.5 s held with a 0.5 s watchdog
+        assert simulator.watchdog_trips == 0  # 2.5 s held with a 1 s watchdog
         assert after(simulator.requests, "FIX").count("STATUS") >= 10
-        assert simulator.requests[-2:] == ["STOP", "STATUS"] or simulator.requests[-1] == "STOP"
+        assert simulator.requests[-1] == "STOP"
         assert simulator.state == "safe" and simulator.pressure() == pytest.approx(-60.0)
         assert "confirmed its safe state" in result.stderr
     finally:
