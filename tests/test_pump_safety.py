@@ -450,3 +450,17 @@ def test_sigterm_ends_jig_hold_with_stop_and_exit_0():
     assert out.startswith("fixed: -60 kPa")
     assert "stopped by SIGTERM" in err and "confirmed its safe state" in err and "Traceback" not in err
     assert simulator.requests[-1] == "STOP" and simulator.state == "safe"
+
+
+@pytest.mark.parametrize("option", ["--timeout", "--wait"])
+@pytest.mark.parametrize("value", ["nan", "inf"])
+def test_non_finite_times_are_refused_before_anything_moves(sim, option, value):
+    result = jig("fix", "--port", sim.port, option, value)
+    assert result.exit_code == 2, result.output
+    assert "finite number of seconds" in result.stderr or "Invalid value" in result.output
+    assert "FIX" not in sim.requests
+
+
+def test_hold_with_a_non_finite_duration_is_refused_before_anything_moves(sim):
+    result = jig("hold", "--port", sim.port, "--duration", "nan")
+    assert result.exit_code == 2 and "FIX" not in sim.requests

@@ -117,7 +117,8 @@ def hold(
         typer.Option(min=0.01, max=2 * HEARTBEAT_PERIOD_S, help="Seconds between heartbeats (STATUS polls)."),
     ] = HEARTBEAT_PERIOD_S,
     duration: Annotated[
-        float, typer.Option(min=0.0, help="Seconds to hold, then stop (0: until Ctrl-C or SIGTERM).")
+        float,
+        typer.Option(min=0.0, max=1e7, help="Seconds to hold, then stop (0: until Ctrl-C or SIGTERM)."),
     ] = 0.0,
     json_output: JsonOption = False,
 ) -> None:

@@ -21,6 +21,7 @@ controller, so it holds across processes) and after a fault in this process, unt
 from __future__ import annotations
 
 import contextlib
+import math
 import time
 from collections.abc import Callable
 from typing import Any, NoReturn
@@ -30,6 +31,7 @@ try:
 except ImportError:  # pragma: no cover - Windows
     termios = None  # type: ignore[assignment]
 
+from softjig.errors import InputError
 from softjig.hardware.cycle import Command, CycleEvent, JigCycle
 from softjig.hardware.guard import signals_deferred
 from softjig.hardware.protocol import (
@@ -70,6 +72,15 @@ _PLATFORM_ERRORS: tuple[type[BaseException], ...] = (termios.error,) if termios 
 SAFE_MEANING = "pump off, valve closed: the jig keeps what it holds; `softjig jig release` frees the part"
 
 
+def _seconds(name: str, value: float, *, zero_ok: bool = False) -> float:
+    """``value`` as a finite, positive (or, with ``zero_ok``, non-negative) duration in s; else InputError."""
+    seconds = float(value)
+    if not math.isfinite(seconds) or seconds < 0 or (seconds == 0 and not zero_ok):
+        bound = ">= 0" if zero_ok else "> 0"
+        raise InputError(f"{name} must be a finite number of seconds {bound}, got {value!r}")
+    return seconds
+
+
 class PumpController:
     """The host's side of the line protocol.
 
@@ -96,8 +107,8 @@ class PumpController:
         timeout_s: float = 1.0,
         poll_period_s: float = 0.05,
     ) -> None:
-        self.timeout_s = float(timeout_s)
-        self.poll_period_s = float(poll_period_s)
+        self.timeout_s = _seconds("the reply timeout (--timeout)", timeout_s)
+        self.poll_period_s = _seconds("the poll period", poll_period_s)
         self.fault: str | None = None
         self.safe_confirmed: bool | None = None
         self._stop_problem = ""
@@ -286,7 +297,9 @@ class PumpController:
         the last status after ``duration_s`` (``None``: until interrupted -- by Ctrl-C or SIGTERM, which
         the caller turns into the safe state). Does not ``STOP`` on a normal return: that is the caller's.
         """
-        if period_s <= 0 or period_s > HEARTBEAT_PERIOD_S * 2:
+        if duration_s is not None:
+            _seconds("the hold duration (--duration)", duration_s, zero_ok=True)
+        if not HEARTBEAT_PERIOD_S * 2 >= period_s > 0:
             raise PumpError(
                 f"the heartbeat period must be in (0, {HEARTBEAT_PERIOD_S * 2:g}] s so the controller's "
                 f"watchdog (at least {HEARTBEAT_PERIOD_S * 4:g} s) never expires; got {period_s:g}"
@@ -320,7 +333,7 @@ class PumpController:
         return check
 
     def _wait_for(self, state: str, passing: tuple[str, ...], timeout_s: float) -> PumpStatus:
-        deadline = time.monotonic() + timeout_s
+        deadline = time.monotonic() + _seconds("the wait (--wait)", timeout_s, zero_ok=True)
         while True:
             status = self.status()
             if status.state == state:
