@@ -161,7 +161,10 @@ def release(
 def stop(
     port: PortOption, baud: BaudOption = 115200, timeout: TimeoutOption = 1.0, json_output: JsonOption = False
 ) -> None:
-    """Send the jig to its safe state now (pump off, valve closed: the part stays held); 2 if unconfirmed."""
+    """Send the jig to its safe state now: pump off, valve closed, the part stays held.
+
+    Exits 2 when the controller does not confirm it.
+    """
 
     def action(pump: PumpController) -> None:
         pump.safe()
