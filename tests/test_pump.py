@@ -45,7 +45,7 @@ def test_protocol_lines():
         "pressure_kpa": "-60.5",
         "fault": "none",
     }
-    assert parse_reply("OK softjig-pump 1") == {"0": "softjig-pump", "1": "1"}
+    assert parse_reply("OK softjig-pump 2") == {"0": "softjig-pump", "1": "2"}
     with pytest.raises(PumpError, match="refused to FIX: pressure sensor"):
         parse_reply("ERR pressure sensor", "FIX")
     with pytest.raises(PumpError, match="garbled"):

@@ -464,3 +464,17 @@ def test_non_finite_times_are_refused_before_anything_moves(sim, option, value):
 def test_hold_with_a_non_finite_duration_is_refused_before_anything_moves(sim):
     result = jig("hold", "--port", sim.port, "--duration", "nan")
     assert result.exit_code == 2 and "FIX" not in sim.requests
+
+
+def test_a_version_1_controller_is_refused_it_would_drop_the_part_on_stop():
+    class Version1(SimulatedPumpController):
+        def reply(self, request):
+            return "OK softjig-pump 1" if request == "HELLO" else super().reply(request)
+
+    simulator = start(Version1)
+    try:
+        result = jig("fix", "--port", simulator.port)
+    finally:
+        simulator.stop()
+    assert result.exit_code == 2 and "another protocol version" in result.stderr
+    assert simulator.requests == ["HELLO"]

@@ -1,4 +1,4 @@
-"""The pump controller's line protocol (version 1), as pure functions: request lines and reply parsing.
+"""The pump controller's line protocol (version 2), as pure functions: request lines and reply parsing.
 
 The jig jams by pumping oil *out* of the membrane (the beads pack and hold the part) and softens by
 letting it back in (Sakuma et al., "Design of soft-jig"). A small controller (a microcontroller driving
@@ -44,7 +44,7 @@ The host waits for each reply (the whole line, within its timeout) before sendin
 =============  ===============================================  ============================================
 request        reply                                            effect
 =============  ===============================================  ============================================
-``HELLO``      ``OK softjig-pump 1``                            names the protocol and its version
+``HELLO``      ``OK softjig-pump 2``                            names the protocol and its version
 ``FIX``        ``OK state=fixing``                              pump oil out; ``fixed`` once at set-point
                                                                 (the pump keeps regulating while it hears
                                                                 the host); ``ERR`` in ``safe``/``fault``
@@ -61,6 +61,11 @@ request        reply                                            effect
 
 A refused or failed request is answered ``ERR <text>``. A pressure that is missing or not a finite number
 is a fault (a sensor problem), like a garbled reply.
+
+Version 2 differs from version 1 in meaning, not in syntax: ``STOP`` closes the valve (version 1 opened
+it and the jig softened), the watchdog goes to that same state, ``safe`` and ``fault`` are latched until
+``RELEASE`` (``FIX`` there is ``ERR``), replies are bounded to :data:`MAX_REPLY_BYTES`. A version-1
+controller is refused at ``HELLO``: it would drop the part on a fault.
 """
 
 from __future__ import annotations
@@ -89,7 +94,7 @@ __all__ = [
     "parse_status",
 ]
 
-PROTOCOL_VERSION = 1
+PROTOCOL_VERSION = 2
 PROTOCOL_NAME = "softjig-pump"
 REQUESTS = ("HELLO", "FIX", "RELEASE", "STOP", "STATUS", "PRESSURE")
 #: The controller's states.
