@@ -318,6 +318,7 @@ def simulate_dataset(
     progress: bool = True,
     overwrite: bool = False,
     color: bool = False,
+    first_index: int = 0,
 ) -> Path:
     """Render every spec on an as-built jig drawn from ``seed`` and write a dataset with ground truth.
 
@@ -333,6 +334,9 @@ def simulate_dataset(
     progress : show a progress bar on stderr.
     overwrite : replace an existing dataset in ``out_dir``.
     color : render RGB images instead of gray.
+    first_index : the first spec's number in a longer run (frame ``k`` draws its noise from the seed and
+        ``first_index + k``): the run's frames written in parts (``softjig demo``'s chunks) are the
+        frames of the whole run at once. The dataset still numbers its frames from 0.
 
     Returns
     -------
@@ -378,7 +382,7 @@ def simulate_dataset(
                 f.result()
         advance = stack.enter_context(_progress_bar(progress, len(specs)))
         for index, (left, right, truth_markers) in enumerate(
-            _rendered(as_built, specs, seed, pool, n_workers, color)
+            _rendered(as_built, specs, seed, pool, n_workers, color, int(first_index))
         ):
             spec = specs[index]
             meta = dict(spec.meta)
@@ -396,13 +400,14 @@ def _rendered(
     pool: ProcessPoolExecutor | None,
     n_workers: int,
     color: bool,
+    first_index: int = 0,
 ) -> Iterator[tuple[bytes, bytes, dict[str, np.ndarray]]]:
     """The rendered frames, in order; in a pool, a bounded window of frames is in flight."""
     if pool is None:
-        for index, spec in enumerate(specs):
+        for index, spec in enumerate(specs, start=first_index):
             yield _render_one(as_built, spec, seed, index, color)
         return
-    todo = iter(enumerate(specs))
+    todo = iter(enumerate(specs, start=first_index))
     pending: deque[Future[tuple[bytes, bytes, dict[str, np.ndarray]]]] = deque(
         pool.submit(_render_in_worker, spec, seed, index, color)
         for index, spec in itertools.islice(todo, 8 * n_workers)  # absorbs fsync stalls
