@@ -76,7 +76,7 @@ def test_the_legend_is_drawn_on_the_image(pair, tmp_path):
     result = runner.invoke(app, ["estimate", *args, "--part-diameter", "50", "--overlay", str(out)])
     assert result.exit_code == 0, result.output
     image = cv2.imread(str(out))[:, :, ::-1].astype(int)
-    corner = image[10:200, -340:-10]
+    corner = image[:320, -460:]
     for colour in (overlay.RED, overlay.GREEN, overlay.YELLOW, overlay.CYAN, overlay.MAGENTA):
         assert (np.abs(corner - np.array(colour)).sum(axis=2) < 60).any(), colour
     assert (np.abs(corner - np.array(overlay.WHITE)).sum(axis=2) < 30).sum() > 200  # the labels' text

@@ -772,6 +772,12 @@ def run_experiment(
     )
     if pair_default is not None:
         paths["stereo_pair_default"] = fig_dir / f"stereo_pair_{DEFAULT_METHOD}.png"
+    if not settings.keep_data:  # the example pairs are drawn: the other candidates' images can go
+        used = {k for k, spec in enumerate(specs) if spec.part is None} | {pair_index, pair_default}
+        size = int(settings.chunk_frames)
+        for c, first in enumerate(range(0, len(specs), size)):
+            local = {i - first for i in used if i is not None and first <= i < first + size}
+            delete_frame_files(sweep_root / _chunk_name(c), local)
     lap("figures", t0)
 
     failed = tuple((int(i), e) for i, e in zip(samples.failed_index, samples.failed_errors, strict=True))

@@ -517,6 +517,25 @@ blockquote { border-left: 4px solid #e6a700; margin: .5em 0; padding: .2em .8em;
 """
 
 
+#: Figures wider than this are scaled down (area average) before they are inlined: the page shows them at
+#: most ~1150 px wide, and a full-resolution stereo pair would weigh 3 MB of base64.
+HTML_MAX_WIDTH_PX = 1600
+
+
+def _png_for_html(path: Path) -> bytes:
+    """The PNG of ``path``, scaled down to :data:`HTML_MAX_WIDTH_PX` wide if wider."""
+    import cv2
+
+    data = path.read_bytes()
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    if image is None or image.shape[1] <= HTML_MAX_WIDTH_PX:
+        return data
+    height = round(image.shape[0] * HTML_MAX_WIDTH_PX / image.shape[1])
+    small = cv2.resize(image, (HTML_MAX_WIDTH_PX, height), interpolation=cv2.INTER_AREA)
+    ok, encoded = cv2.imencode(".png", small)
+    return encoded.tobytes() if ok else data
+
+
 def _to_html(blocks: list[_Block], title: str) -> str:
     """A self-contained HTML page: styles inline, every figure a ``data:image/png;base64`` URI."""
     body: list[str] = []
@@ -538,7 +557,7 @@ def _to_html(blocks: list[_Block], title: str) -> str:
             lines.append("</tbody></table>")
             body.append("\n".join(lines))
         elif b.kind == "img" and b.path is not None and Path(b.path).is_file():
-            data = base64.b64encode(Path(b.path).read_bytes()).decode("ascii")
+            data = base64.b64encode(_png_for_html(Path(b.path))).decode("ascii")
             alt = html.escape(b.text, quote=True)
             body.append(f'<figure><img alt="{alt}" src="data:image/png;base64,{data}"></figure>')
     return (

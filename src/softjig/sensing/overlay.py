@@ -127,7 +127,7 @@ def draw_overlay(left: np.ndarray, right: np.ndarray, result: SensingResult, jig
         f"Ax {est.tilt_x_deg:+.2f} deg  Ay {est.tilt_y_deg:+.2f} deg  push {est.push_depth_mm:.2f} mm  "
         f"{est.n_points} pts  rms {est.rms_residual_mm:.3f} mm  frame: {est.frame_source}"
     )
-    _text(canvas_left, text, (10, 24))
+    _text(canvas_left, text, (10, 30), scale=0.8)
     _legend(canvas_right, est.method)
     return np.concatenate([canvas_left, canvas_right], axis=1)
 
@@ -152,8 +152,9 @@ def normal_arrow_px(result: SensingResult, jig: JigConfig) -> tuple[np.ndarray, 
 
 def _text(canvas: np.ndarray, text: str, origin: tuple[int, int], colour=WHITE, scale: float = 0.6) -> None:
     """Text with a dark outline, readable on any background."""
-    cv2.putText(canvas, text, origin, cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0), 3, cv2.LINE_AA)
-    cv2.putText(canvas, text, origin, cv2.FONT_HERSHEY_SIMPLEX, scale, colour, 1, cv2.LINE_AA)
+    thick = max(round(scale / 0.5), 1)
+    cv2.putText(canvas, text, origin, cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0), thick + 2, cv2.LINE_AA)
+    cv2.putText(canvas, text, origin, cv2.FONT_HERSHEY_SIMPLEX, scale, colour, thick, cv2.LINE_AA)
 
 
 def _legend(canvas: np.ndarray, method: str) -> None:
@@ -169,21 +170,38 @@ def _legend(canvas: np.ndarray, method: str) -> None:
         ("line", CYAN, "contact outline" if method == "refractive" else "crop (part's radius)"),
         ("arrow", MAGENTA, f"normal, tilt x{TILT_EXAGGERATION:g}"),
     ]
-    row_px, width_px = 24, 330
-    height_px = row_px * (len(items) + 1) + 8
+    # Sized to the image (1.0 for 720 px high), so it stays readable when the pair is shown scaled down.
+    f = max(canvas.shape[0] / 720.0, 0.5) * 1.3
+    row_px, width_px = round(24 * f), round(330 * f)
+    height_px = row_px * (len(items) + 1) + round(8 * f)
     w = canvas.shape[1]
     x0, y0 = max(w - width_px - 10, 0), 10
     box = canvas[y0 : y0 + height_px, x0 : x0 + width_px]
     box[:] = (box.astype(np.float32) * 0.25).astype(np.uint8)  # darkened, the markers still faintly seen
-    _text(canvas, f"legend ({method} method)", (x0 + 8, y0 + 20), scale=0.55)
+    _text(canvas, f"legend ({method} method)", (x0 + round(8 * f), y0 + round(20 * f)), scale=0.55 * f)
     for k, (kind, colour, label) in enumerate(items, start=1):
-        cy, cx = y0 + 20 + k * row_px - 5, x0 + 20
+        cy, cx = y0 + round((20 + k * 24 - 5) * f), x0 + round(20 * f)
         if kind == "circle":
-            cv2.circle(canvas, (cx, cy), 7, colour, 1, cv2.LINE_AA)
+            cv2.circle(canvas, (cx, cy), round(7 * f), colour, max(round(f), 1), cv2.LINE_AA)
         elif kind == "dot":
-            cv2.circle(canvas, (cx, cy), 3, colour, -1)
+            cv2.circle(canvas, (cx, cy), round(3 * f), colour, -1)
         elif kind == "line":
-            cv2.line(canvas, (cx - 10, cy), (cx + 10, cy), colour, 1, cv2.LINE_AA)
+            cv2.line(
+                canvas,
+                (cx - round(10 * f), cy),
+                (cx + round(10 * f), cy),
+                colour,
+                max(round(f), 1),
+                cv2.LINE_AA,
+            )
         else:
-            cv2.arrowedLine(canvas, (cx - 12, cy), (cx + 14, cy), colour, 3, cv2.LINE_AA, tipLength=0.4)
-        _text(canvas, label, (x0 + 42, cy + 5), scale=0.5)
+            cv2.arrowedLine(
+                canvas,
+                (cx - round(12 * f), cy),
+                (cx + round(14 * f), cy),
+                colour,
+                3,
+                cv2.LINE_AA,
+                tipLength=0.4,
+            )
+        _text(canvas, label, (x0 + round(42 * f), cy + round(5 * f)), scale=0.5 * f)
