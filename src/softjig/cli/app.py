@@ -28,6 +28,7 @@ from __future__ import annotations
 import functools
 import importlib
 import json
+import math
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, NoReturn, TypeVar
@@ -108,10 +109,36 @@ def _plain_flags(params: list) -> list:
     return params
 
 
+def _finite_numbers(command: Any) -> None:
+    """Make ``command`` refuse NaN and inf in every number option or argument (exit 2, naming it).
+
+    Typer and click parse ``nan`` and ``inf`` as floats, and a range (``min=``/``max=``) lets NaN through
+    (every comparison with NaN is false): no command of softjig has a use for them.
+    """
+    inner = command.callback
+    if inner is None or getattr(inner, "_softjig_finite", False):
+        return
+    hints = {p.name: (max(p.opts, key=len) if p.opts else p.name) for p in command.params}
+
+    @functools.wraps(inner)
+    def checked(*args: Any, **kwargs: Any) -> Any:
+        for key, value in kwargs.items():
+            for item in value if isinstance(value, list | tuple) else (value,):
+                if isinstance(item, float) and not math.isfinite(item):
+                    message = f"must be a finite number, got {item}"
+                    raise typer.BadParameter(message, param_hint=hints.get(key))
+        return inner(*args, **kwargs)
+
+    checked._softjig_finite = True  # type: ignore[attr-defined]
+    command.callback = checked
+
+
 def _plain_command(command: Any, ctx: Any) -> Any:
-    """:func:`_plain_flags` on a command, its help option and, for a group, its subcommands."""
+    """:func:`_plain_flags` and :func:`_finite_numbers` on a command, its help option and, for a group,
+    its subcommands."""
     help_option = command.get_help_option(ctx)
     _plain_flags([*command.params, *([help_option] if help_option is not None else [])])
+    _finite_numbers(command)
     for sub in getattr(command, "commands", {}).values():
         _plain_command(sub, ctx)
     return command
@@ -290,18 +317,38 @@ def read_json_file(path: Path, what: str) -> dict:
 
 
 def pose_from_json(data: dict, key: str, path: Path) -> np.ndarray:
-    """A 4x4 pose from ``{key: 4x4}`` or ``{"position_mm": [..], "quaternion_xyzw": [..]}``."""
+    """A 4x4 pose from ``{key: 4x4}`` or ``{"position_mm": [..], "quaternion_xyzw": [..]}``.
+
+    Every number must be finite and a quaternion of unit norm (within 1e-3); whether the matrix is a
+    rigid pose is for the command to check (:func:`softjig.calibration.alignment.check_pose`).
+    """
     import numpy as np
     from scipy.spatial.transform import Rotation
 
+    def numbers(value: Any, shape: tuple[int, ...], what: str) -> np.ndarray:
+        try:
+            array = np.asarray(value, dtype=float)
+        except (TypeError, ValueError):
+            array = np.zeros(0)
+        if array.shape != shape:
+            raise InputError(f"{path}: {what} must be {' x '.join(map(str, shape))} numbers, got {value!r}")
+        if not np.all(np.isfinite(array)):
+            raise InputError(f"{path}: {what} contains NaN or inf")
+        return array
+
     if key in data:
-        T = np.asarray(data[key], dtype=float)
-        if T.shape != (4, 4) or not np.allclose(T[3], [0, 0, 0, 1]):
-            raise InputError(f"{path}: {key} must be a 4x4 homogeneous matrix (mm)")
+        T = numbers(data[key], (4, 4), f"{key} (a 4x4 homogeneous matrix, mm)")
+        if not np.allclose(T[3], [0, 0, 0, 1]):
+            raise InputError(f"{path}: {key} must be a 4x4 homogeneous matrix (mm): its last row is 0 0 0 1")
         return T
     if "position_mm" in data and "quaternion_xyzw" in data:
+        q = numbers(data["quaternion_xyzw"], (4,), "quaternion_xyzw")
+        if abs(float(np.linalg.norm(q)) - 1.0) > 1e-3:
+            raise InputError(
+                f"{path}: quaternion_xyzw must have unit norm (x, y, z, w), got norm {np.linalg.norm(q):.6g}"
+            )
         T = np.eye(4)
-        T[:3, :3] = Rotation.from_quat(np.asarray(data["quaternion_xyzw"], float)).as_matrix()
-        T[:3, 3] = np.asarray(data["position_mm"], float)
+        T[:3, :3] = Rotation.from_quat(q).as_matrix()
+        T[:3, 3] = numbers(data["position_mm"], (3,), "position_mm")
         return T
     raise InputError(f"{path}: give {key} (a 4x4 matrix) or position_mm and quaternion_xyzw (x, y, z, w)")
