@@ -76,6 +76,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "softjig.cli.estimate",
         "Estimate the part's principal normal, tilt angles and push depth from a stereo pair or a dataset.",
     ),
+    "mocap": (
+        "softjig.cli.mocap",
+        "Compare a dataset's normals with motion capture (T_d = inv(T_j) T_o, n_d = R_d z): RMSE, bias.",
+    ),
     "live": (
         "softjig.cli.live",
         "Capture, estimate and publish at camera rate until the replay ends, --max-frames, or Ctrl-C.",
