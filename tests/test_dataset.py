@@ -17,6 +17,7 @@ from softjig.errors import ConfigError, InputError
 from softjig.io import dataset as ds_mod
 from softjig.io.dataset import (
     Dataset,
+    DatasetLineWarning,
     DatasetTruncationWarning,
     DatasetWriter,
     Frame,
@@ -321,14 +322,82 @@ def test_missing_frames_file(tmp_path, jig):
         Dataset.open(tmp_path / "ds")
 
 
-def test_corrupt_line_in_the_middle_is_named(tmp_path, jig):
+@pytest.mark.parametrize("garbage", ["cut", "ascii", "binary"])
+def test_a_garbage_line_in_the_middle_is_skipped_with_a_warning(tmp_path, jig, garbage):
+    written = _write(tmp_path / "ds", jig, 4)
+    path = tmp_path / "ds" / "frames.jsonl"
+    lines = path.read_bytes().splitlines()
+    lines[1] = {"cut": lines[1][:20], "ascii": b"hello world", "binary": b"\xff\xfe\x00garbage"}[garbage]
+    path.write_bytes(b"\n".join(lines) + b"\n")
+    with pytest.warns(DatasetLineWarning, match=r"frames\.jsonl, line 2: not valid JSON") as caught:
+        ds = Dataset.open(tmp_path / "ds")
+    assert not any(isinstance(w.message, DatasetTruncationWarning) for w in caught)
+    assert [frame.index for frame in ds] == [0, 2, 3]
+    assert len(ds.warnings) == 1 and "line 2" in ds.warnings[0]
+    np.testing.assert_array_equal(ds[1].load_left(), written[2][0])
+
+
+def test_several_garbage_lines_are_counted_in_one_warning(tmp_path, jig):
+    _write(tmp_path / "ds", jig, 2)
+    path = tmp_path / "ds" / "frames.jsonl"
+    path.write_text("junk\n" + path.read_text() + "more junk\n{\n" + path.read_text().splitlines()[0][:5])
+    with pytest.warns(DatasetLineWarning) as caught:
+        ds = Dataset.open(tmp_path / "ds")
+    assert len(ds) == 2
+    notes = [str(w.message) for w in caught]
+    assert any("line 1 and 2 more lines" in note for note in notes)
+    assert any("last line is cut short" in note and "line 6" in note for note in notes)
+
+
+def test_a_duplicate_frame_index_is_refused_naming_both_lines(tmp_path, jig):
     _write(tmp_path / "ds", jig, 3)
     path = tmp_path / "ds" / "frames.jsonl"
     lines = path.read_text().splitlines()
-    lines[1] = lines[1][:20]
+    lines[2] = lines[2].replace('"index":2', '"index":1')
     path.write_text("\n".join(lines) + "\n")
-    with pytest.raises(InputError, match=r"frames\.jsonl, line 2: not valid JSON"):
+    with pytest.raises(InputError, match=r"line 3: frame index 1 was already used on line 2"):
         Dataset.open(tmp_path / "ds")
+
+
+@pytest.mark.parametrize(
+    ("key", "value"),
+    [
+        ("left", "../../etc/passwd"),
+        ("right", "/etc/passwd"),
+        ("left", "left/../../outside.png"),
+        ("right", "C:\\Windows\\x.png"),
+        ("left", "..\\..\\x.png"),
+    ],
+)
+def test_paths_leaving_the_dataset_are_refused_naming_the_line(tmp_path, jig, key, value):
+    _write(tmp_path / "ds", jig, 1)
+    line = {"index": 1, "left": "left/000000.png", "right": "right/000000.png", key: value}
+    with open(tmp_path / "ds" / "frames.jsonl", "a") as fh:
+        fh.write(json.dumps(line) + "\n")
+    with pytest.raises(InputError, match=f"line 2: {key} .* is outside the dataset folder"):
+        Dataset.open(tmp_path / "ds")
+
+
+def test_truth_markers_leaving_the_dataset_are_refused(tmp_path, jig):
+    _write(tmp_path / "ds", jig, 1)
+    line = {"index": 1, "left": "left/000000.png", "right": "right/000000.png",
+            "truth": {"markers": "../secret.npz"}}  # fmt: skip
+    with open(tmp_path / "ds" / "frames.jsonl", "a") as fh:
+        fh.write(json.dumps(line) + "\n")
+    with pytest.raises(InputError, match=r"line 2: truth\.markers .* is outside the dataset folder"):
+        Dataset.open(tmp_path / "ds")
+
+
+def test_a_symbolic_link_leading_out_of_the_dataset_is_not_followed(tmp_path, jig):
+    written = _write(tmp_path / "ds", jig, 2)
+    secret = tmp_path / "secret.png"
+    secret.write_bytes(encode_png(written[0][0]))
+    (tmp_path / "ds" / "left" / "000001.png").unlink()
+    (tmp_path / "ds" / "left" / "000001.png").symlink_to(secret)
+    ds = Dataset.open(tmp_path / "ds")
+    with pytest.raises(InputError, match=r"frame 1: left image 'left/000001\.png' is outside the dataset"):
+        ds[1].load_left()
+    np.testing.assert_array_equal(ds[1].load_right(), written[1][1])
 
 
 @pytest.mark.parametrize(

@@ -21,7 +21,12 @@ optionally ``time_s``, and where known ``alpha_deg``, ``theta_deg``, ``part`` (`
 **Crash safety.** :class:`DatasetWriter` writes each image and ``.npz`` atomically
 (:mod:`softjig.io.files`) and appends the frame's line to ``frames.jsonl`` (flush + fsync) only after
 its files exist, so a recorder killed at any moment leaves every completed frame readable. A kill in the
-middle of the append can leave a truncated last line; :meth:`Dataset.open` skips it with a warning.
+middle of the append can leave a truncated last line; :meth:`Dataset.open` skips it with a warning, as it
+does any line that is not JSON. Two frames with one index are refused.
+
+**Paths stay inside.** ``left``, ``right`` and ``truth.markers`` are relative to the folder: an absolute
+path or one climbing out with ``..`` is refused when the dataset is opened, and a path leading out through
+a symbolic link when its file is read.
 
 **Laziness.** :meth:`Dataset.open` reads ``rig.toml`` and checks every line of ``frames.jsonl`` in one
 streaming pass, but keeps only where each frame's line starts (16 bytes per frame): a frame is parsed
@@ -48,7 +53,7 @@ from array import array
 from collections.abc import Generator, Iterator, Mapping
 from dataclasses import dataclass, field
 from functools import lru_cache
-from pathlib import Path
+from pathlib import Path, PurePosixPath, PureWindowsPath
 from typing import TYPE_CHECKING, Any, overload
 
 import cv2
@@ -68,6 +73,7 @@ __all__ = [
     "RIG_NAME",
     "TRUTH_MARKER_FIELDS",
     "Dataset",
+    "DatasetLineWarning",
     "DatasetTruncationWarning",
     "DatasetWriter",
     "Frame",
@@ -99,8 +105,47 @@ PNG_COMPRESSION = 1  # zlib level: lossless either way; 1 is much faster to writ
 _RESERVED_KEYS = ("index", "left", "right")
 
 
-class DatasetTruncationWarning(UserWarning):
+class DatasetLineWarning(UserWarning):
+    """A line of a dataset's ``frames.jsonl`` is not JSON (garbage, a bad edit) and was skipped."""
+
+
+class DatasetTruncationWarning(DatasetLineWarning):
     """A dataset's last ``frames.jsonl`` line was cut short (a recorder killed mid-write) and skipped."""
+
+
+def _member_path(root: Path, relative: str, what: str) -> Path:
+    """``root / relative``, checked to stay inside the dataset folder ``root`` once every ``..`` and
+    symbolic link is resolved: a dataset names only its own files (a ``frames.jsonl`` naming
+    ``../../etc/passwd`` must not make softjig read, or a recorder copy, files from elsewhere).
+
+    Raises
+    ------
+    InputError
+        The path leaves the dataset folder (``what`` names the frame and the key).
+    """
+    path = root / relative
+    try:
+        inside = path.resolve().is_relative_to(root.resolve())
+    except (OSError, RuntimeError):  # a symlink loop
+        inside = False
+    if not inside:
+        raise InputError(
+            f"{what} {relative!r} is outside the dataset folder {root}: a dataset names only files inside "
+            "its folder; copy the file into the dataset and name it relative to the folder"
+        )
+    return path
+
+
+def _check_relative(relative: str, where: str, key: str) -> None:
+    """Refuse, when a dataset is opened, a path that cannot stay inside the folder whatever is on disk:
+    absolute, with a drive, or climbing out with ``..``."""
+    posix, windows = PurePosixPath(relative), PureWindowsPath(relative)
+    parts = windows.parts if "\\" in relative else posix.parts
+    if posix.is_absolute() or windows.drive or windows.root or ".." in parts:
+        raise InputError(
+            f"{where}: {key} {relative!r} is outside the dataset folder: a dataset names only files "
+            "inside its folder, relative to it (like left/000000.png)"
+        )
 
 
 # ------------------------------------------------------------------------------------------ images
@@ -236,16 +281,22 @@ class Frame:
 
     @property
     def left_path(self) -> Path:
-        """Absolute path of the left image."""
-        return self.root / self.left
+        """Path of the left image (checked to be inside the dataset folder, see :meth:`load_left`)."""
+        return _member_path(self.root, self.left, f"frame {self.index}: left image")
 
     @property
     def right_path(self) -> Path:
-        """Absolute path of the right image."""
-        return self.root / self.right
+        """Path of the right image (checked to be inside the dataset folder)."""
+        return _member_path(self.root, self.right, f"frame {self.index}: right image")
 
     def load_left(self) -> np.ndarray:
-        """The left image (see :func:`load_image`)."""
+        """The left image (see :func:`load_image`).
+
+        Raises
+        ------
+        InputError
+            The image is unreadable, or outside the dataset folder (a symbolic link or ``..`` leading out).
+        """
         return load_image(self.left_path)
 
     def load_right(self) -> np.ndarray:
@@ -265,7 +316,7 @@ class Frame:
             raise InputError(
                 f"frame {self.index} of {self.root} has no truth markers: only simulated datasets have them"
             )
-        path = self.root / self.truth.markers
+        path = _member_path(self.root, self.truth.markers, f"frame {self.index}: truth.markers")
         if not path.is_file():
             raise InputError(
                 f"truth file {path} of frame {self.index} does not exist: the dataset is "
@@ -295,6 +346,7 @@ def _frame_from_json(root: Path, obj: Any, where: str) -> Frame:
             raise InputError(
                 f"{where}: {side} must be an image path relative to the dataset, got {obj[side]!r}"
             )
+        _check_relative(obj[side], where, side)
 
     def number(key: str) -> float | None:
         value = obj.get(key)
@@ -365,6 +417,8 @@ def _truth_from_json(obj: Any, where: str) -> FrameTruth | None:
     markers = obj.get("markers")
     if markers is not None and not isinstance(markers, str):
         raise InputError(f"{where}: truth.markers must be a relative path, got {markers!r}")
+    if markers is not None:
+        _check_relative(markers, where, "truth.markers")
     return FrameTruth(
         normal=array("normal", (3,)),
         push_depth_mm=None if push is None else float(push),
@@ -423,9 +477,10 @@ class Dataset:
         Raises
         ------
         InputError
-            Missing folder, missing ``rig.toml`` or ``frames.jsonl``, a corrupt line (named by number).
-            A truncated *last* line (a recorder killed mid-write) is skipped with a
-            :class:`DatasetTruncationWarning` instead.
+            Missing folder, missing ``rig.toml`` or ``frames.jsonl``, a line that is not a valid frame, a
+            frame index used twice, a path outside the folder (each named by its line). A line that is
+            not JSON is skipped with a :class:`DatasetLineWarning` instead (a truncated *last* line, a
+            recorder killed mid-write: :class:`DatasetTruncationWarning`).
         ConfigError
             ``rig.toml`` is invalid (the message names the file and the field).
         """
@@ -504,7 +559,7 @@ class Dataset:
             pos, k = offsets[start], start
             for raw in fh:
                 line_start, pos = pos, pos + len(raw)
-                if not raw.strip():
+                if not raw.strip() or line_start < offsets[k]:  # blank, or a line skipped when opened
                     continue
                 if line_start != offsets[k]:
                     break
@@ -594,11 +649,16 @@ class Dataset:
 def _index_frames(root: Path, frames_path: Path) -> tuple[_LineIndex, list[str]]:
     """Check every line of ``frames.jsonl`` in one streaming pass and keep where each frame starts.
 
-    A line that is not JSON is an error unless it is the last non-blank one (a recorder killed
-    mid-write): that one is skipped with a :class:`DatasetTruncationWarning`."""
+    A line that is not JSON (garbage, a bad edit, the last line of a recorder killed mid-write) is skipped
+    with a :class:`DatasetLineWarning` (:class:`DatasetTruncationWarning` for the last line), so one bad
+    line costs one frame, not the dataset. A JSON line that is not a valid frame, or a frame index seen
+    before, is an error naming the line: those are not accidents of a kill, and guessing which of two
+    frames with one index is meant would give a wrong answer."""
     offsets, line_numbers, size = array("q"), array("q"), 0
     notes: list[str] = []
-    unparsed: tuple[str, Exception] | None = None  # a line that is not JSON: fatal unless the last
+    skipped: list[tuple[str, Exception]] = []  # lines that are not JSON
+    last_skipped = False  # whether the last non-blank line is one of them
+    first_line: dict[int, int] = {}  # frame index -> the line it was first seen on
     pos = 0
     try:
         with open(frames_path, "rb") as fh:
@@ -606,29 +666,43 @@ def _index_frames(root: Path, frames_path: Path) -> tuple[_LineIndex, list[str]]
                 line_start, pos = pos, pos + len(raw)
                 if not raw.strip():
                     continue
-                if unparsed is not None:
-                    where, exc = unparsed
-                    raise InputError(f"{where}: not valid JSON ({exc}); fix or delete that line")
                 where = f"{frames_path}, line {n}"
                 try:
                     obj = json.loads(raw.decode("utf-8"))
                 except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-                    unparsed = (where, exc)
+                    skipped.append((where, exc))
+                    last_skipped = True
                     continue
-                _frame_from_json(root, obj, where)  # checked, then forgotten: parsed again when asked
+                last_skipped = False
+                frame = _frame_from_json(root, obj, where)  # checked, then forgotten: parsed again when asked
+                earlier = first_line.setdefault(frame.index, n)
+                if earlier != n:
+                    raise InputError(
+                        f"{where}: frame index {frame.index} was already used on line {earlier}: every "
+                        "frame needs its own index; fix or delete one of the two lines"
+                    )
                 offsets.append(line_start)
                 line_numbers.append(n)
                 size = pos
     except OSError as exc:
         raise InputError(f"cannot read {frames_path}: {exc}") from None
     index = _LineIndex(frames_path, offsets, line_numbers, size)
-    if unparsed is not None:
-        where, exc = unparsed
+    if last_skipped:
+        where, exc = skipped.pop()
         note = (
             f"{where}: the last line is cut short ({exc}), probably by a recorder killed "
             f"mid-write; skipped it and kept the {len(index)} complete frames"
         )
         warnings.warn(note, DatasetTruncationWarning, stacklevel=3)
+        notes.append(note)
+    if skipped:
+        where, exc = skipped[0]
+        more = f" and {len(skipped) - 1} more lines" if len(skipped) > 1 else ""
+        note = (
+            f"{where}{more}: not valid JSON ({exc}); skipped (fix or delete those lines to keep their "
+            f"frames), kept the {len(index)} valid frames"
+        )
+        warnings.warn(note, DatasetLineWarning, stacklevel=3)
         notes.append(note)
     return index, notes
 
