@@ -136,6 +136,13 @@ def _member_path(root: Path, relative: str, what: str) -> Path:
     return path
 
 
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
 def _check_relative(relative: str, where: str, key: str) -> None:
     """Refuse, when a dataset is opened, a path that cannot stay inside the folder whatever is on disk:
     absolute, with a drive, or climbing out with ``..``."""
@@ -609,6 +616,28 @@ class Dataset:
             f"{self._index.path} changed since the dataset was opened (frame {k}, line "
             f"{self._index.line_numbers[k]} is no longer there): open the dataset again"
         )
+
+    def owns(self, path: str | os.PathLike[str]) -> bool:
+        """Whether ``path`` is one of this dataset's own files: ``rig.toml``, ``frames.jsonl``, the as-built
+        files, anything in ``left/``, ``right/`` or ``truth/``, or a file a frame names. An output must
+        never be written there (``estimate DATASET --out DATASET/frames.jsonl`` would destroy the index).
+        Links are followed: a path that is the same file as one of those is owned too."""
+        target = Path(path).resolve()
+        root = self.root.resolve()
+        if not target.is_relative_to(root):
+            return any(_same_file(target, self.root / name) for name in _DATASET_MEMBERS)
+        relative = target.relative_to(root)
+        if relative.parts and relative.parts[0] in _DATASET_MEMBERS:
+            return True
+        if not target.exists():
+            return False
+        for frame in self:
+            names = [frame.left, frame.right]
+            if frame.truth is not None and frame.truth.markers is not None:
+                names.append(frame.truth.markers)
+            if any(_same_file(target, self.root / name) for name in names):
+                return True
+        return False
 
     @property
     def has_as_built(self) -> bool:
