@@ -483,6 +483,81 @@ def test_refuses_a_non_dataset_folder_even_with_overwrite(tmp_path, jig):
         pass
 
 
+def test_overwrite_refuses_a_folder_of_calibration_photos(tmp_path, jig):
+    photos = tmp_path / "calib"
+    for side in ("left", "right"):
+        (photos / side).mkdir(parents=True)
+        (photos / side / "board-01.png").write_bytes(encode_png(np.zeros((4, 4), np.uint8)))
+    (photos / "rig.toml").write_text("# calibrated by hand\n")
+    before = {p: p.read_bytes() for p in photos.rglob("*") if p.is_file()}
+    with (
+        pytest.raises(InputError, match="not a softjig dataset"),
+        DatasetWriter(photos, jig, overwrite=True),
+    ):
+        pass
+    assert {p: p.read_bytes() for p in photos.rglob("*") if p.is_file()} == before
+
+
+@pytest.mark.parametrize("foreign", ["notes.txt", "left/board-01.png", "truth/x.npz", "photos/a.png"])
+def test_overwrite_refuses_a_dataset_holding_files_softjig_did_not_write(tmp_path, jig, foreign):
+    _write(tmp_path / "ds", jig, 2)
+    (tmp_path / "ds" / foreign).parent.mkdir(exist_ok=True)
+    (tmp_path / "ds" / foreign).write_text("precious")
+    with (
+        pytest.raises(InputError, match=f"holds files softjig did not write \\({foreign.split('/')[0]}"),
+        DatasetWriter(tmp_path / "ds", jig, overwrite=True),
+    ):
+        pass
+    assert (tmp_path / "ds" / foreign).read_text() == "precious" and len(Dataset.open(tmp_path / "ds")) == 2
+
+
+def test_overwrite_is_atomic_the_old_dataset_stays_until_the_new_one_is_complete(tmp_path, jig):
+    old = _write(tmp_path / "ds", jig, 3)
+    (tmp_path / "ds" / "estimates.jsonl").write_text("{}\n")  # softjig's own results: replaced too
+    rng = np.random.default_rng(9)
+    writer = DatasetWriter(tmp_path / "ds", exact_jig(jig), overwrite=True).open()
+    new = _images(rng)
+    writer.add_frame(*new, {})
+    during = Dataset.open(tmp_path / "ds")  # a reader, or a kill now, sees the old dataset whole
+    assert len(during) == 3 and during.jig == jig
+    np.testing.assert_array_equal(during[2].load_left(), old[2][0])
+    staged = Dataset.open(tmp_path / "ds.softjig-new")  # and the new frames so far
+    assert len(staged) == 1
+    writer.close()
+    ds = Dataset.open(tmp_path / "ds")
+    assert len(ds) == 1 and ds.jig == exact_jig(jig) and not ds.has_as_built
+    np.testing.assert_array_equal(ds[0].load_left(), new[0])
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ds"]
+    assert not (tmp_path / "ds" / "estimates.jsonl").exists()
+
+
+def test_a_killed_overwrite_leaves_both_and_the_next_one_is_refused_until_looked_at(tmp_path, jig):
+    _write(tmp_path / "ds", jig, 3)
+    writer = DatasetWriter(tmp_path / "ds", jig, overwrite=True).open()
+    writer.add_frame(*_images(np.random.default_rng(1)), {})
+    writer._frames_fh.close()  # killed: never closed
+    assert len(Dataset.open(tmp_path / "ds")) == 3 and len(Dataset.open(tmp_path / "ds.softjig-new")) == 1
+    with (
+        pytest.raises(InputError, match=r"ds\.softjig-new exists: an earlier overwrite .* did not finish"),
+        DatasetWriter(tmp_path / "ds", jig, overwrite=True),
+    ):
+        pass
+    assert len(Dataset.open(tmp_path / "ds.softjig-new")) == 1
+
+
+@pytest.mark.parametrize(("durable", "kept"), [(False, False), (True, True)])
+def test_an_overwrite_left_by_an_exception_keeps_the_old_dataset(tmp_path, jig, durable, kept):
+    _write(tmp_path / "ds", jig, 3)
+    with (
+        pytest.raises(KeyboardInterrupt),
+        DatasetWriter(tmp_path / "ds", jig, overwrite=True, durable=durable) as w,
+    ):
+        w.add_frame(*_images(np.random.default_rng(1)), {})
+        raise KeyboardInterrupt
+    assert len(Dataset.open(tmp_path / "ds")) == 3
+    assert (tmp_path / "ds.softjig-new").exists() == kept  # a recording's new frames are never deleted
+
+
 def test_writer_rejects_bad_frames(tmp_path, jig):
     rng = np.random.default_rng(0)
     with DatasetWriter(tmp_path / "ds", jig) as writer:

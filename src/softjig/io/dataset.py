@@ -47,6 +47,7 @@ import io
 import json
 import math
 import os
+import re
 import shutil
 import warnings
 from array import array
@@ -61,7 +62,7 @@ import numpy as np
 
 from softjig.config import JigConfig, Part, dumps_jig, load_jig, loads_jig, part_from_dict, save_jig
 from softjig.errors import ConfigError, InputError
-from softjig.io.files import write_bytes_atomic, write_text_atomic
+from softjig.io.files import fsync_folder, write_bytes_atomic, write_text_atomic
 
 if TYPE_CHECKING:
     from softjig.sim.asbuilt import AsBuiltJig
@@ -88,6 +89,38 @@ AS_BUILT_NAME = "as_built.toml"
 AS_BUILT_MARKERS_NAME = "as_built_markers.npz"
 _SUBDIRS = ("left", "right", "truth")
 _DATASET_MEMBERS = (RIG_NAME, FRAMES_NAME, AS_BUILT_NAME, AS_BUILT_MARKERS_NAME, *_SUBDIRS)
+#: Files softjig itself writes into a dataset folder besides the dataset (``estimate``'s default results,
+#: the demo's simulated motion capture): an overwrite may replace them with the dataset.
+WRITTEN_BESIDE = ("estimates.jsonl", "estimates.csv", "mocap.csv")
+#: Where an overwrite writes the new dataset (beside the old one) until it is complete, and where the old
+#: one goes for the moment of the swap: ``<folder><suffix>``.
+STAGING_SUFFIX, RETIRED_SUFFIX = ".softjig-new", ".softjig-old"
+_MEMBER_FILE = {"left": re.compile(r"\d{6,}\.png"), "right": re.compile(r"\d{6,}\.png"),
+                "truth": re.compile(r"\d{6,}\.npz")}  # fmt: skip
+_TEMPORARY = re.compile(r"\..+\.tmp")
+
+
+def _foreign_entries(root: Path) -> list[str]:
+    """What a folder holds that :class:`DatasetWriter` (or softjig beside it) did not write: an overwrite
+    must not delete it. Relative paths, sorted."""
+    foreign = []
+    for entry in sorted(root.iterdir()):
+        name = entry.name
+        if _TEMPORARY.fullmatch(name) and entry.is_file():
+            continue
+        if name in _MEMBER_FILE and entry.is_dir() and not entry.is_symlink():
+            pattern = _MEMBER_FILE[name]
+            foreign += [
+                f"{name}/{sub.name}"
+                for sub in sorted(entry.iterdir())
+                if not (sub.is_file() and (pattern.fullmatch(sub.name) or _TEMPORARY.fullmatch(sub.name)))
+            ]
+        elif name not in (RIG_NAME, FRAMES_NAME, AS_BUILT_NAME, AS_BUILT_MARKERS_NAME, *WRITTEN_BESIDE) or (
+            not entry.is_file() or entry.is_symlink()
+        ):
+            foreign.append(name + ("/" if entry.is_dir() else ""))
+    return foreign
+
 
 #: The arrays of a frame's truth ``.npz`` (each with one row per marker).
 TRUTH_MARKER_FIELDS = (
@@ -775,9 +808,15 @@ class DatasetWriter:
     jig : the NOMINAL jig, written as ``rig.toml``.
     as_built : for simulations, the as-built jig the images come from (``as_built.toml`` and
         ``as_built_markers.npz``, for analysis only).
-    overwrite : replace an existing dataset in ``path``. Without it a non-empty folder is refused; even
-        with it, a non-empty folder that is not a dataset (no ``rig.toml`` nor ``frames.jsonl``) is
-        refused, so a mistyped path never deletes unrelated files.
+    overwrite : replace an existing dataset in ``path``. Without it a non-empty folder is refused. Even
+        with it, only a dataset softjig wrote is replaced: a folder without both ``rig.toml`` and
+        ``frames.jsonl``, or holding anything softjig does not write there (a calibration photo, a note:
+        see :data:`WRITTEN_BESIDE`), is refused, so a mistyped path never deletes unrelated files. The
+        replacement is atomic: the new dataset is written beside the old one (``path`` +
+        :data:`STAGING_SUFFIX`) and swapped in by :meth:`close`; until then, and if the writer is killed,
+        the old dataset stays whole (the new frames written so far stay readable in the staging folder).
+        Left by an exception, a simulation's (``durable=False``) staging folder is deleted, a recording's
+        kept.
     png_compression : zlib level of the PNGs (0-9; all lossless).
     durable : fsync every file and line (a recording survives a power cut); ``False`` keeps the writes
         atomic (a killed writer leaves only complete frames) without the disk waits, for data that can be
@@ -807,55 +846,109 @@ class DatasetWriter:
         self.png_compression = int(png_compression)
         self._next_index = 0
         self._frames_fh: io.BufferedWriter | None = None
+        self._dir = self.root  # where the files go: the staging folder while an overwrite is pending
+        self._replacing = False
 
     # -- lifecycle
     def open(self) -> DatasetWriter:
         """Prepare the folder and write ``rig.toml`` (called by ``with``)."""
         if self._frames_fh is not None:
             return self
-        root = self.root
-        if root.exists() and not root.is_dir():
-            raise InputError(f"{root} exists and is not a folder: choose another output folder")
-        if root.is_dir() and any(root.iterdir()):
-            is_dataset = (root / FRAMES_NAME).exists() or (root / RIG_NAME).exists()
-            if not is_dataset:
+        final = self.root
+        if final.exists() and not final.is_dir():
+            raise InputError(f"{final} exists and is not a folder: choose another output folder")
+        root = final
+        if final.is_dir() and any(final.iterdir()):
+            if not ((final / FRAMES_NAME).is_file() and (final / RIG_NAME).is_file()):
                 raise InputError(
-                    f"{root} is not empty and is not a softjig dataset: choose an empty or new output folder"
+                    f"{final} is not empty and is not a softjig dataset (it lacks {FRAMES_NAME} or "
+                    f"{RIG_NAME}): choose an empty or new output folder"
                 )
             if not self.overwrite:
                 raise InputError(
-                    f"{root} already holds a dataset: choose another output folder or "
+                    f"{final} already holds a dataset: choose another output folder or "
                     "overwrite it (--overwrite, or overwrite=True)"
                 )
-            for name in _DATASET_MEMBERS:
-                member = root / name
-                if member.is_dir():
-                    shutil.rmtree(member)
-                elif member.exists():
-                    member.unlink()
-        root.mkdir(parents=True, exist_ok=True)
-        save_jig(self.jig, root / RIG_NAME)
-        if self.as_built is not None:
-            write_text_atomic(root / AS_BUILT_NAME, dumps_jig(self.as_built.jig))
-            buf = io.BytesIO()
-            np.savez(buf, marker_xy_mm=np.asarray(self.as_built.marker_xy_mm, dtype=float))
-            write_bytes_atomic(root / AS_BUILT_MARKERS_NAME, buf.getvalue())
-        for sub in ("left", "right"):
-            (root / sub).mkdir(exist_ok=True)
-        self._frames_fh = open(root / FRAMES_NAME, "ab")  # noqa: SIM115 - closed in close()
+            foreign = _foreign_entries(final)
+            if foreign:
+                shown = ", ".join(foreign[:5]) + (f" and {len(foreign) - 5} more" if len(foreign) > 5 else "")
+                raise InputError(
+                    f"{final} holds files softjig did not write ({shown}): overwriting would delete them; "
+                    "move them out or choose another output folder"
+                )
+            root = final.with_name(final.name + STAGING_SUFFIX)
+            for other in (root, final.with_name(final.name + RETIRED_SUFFIX)):
+                if other.exists():
+                    raise InputError(
+                        f"{other} exists: an earlier overwrite of {final} did not finish (it may hold "
+                        f"frames recorded then); look at it, then rename or delete it"
+                    )
+            self._replacing = True
+        self._dir = root
+        try:
+            root.mkdir(parents=True, exist_ok=True)
+            save_jig(self.jig, root / RIG_NAME)
+            if self.as_built is not None:
+                write_text_atomic(root / AS_BUILT_NAME, dumps_jig(self.as_built.jig))
+                buf = io.BytesIO()
+                np.savez(buf, marker_xy_mm=np.asarray(self.as_built.marker_xy_mm, dtype=float))
+                write_bytes_atomic(root / AS_BUILT_MARKERS_NAME, buf.getvalue())
+            for sub in ("left", "right"):
+                (root / sub).mkdir(exist_ok=True)
+            self._frames_fh = open(root / FRAMES_NAME, "ab")  # noqa: SIM115 - closed in close()
+        except BaseException:
+            if self._replacing:  # nothing recorded yet: the staging folder goes
+                self._replacing = False
+                shutil.rmtree(root, ignore_errors=True)
+            raise
         return self
 
     def close(self) -> None:
-        """Close ``frames.jsonl`` (called by ``with``)."""
+        """Close ``frames.jsonl`` (called by ``with``); an overwrite is completed here: the new dataset
+        replaces the old one."""
         if self._frames_fh is not None:
             self._frames_fh.close()
             self._frames_fh = None
+        if self._replacing:
+            self._replacing = False
+            self._swap()
+
+    def _swap(self) -> None:
+        """Put the complete new dataset (the staging folder) in place of the old one: two renames, then the
+        old one is deleted. A kill between the renames leaves both, under their suffixed names."""
+        final, staging = self.root, self._dir
+        retired = final.with_name(final.name + RETIRED_SUFFIX)
+        try:
+            os.rename(final, retired)
+            os.rename(staging, final)
+        except OSError as exc:
+            raise InputError(
+                f"cannot replace {final} by the new dataset {staging}: {exc.strerror or exc}; the new "
+                "dataset is complete there"
+            ) from None
+        self._dir = final
+        fsync_folder(final.parent)
+        shutil.rmtree(retired, ignore_errors=True)
+
+    def _abandon(self) -> None:
+        """Left by an exception while overwriting: the old dataset stays; a simulation's staging folder is
+        deleted, a recording's kept (its frames are readable there)."""
+        if self._frames_fh is not None:
+            self._frames_fh.close()
+            self._frames_fh = None
+        if self._replacing:
+            self._replacing = False
+            if not self.durable:
+                shutil.rmtree(self._dir, ignore_errors=True)
 
     def __enter__(self) -> DatasetWriter:
         return self.open()
 
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+    def __exit__(self, exc_type: type[BaseException] | None, *exc: object) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self._abandon()
 
     @property
     def n_frames(self) -> int:
@@ -906,11 +999,11 @@ class DatasetWriter:
         # Files first, the line last: a frame is in frames.jsonl only once its files are complete.
         for side, image in (("left", left), ("right", right)):
             data = image if isinstance(image, bytes) else encode_png(image, compression=self.png_compression)
-            write_bytes_atomic(self.root / side / f"{name}.png", data, durable=self.durable)
+            write_bytes_atomic(self._dir / side / f"{name}.png", data, durable=self.durable)
         if arrays is not None:
             buf = io.BytesIO()
             np.savez(buf, **arrays)
-            write_bytes_atomic(self.root / "truth" / f"{name}.npz", buf.getvalue(), durable=self.durable)
+            write_bytes_atomic(self._dir / "truth" / f"{name}.npz", buf.getvalue(), durable=self.durable)
         self._frames_fh.write(line.encode("utf-8") + b"\n")
         self._frames_fh.flush()
         if self.durable:
