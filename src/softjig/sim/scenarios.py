@@ -42,6 +42,7 @@ import numpy as np
 from softjig.config import CylinderPart, JigConfig, Part, cube, part_to_dict, validate_jig, validate_part
 from softjig.errors import InputError
 from softjig.io.dataset import DatasetWriter, encode_png
+from softjig.io.workers import worker_pool
 from softjig.jig_shape import rest_inner_height_mm
 from softjig.sim.asbuilt import AsBuiltJig, draw_as_built
 from softjig.sim.parts import PartPose, bottom_face_rim, bottom_plane_height_mm
@@ -373,10 +374,8 @@ def simulate_dataset(
         )
         pool = None
         if n_workers > 1:
-            pool = stack.enter_context(
-                ProcessPoolExecutor(max_workers=n_workers, initializer=_init_worker, initargs=(as_built,))
-            )
-            stack.callback(pool.shutdown, wait=True, cancel_futures=True)  # on error: drop the queue
+            # Workers die with this process; an exception (Ctrl-C, SIGTERM) ends them at once (io.workers).
+            pool = stack.enter_context(worker_pool(n_workers, initializer=_init_worker, initargs=(as_built,)))
             # Start every worker before the progress bar's thread exists (workers are forked).
             for f in [pool.submit(_warm_up) for _ in range(n_workers)]:
                 f.result()
