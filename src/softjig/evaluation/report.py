@@ -486,6 +486,7 @@ def _to_markdown(blocks: list[_Block], root: Path) -> str:
     return "\n".join(md)
 
 
+_NUMBER = re.compile(r"^\s*([+-]?\d[\d.]*|n/a)(\s*/\s*[+-]?\d[\d.]*)*(\s*\(\d+ failed\))?\s*$")
 _INLINE = re.compile(r"\*\*(.+?)\*\*|`([^`]+)`")
 
 
@@ -509,8 +510,8 @@ body { font-family: system-ui, -apple-system, "Segoe UI", Helvetica, Arial, sans
 h1 { border-bottom: 2px solid #ddd; padding-bottom: .2em; }
 h2 { border-bottom: 1px solid #eee; padding-bottom: .15em; margin-top: 1.6em; }
 table { border-collapse: collapse; margin: .6em 0 1em; font-size: 0.92em; }
-th, td { border: 1px solid #ccc; padding: .25em .6em; text-align: right; }
-th { background: #f3f3f3; } td:first-child, th:first-child { text-align: left; }
+th, td { border: 1px solid #ccc; padding: .25em .6em; text-align: left; vertical-align: top; }
+th { background: #f3f3f3; } td.num { text-align: right; font-variant-numeric: tabular-nums; }
 code { background: #f4f4f4; padding: 0 .2em; border-radius: 3px; font-size: 0.92em; }
 img { max-width: 100%; border: 1px solid #ddd; margin: .4em 0 1em; }
 blockquote { border-left: 4px solid #e6a700; margin: .5em 0; padding: .2em .8em; background: #fff8e1; }
@@ -553,7 +554,11 @@ def _to_html(blocks: list[_Block], title: str) -> str:
             head = "".join(f"<th>{_html_text(str(h))}</th>" for h in header)
             lines = ["<table>", f"<thead><tr>{head}</tr></thead>", "<tbody>"]
             for row in rows:
-                lines.append("<tr>" + "".join(f"<td>{_html_text(str(v))}</td>" for v in row) + "</tr>")
+                cells = "".join(
+                    f'<td class="{"num" if _NUMBER.match(str(v)) else "text"}">{_html_text(str(v))}</td>'
+                    for v in row
+                )
+                lines.append(f"<tr>{cells}</tr>")
             lines.append("</tbody></table>")
             body.append("\n".join(lines))
         elif b.kind == "img" and b.path is not None and Path(b.path).is_file():
