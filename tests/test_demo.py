@@ -218,3 +218,59 @@ def test_report_text_is_escaped_in_html():
     assert _html_text("a <b> & **bold `x<y>`** `c&d`") == (
         "a &lt;b&gt; &amp; <strong>bold <code>x&lt;y&gt;</code></strong> <code>c&amp;d</code>"
     )
+
+
+_RUN_SCRIPT = """
+import sys
+from softjig.evaluation.experiment import ExperimentSettings, run_experiment
+settings = ExperimentSettings(
+    out_dir=sys.argv[1], seed=3, diameters_mm=(50.0,), alphas_deg=(10.0,), theta_step_deg=120.0,
+    cube_frames=0, split="none", workers=2, progress=False, chunk_frames=1,
+)
+try:
+    run_experiment(settings, on_stage=lambda text: print(text, flush=True))
+except KeyboardInterrupt:
+    sys.exit(130)
+"""
+
+
+def test_ctrl_c_of_a_real_process_then_the_same_run_resumes(tmp_path):
+    """SIGINT to a run (workers and all) once its first chunk is done: it stops, and the same settings
+    then continue from the chunks it finished."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "run"
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
+    proc = subprocess.Popen([sys.executable, "-c", _RUN_SCRIPT, str(out)], env=env, stdout=subprocess.PIPE)
+    deadline = time.monotonic() + 120
+    try:
+        while time.monotonic() < deadline:
+            if (out / "manifest.json").is_file() and _manifest(out)["chunks"]:
+                break
+            time.sleep(0.05)
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=30) == 130
+    finally:
+        proc.kill()
+    done = _manifest(out)["chunks"]
+    assert done and _manifest(out)["status"] == "running"
+    settings = ExperimentSettings(
+        out_dir=out,
+        seed=3,
+        diameters_mm=(50.0,),
+        alphas_deg=(10.0,),
+        theta_step_deg=120.0,
+        cube_frames=0,
+        split="none",
+        workers=1,
+        progress=False,
+        chunk_frames=1,
+    )
+    result = experiment.run_experiment(settings)
+    assert result.resumed and result.chunks_now == 4 - len(done)
+    after = _manifest(out)["chunks"]
+    assert all(after[key]["run"] == 1 for key in done) and len(after) == 4
