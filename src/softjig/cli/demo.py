@@ -149,9 +149,10 @@ def demo(
         kept = (
             "all kept (--keep-data)"
             if settings.keep_data
-            else "the images deleted once estimated; --keep-data keeps them"
+            else "the images deleted once estimated (--keep-data keeps them)"
         )
         console.print(
-            f"disk: {out} holds {result.disk.files} files, {result.disk.mb:.1f} MB (measured); rendered "
-            f"{rendered.files if rendered else 0} files, {rendered.mb if rendered else 0.0:.1f} MB, {kept}"
+            f"disk: {out} holds {result.disk.files} files, {result.disk.mb:.1f} MB (measured); the frames "
+            f"rendered took {rendered.files if rendered else 0} files, "
+            f"{rendered.mb if rendered else 0.0:.1f} MB, {kept}"
         )
