@@ -249,6 +249,18 @@ def test_fix_and_release_drive_the_pump(service):
     assert health["health"]["status"] in ("ok", "no_estimate") and health["health"]["frames"]["processed"] > 0
 
 
+def test_a_fixed_jig_is_kept_fixed_by_the_heartbeat_between_requests(service):
+    """The controller's watchdog (2 s in the simulator) stops a pump nobody talks to; the service's
+    heartbeat keeps it regulating while the jig holds, until release."""
+    client, sim = service["client"], service["sim"]
+    assert client.ask({"op": "fix"})["pump"]["state"] == "fixed"
+    time.sleep(3.0)  # longer than the watchdog, no request meanwhile
+    health = client.ask({"op": "health"})
+    assert health["pump"]["state"] == "fixed" and health["pump"]["holding"], health["pump"]
+    assert sim.watchdog_trips == 0
+    assert client.ask({"op": "release"})["pump"]["state"] == "released"
+
+
 @pytest.mark.parametrize(
     ("payload", "message"),
     [

@@ -116,7 +116,13 @@ class ServeSettings:
 
 class PumpAdapter:
     """The service's only contact with :mod:`softjig.hardware.pump` (one place to adjust if its API
-    changes): fix, release, status, safe state.
+    changes): fix, release, status, the safe state, and the heartbeat while the jig holds.
+
+    After ``fix`` a background thread polls ``STATUS`` every
+    :data:`~softjig.hardware.protocol.HEARTBEAT_PERIOD_S` (as ``softjig jig hold`` does), so the
+    controller's watchdog stays fed while the jig holds the part between requests; a fault it meets sends
+    the controller to its safe state (the driver does) and is reported by ``health``. One lock serialises
+    the serial line between the requests and the heartbeat.
 
     Parameters
     ----------
@@ -129,23 +135,59 @@ class PumpAdapter:
 
         self.timeout_s = float(timeout_s)
         self._pump = PumpController(port)
+        self._lock = threading.Lock()
+        self._holding = threading.Event()
+        self._closed = threading.Event()
+        self.heartbeat_error: str | None = None
+        self._heart = threading.Thread(target=self._heartbeat, name="softjig-pump-heartbeat", daemon=True)
+        self._heart.start()
+
+    def _heartbeat(self) -> None:
+        from softjig.hardware.protocol import HEARTBEAT_PERIOD_S
+
+        while not self._closed.wait(HEARTBEAT_PERIOD_S):
+            if not self._holding.is_set():
+                continue
+            with self._lock:
+                if not self._holding.is_set():
+                    continue
+                try:
+                    status = self._pump.status()
+                except SoftjigError as exc:
+                    self.heartbeat_error = str(exc)
+                    self._holding.clear()
+                    continue
+                if status.state != "fixed":
+                    self.heartbeat_error = f"the jig left 'fixed' while holding (state {status.state})"
+                    self._holding.clear()
 
     def fix(self) -> dict[str, Any]:
-        return self._pump.fix(wait=True, timeout_s=self.timeout_s).to_dict()
+        with self._lock:
+            status = self._pump.fix(wait=True, timeout_s=self.timeout_s).to_dict()
+            self.heartbeat_error = None
+            self._holding.set()
+            return status
 
     def release(self) -> dict[str, Any]:
-        return self._pump.release(wait=True, timeout_s=self.timeout_s).to_dict()
+        with self._lock:
+            self._holding.clear()
+            return self._pump.release(wait=True, timeout_s=self.timeout_s).to_dict()
 
     def status(self) -> dict[str, Any]:
-        return self._pump.status().to_dict()
+        with self._lock:
+            status = self._pump.status().to_dict()
+        return {**status, "holding": self._holding.is_set(), "heartbeat_error": self.heartbeat_error}
 
     def safe(self) -> None:
-        """The safe state (pump off, valve open), best effort: the way out of every exit."""
-        with contextlib.suppress(Exception):
+        """The safe state (``STOP``), best effort: the way out of every exit."""
+        self._holding.clear()
+        with self._lock, contextlib.suppress(Exception):
             self._pump.safe()
 
     def close(self) -> None:
+        self._closed.set()
         self.safe()
+        self._heart.join(timeout=5.0)
         self._pump.close()
 
 
