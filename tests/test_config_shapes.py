@@ -448,7 +448,7 @@ def parts(draw):
         return RegularPolygonPart(draw(st.integers(3, 64)), draw(size), draw(size))
     n = draw(st.integers(3, 16))
     angle = np.sort(np.array(draw(st.lists(st.floats(0, 2 * np.pi), min_size=n, max_size=n, unique=True))))
-    angle = angle[np.concatenate([[True], np.diff(angle) > 0.05])]
+    angle = angle[np.concatenate([[True], np.diff(angle) > 0.05]) & (angle < 2 * np.pi - 0.05)]
     if len(angle) < 3 or np.max(np.diff(np.concatenate([angle, [angle[0] + 2 * np.pi]]))) >= np.pi - 0.05:
         angle = np.array([0.0, 2.0, 4.0])
     radius = draw(size)

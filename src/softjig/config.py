@@ -559,7 +559,7 @@ def _validate_convex(vertices: tuple[Vec2, ...], where: str) -> None:
     length = np.hypot(edge[:, 0], edge[:, 1])
     scale = float(length.max())
     for k in np.flatnonzero(length <= 1e-9 * max(scale, 1.0)):
-        _fail(f"{where}[{k}]", f"repeats the next corner {tuple(v[(k + 1) % len(v)])}: remove it")
+        _fail(f"{where}[{k}]", f"repeats the next corner {tuple(map(float, v[(k + 1) % len(v)]))}: remove it")
     area = _signed_area(v)
     if abs(area) <= 1e-12 * scale**2:
         _fail(where, "the corners enclose no area")
