@@ -1069,3 +1069,93 @@ def save_jig(jig: JigConfig, path: str | os.PathLike[str]) -> None:
     """Write a jig as TOML, atomically."""
     validate_jig(jig)
     write_text_atomic(path, dumps_jig(jig))
+
+
+# ------------------------------------------------------------------------------------ marker CSV files
+
+MARKER_CSV_COLUMNS = ("x_mm", "y_mm", "z_mm")
+
+
+def load_marker_csv(path: str | os.PathLike[str]) -> tuple[tuple[Vec2, ...], tuple[float, ...]]:
+    """Marker centres from a CSV file with a header ``x_mm,y_mm`` or ``x_mm,y_mm,z_mm`` (J, mm; ``z_mm``
+    a measured inner-face height, as ``softjig survey --markers-csv`` writes).
+
+    Returns
+    -------
+    centers, z
+        For :class:`MarkerConfig`'s ``centers_mm`` and ``centers_z_mm`` (``z`` empty without the column).
+
+    Raises
+    ------
+    InputError
+        A missing or unreadable file, another header, a value that is not a finite number (naming the
+        line).
+    """
+    import csv
+
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except FileNotFoundError:
+        raise InputError(f"marker file {path} does not exist") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"cannot read marker file {path}: {exc}") from None
+    rows = [row for row in csv.reader(text.splitlines()) if row and any(c.strip() for c in row)]
+    if not rows:
+        raise InputError(f"{path} is empty: give a header x_mm,y_mm (optionally z_mm) and one marker a line")
+    header = tuple(c.strip() for c in rows[0])
+    if header not in (MARKER_CSV_COLUMNS[:2], MARKER_CSV_COLUMNS):
+        raise InputError(f"{path}: the header must be x_mm,y_mm or x_mm,y_mm,z_mm, got {','.join(header)}")
+    values = []
+    for line, row in enumerate(rows[1:], start=2):
+        if len(row) != len(header):
+            raise InputError(f"{path}, line {line}: {len(row)} values for the {len(header)} columns")
+        try:
+            numbers = [float(c) for c in row]
+        except ValueError:
+            raise InputError(f"{path}, line {line}: not numbers: {','.join(row)}") from None
+        if not all(math.isfinite(v) for v in numbers):
+            raise InputError(f"{path}, line {line}: values must be finite, got {','.join(row)}")
+        values.append(numbers)
+    if not values:
+        raise InputError(f"{path} has a header but no markers")
+    centers = tuple((v[0], v[1]) for v in values)
+    z = tuple(v[2] for v in values) if len(header) == 3 else ()
+    return centers, z
+
+
+def marker_csv_text(xy_mm: np.ndarray, z_mm: np.ndarray | None = None) -> str:
+    """The CSV text of marker centres (and heights), as :func:`load_marker_csv` reads it (``repr``
+    precision: the round trip is exact)."""
+    xy = np.asarray(xy_mm, dtype=float).reshape(-1, 2)
+    columns = MARKER_CSV_COLUMNS if z_mm is not None else MARKER_CSV_COLUMNS[:2]
+    lines = [",".join(columns)]
+    for k, (x, y) in enumerate(xy):
+        row = [repr(float(x)), repr(float(y))]
+        if z_mm is not None:
+            row.append(repr(float(np.asarray(z_mm, dtype=float)[k])))
+        lines.append(",".join(row))
+    return "\n".join(lines) + "\n"
+
+
+def with_explicit_markers(jig: JigConfig, centers: Any, z: Any = ()) -> JigConfig:
+    """``jig`` with an explicit marker layout at ``centers`` (``(N, 2)``, J, mm) and optional measured
+    heights ``z`` (``(N,)``); ``markers.pitch_mm`` becomes the centres' median nearest-neighbour distance
+    (rounded to 1 um), the other marker fields are kept. Validated (ConfigError naming the field)."""
+    xy = np.asarray(centers, dtype=float).reshape(-1, 2)
+    pitch = jig.markers.pitch_mm
+    if len(xy) >= 2:
+        from scipy.spatial import cKDTree
+
+        distance = cKDTree(xy).query(xy, k=2)[0][:, 1]
+        pitch = round(float(np.median(distance)), 3) or pitch
+    markers = replace(
+        jig.markers,
+        layout="explicit",
+        pitch_mm=pitch,
+        rotation_deg=0.0,
+        offset_mm=(0.0, 0.0),
+        centers_mm=tuple((float(a), float(b)) for a, b in xy),
+        centers_z_mm=tuple(float(v) for v in np.asarray(z, dtype=float).ravel()),
+    )
+    return jig.replace(markers=markers)
