@@ -12,6 +12,7 @@ from softjig.cli import (  # noqa: F401 - importing a command's module registers
     jig_cmd,
     live,
     simulate,
+    survey,
     sweep_plan,
 )
 from softjig.cli.app import EXIT_BAD_INPUT, EXIT_NO_ESTIMATE, EXIT_OK, app, error, handle_errors, warn
