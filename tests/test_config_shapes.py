@@ -462,3 +462,28 @@ def test_part_dict_round_trip_is_exact(part):
     import json
 
     assert part_from_dict(json.loads(json.dumps(part_to_dict(part)))) == part
+
+
+def test_dataset_with_a_non_convex_part_exits_2(tmp_path):
+    import json
+
+    from typer.testing import CliRunner
+
+    from softjig.cli import app
+    from softjig.sim.scenarios import FrameSpec, simulate_dataset
+
+    out = tmp_path / "ds"
+    simulate_dataset(
+        out, [FrameSpec(None, None, {"reference": True})], JIG, seed=0, workers=1, progress=False
+    )
+    frames = out / "frames.jsonl"
+    first = json.loads(frames.read_text().splitlines()[0])
+    bad = {
+        **{k: first[k] for k in ("left", "right")},
+        "index": 1,
+        "part": {"kind": "convex", "vertices_mm": [[-20, -20], [20, -20], [0, -5], [20, 20], [-20, 20]]},
+    }
+    frames.write_text(frames.read_text() + json.dumps(bad) + "\n")
+    result = CliRunner().invoke(app, ["estimate", str(out), "--out", str(tmp_path / "est.jsonl")])
+    assert result.exit_code == 2, result.output
+    assert "part.vertices_mm[2]" in result.output and "not convex" in result.output
