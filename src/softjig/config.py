@@ -723,14 +723,18 @@ def validate_jig(jig: JigConfig) -> None:
 
 
 MAX_IMAGE_SIDE_PX = 8192
-MAX_IMAGE_PIXELS = 1 << 24  # 16.8 Mpx: ~0.6 GB for one rendered frame (3.1 GB measured at 92 Mpx)
+MAX_IMAGE_PIXELS = 4096 * 3072  # 12.6 Mpx: the 12 Mpx machine-vision sensors (4096 x 3000, 4000 x 3000)
 
 
 def _validate_resolution(stereo: StereoConfig) -> None:
-    """Image sizes a frame's buffers fit in memory for: at most :data:`MAX_IMAGE_SIDE_PX` a side and
-    :data:`MAX_IMAGE_PIXELS` in all. Rendering and estimating take about 34 bytes per pixel (3.1 GB
-    measured for one 12800 x 7200 frame), so the cap keeps one frame under 0.6 GB, and two workers
-    under half of a small 4 GB machine; 16 Mpx covers the 12 and 16 Mpx machine-vision sensors."""
+    """Image sizes whose buffers fit in memory: at most :data:`MAX_IMAGE_SIDE_PX` a side and
+    :data:`MAX_IMAGE_PIXELS` in all.
+
+    Rendering then estimating one pair peaked at 260 MB for 1280 x 720, 408 MB for 2560 x 1440 and
+    824 MB for 3840 x 2160 (process peak RSS, measured with ``/usr/bin/time``; about 90 bytes per pixel
+    at the top), so the cap keeps one process near 1.3 GB, and two simulation workers within a 4 GB
+    machine; 12800 x 7200 px took 3.1 GB and 200000 x 200000 px could not be allocated at all.
+    """
     for side in ("left", "right"):
         cam = getattr(stereo, side)
         for name in ("width_px", "height_px"):
@@ -746,8 +750,8 @@ def _validate_resolution(stereo: StereoConfig) -> None:
                 f"cameras.{side}.width_px",
                 f"{cam.width_px} x {cam.height_px} px ({cam.width_px * cam.height_px / 1e6:.1f} Mpx) is "
                 "above "
-                f"the {MAX_IMAGE_PIXELS / 1e6:.1f} Mpx softjig handles (about 34 bytes per pixel to "
-                "render or estimate one frame): bin or crop the images",
+                f"the {MAX_IMAGE_PIXELS / 1e6:.1f} Mpx softjig handles (about 90 bytes per pixel to "
+                "render or estimate one pair): bin or crop the images",
             )
 
 
