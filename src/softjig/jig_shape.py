@@ -35,14 +35,7 @@ def _profile(m: MembraneConfig, r_mm: np.ndarray) -> tuple[np.ndarray, np.ndarra
         with np.errstate(divide="ignore", invalid="ignore"):
             dh = -2.0 * H * k * s * np.where(inside, base, 1.0) ** (k - 1) / R
     else:
-        from scipy.interpolate import PchipInterpolator
-
-        r = np.asarray(m.profile_r_mm, dtype=float)
-        hh = np.asarray(m.profile_h_mm, dtype=float)
-        if r[-1] < R:
-            r, hh = np.append(r, R), np.append(hh, 0.0)
-        # Mirrored about the axis: the axis is then a maximum, where PCHIP's slope is 0 (a flat top).
-        spline = PchipInterpolator(np.concatenate([-r[:0:-1], r]), np.concatenate([hh[:0:-1], hh]))
+        spline = m.table_spline
         rr = np.minimum(r_mm, R)
         h = np.where(inside, spline(rr), 0.0)
         dh = spline(rr, 1)
