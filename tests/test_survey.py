@@ -238,3 +238,34 @@ def test_surveyed_layout_with_an_other_grid():
     survey = survey_markers(points, jig, smooth=False)
     assert np.allclose(survey.offset_mm, [0.1, -0.1, 0.0], atol=1e-6)
     assert survey.summary()["lateral_max_mm"] == pytest.approx(math.hypot(0.1, 0.1))
+
+
+def test_survey_measures_a_dome_built_off_its_drawing(tmp_path):
+    """The jig was built with a rounder dome (power 3) than its rig says (power 4), on a rotated hex
+    grid: the survey refuses to take 3 mm of departure for granted, then, told so, measures the dome."""
+    drawn = default_jig().replace(
+        markers=replace(default_jig().markers, layout="hex", rotation_deg=15.0, offset_mm=(2.0, -3.0))
+    )
+    built = drawn.replace(membrane=replace(drawn.membrane, dome_exponent=3.0))
+    out = tmp_path / "ds"
+    simulate_dataset(
+        out, [FrameSpec(None, None, {"reference": True})], built, seed=4, workers=1, progress=False
+    )
+    (out / "rig.toml").write_text(dumps_jig(drawn))  # the user's rig: the drawing
+    surveyed = tmp_path / "s.toml"
+    result = runner.invoke(app, ["survey", str(out), "--out", str(surveyed)])
+    assert result.exit_code == 2 and "--max-deviation" in result.output
+    result = runner.invoke(app, ["survey", str(out), "--out", str(surveyed), "--max-deviation", "4"])
+    assert result.exit_code == 0, result.output
+    jig = load_jig(surveyed)
+    r = np.linspace(0.0, 80.0, 17)
+    truth = rest_profile_mm(built, r)[0]
+    measured_error = np.abs(rest_profile_mm(jig, r)[0] - truth)
+    drawn_error = np.abs(rest_profile_mm(drawn, r)[0] - truth)
+    assert drawn_error.max() > 3.0 and measured_error.max() < 0.6
+    # and at the markers, the surveyed rest shape is the built one within the noise
+    markers = rest_marker_points_mm(jig)
+    from softjig.jig_shape import rest_inner_height_mm
+
+    dz = markers[:, 2] - rest_inner_height_mm(built, *markers[:, :2].T)
+    assert np.percentile(np.abs(dz - np.median(dz)), 95) < 0.4
