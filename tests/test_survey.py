@@ -269,3 +269,25 @@ def test_survey_measures_a_dome_built_off_its_drawing(tmp_path):
 
     dz = markers[:, 2] - rest_inner_height_mm(built, *markers[:, :2].T)
     assert np.percentile(np.abs(dz - np.median(dz)), 95) < 0.4
+
+
+def test_several_unloaded_frames_are_combined():
+    frames = [_rest_points(noise_mm=0.2, seed=s) for s in range(4)]
+    truth_xy = rest_marker_points_mm(JIG)[:, :2]
+    single = survey_markers(frames[0], JIG, smooth=False)
+    several = survey_markers(frames, JIG, smooth=False)
+    assert several.n_frames == 4 and several.summary()["frames"] == 4
+    from softjig.jig_shape import rest_inner_height_mm
+
+    err_one = np.std(
+        single.measured_xyz_mm[:, 2] - rest_inner_height_mm(JIG, *single.measured_xyz_mm[:, :2].T)
+    )
+    err_four = np.std(
+        several.measured_xyz_mm[:, 2] - rest_inner_height_mm(JIG, *several.measured_xyz_mm[:, :2].T)
+    )
+    assert err_four < 0.7 * err_one
+    assert np.array_equal(several.nominal_index, np.arange(len(truth_xy)))
+    dented = [frames[0], frames[1].copy()]
+    dented[1][np.hypot(*dented[1][:, :2].T) < 25, 2] -= 3.0
+    with pytest.raises(InputError, match="frame 2 of 2: this frame is loaded"):
+        survey_markers(dented, JIG)

@@ -68,8 +68,9 @@ def survey_cmd(
     inputs: Annotated[
         list[Path],
         typer.Argument(
-            help='A dataset folder (its frame marked "reference": true is surveyed), or the LEFT and '
-            "RIGHT images of one pair of the unloaded jig (then --config is required)."
+            help='A dataset folder (its frames marked "reference": true are surveyed; several are '
+            "combined, each marker at its median position), or the LEFT and RIGHT images of one pair of "
+            "the unloaded jig (then --config is required)."
         ),
     ],
     out: Annotated[Path, typer.Option(help="Where to write the surveyed rig's TOML.")],
@@ -131,15 +132,14 @@ def survey_cmd(
                 "jig; record a pair with no part pressed and survey it (softjig survey LEFT RIGHT --config "
                 "RIG.toml --out RIG.toml)"
             )
-        frame = frames[0]
-        left, right = frame.load_left(), frame.load_right()
-        source = f"{root}, frame {frame.index}"
+        pairs = [(f.load_left(), f.load_right()) for f in frames]
+        source = f"{root}, frame{'s' if len(frames) > 1 else ''} {', '.join(str(f.index) for f in frames)}"
     elif len(inputs) == 2:
         if config is None:
             raise InputError("surveying a pair needs the nominal rig: pass --config RIG.toml")
         nominal = load_config(config)
         rig_sources = [config]
-        left, right = load_image(inputs[0]), load_image(inputs[1])
+        pairs = [(load_image(inputs[0]), load_image(inputs[1]))]
         source = f"{inputs[0]} + {inputs[1]}"
     else:
         raise InputError(
@@ -150,7 +150,7 @@ def survey_cmd(
     if markers_csv is not None:
         _check_out(markers_csv, [*rig_sources, out], overwrite, "--markers-csv")
     survey = survey_markers(
-        reference_from_pair(left, right, nominal),
+        [reference_from_pair(left, right, nominal) for left, right in pairs],
         nominal,
         fit_profile=not keep_profile,
         smooth=not raw_heights,

@@ -29,6 +29,7 @@ departures up to a stated depth as the jig's own.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -80,8 +81,9 @@ class Survey:
     nominal_xyz_mm : (K, 3) the same markers in the nominal rig (its rest-shape reference).
     nominal_index : (K,) each surveyed marker's index in the nominal layout.
     n_nominal : markers in the nominal layout.
-    n_unmatched : triangulated points with no nominal marker within half a pitch (left out).
-    dent : the loaded-frame check.
+    n_unmatched : triangulated points with no nominal marker within half a pitch (left out), in all.
+    dent : the loaded-frame check (of the first frame).
+    n_frames : how many unloaded frames were combined.
     """
 
     jig: JigConfig
@@ -91,6 +93,7 @@ class Survey:
     n_nominal: int
     n_unmatched: int
     dent: DentCheck
+    n_frames: int = 1
 
     @property
     def offset_mm(self) -> np.ndarray:
@@ -115,6 +118,7 @@ class Survey:
             "offset_median_mm": float(np.median(total)),
             "offset_max_mm": float(total.max()),
             "noise_mm": self.dent.sigma_mm,
+            "frames": self.n_frames,
         }
 
     def to_dict(self) -> dict:
@@ -233,8 +237,25 @@ def _profile_table(points_J: np.ndarray, jig: JigConfig) -> tuple[tuple[float, .
     return tuple(float(v) for v in np.array(radii)[keep]), tuple(float(max(v, 0.0)) for v in fitted[keep])
 
 
+def _matched(points_J: np.ndarray, nominal: JigConfig, nominal_xyz: np.ndarray, where: str):
+    """A frame's finite points matched to the nominal markers: (points, nominal indices, unmatched)."""
+    points = np.asarray(points_J, dtype=float).reshape(-1, 3)
+    points = points[np.all(np.isfinite(points), axis=1)]
+    ids = identify_markers(
+        points, ReferenceMarkers(nominal_xyz, "rest shape"), max_lateral_mm=nominal.markers.pitch_mm / 2.0
+    ).ids
+    known = ids >= 0
+    if known.sum() < max(nominal.sensing.min_points, MIN_DENT_MARKERS + 3):
+        raise InputError(
+            f"{where}only {int(known.sum())} triangulated markers lie within half a pitch of a nominal "
+            "marker: is this a pair of the unloaded jig, and the right rig.toml?"
+        )
+    order = np.argsort(ids[known], kind="stable")
+    return points[known][order], ids[known][order], int((~known).sum())
+
+
 def survey_markers(
-    reference: ReferenceMarkers | np.ndarray,
+    reference: ReferenceMarkers | np.ndarray | Sequence[ReferenceMarkers | np.ndarray],
     nominal: JigConfig,
     *,
     fit_profile: bool = True,
@@ -246,7 +267,9 @@ def survey_markers(
     Parameters
     ----------
     reference : the unloaded jig's triangulated markers in J (mm), ``(M, 3)`` or a
-        :class:`ReferenceMarkers` (e.g. from :func:`softjig.sensing.pipeline.reference_from_pair`).
+        :class:`ReferenceMarkers` (e.g. from :func:`softjig.sensing.pipeline.reference_from_pair`), or a
+        list of them (several unloaded frames: each marker is the median of its positions in the frames
+        that saw it).
     nominal : the rig as configured.
     fit_profile : also replace the dome by a measured ``(r, h)`` table (``membrane.dome_profile =
         "table"``); otherwise keep the nominal profile (used where no surveyed marker is).
@@ -265,31 +288,34 @@ def survey_markers(
         A loaded frame (a part pressed in: see the module docstring), or fewer matched markers than
         ``sensing.min_points``.
     """
-    points = np.asarray(getattr(reference, "xyz_mm", reference), dtype=float).reshape(-1, 3)
-    points = points[np.all(np.isfinite(points), axis=1)]
+    frames = list(reference) if isinstance(reference, list | tuple) else [reference]
+    if not frames:
+        raise InputError("a survey needs at least one frame of the unloaded jig")
     nominal_xyz = rest_marker_points_mm(nominal)
-    rest = ReferenceMarkers(nominal_xyz, "rest shape")
-    ids = identify_markers(points, rest, max_lateral_mm=nominal.markers.pitch_mm / 2.0).ids
-    known = ids >= 0
-    if known.sum() < max(nominal.sensing.min_points, MIN_DENT_MARKERS + 3):
-        raise InputError(
-            f"only {int(known.sum())} triangulated markers lie within half a pitch of a nominal marker: "
-            "is this a pair of the unloaded jig, and the right rig.toml?"
-        )
-    order = np.argsort(ids[known], kind="stable")
-    measured = points[known][order]
-    index = ids[known][order]
+    matched, dents, unmatched = [], [], 0
+    for k, frame in enumerate(frames):
+        where = f"frame {k + 1} of {len(frames)}: " if len(frames) > 1 else ""
+        points, index, n_unmatched = _matched(getattr(frame, "xyz_mm", frame), nominal, nominal_xyz, where)
+        dent = check_unloaded(points, nominal_xyz[index, 2], nominal, max_deviation_mm=max_deviation_mm)
+        if dent.loaded:
+            centre = points[dent.dented, :2].mean(axis=0)
+            raise InputError(
+                f"{where}this frame is loaded: {int(dent.dented.sum())} neighbouring markers around "
+                f"({centre[0]:.0f}, {centre[1]:.0f}) mm are pushed in by up to {dent.residual_mm.max():.1f} "
+                f"mm (noise {dent.sigma_mm:.2f} mm, threshold {dent.threshold_mm:.2f} mm): a part is pressed "
+                "onto the jig. Survey a pair of the unloaded jig (its reference frame). If no part is "
+                "pressed, the jig's rest shape is that far from the rig's: accept it with --max-deviation "
+                "(mm)"
+            )
+        matched.append((points, index))
+        dents.append(dent)
+        unmatched += n_unmatched
+    index = np.unique(np.concatenate([i for _, i in matched]))
+    stack = np.full((len(frames), len(nominal_xyz), 3), np.nan)
+    for k, (points, i) in enumerate(matched):
+        stack[k, i] = points
+    measured = np.nanmedian(stack[:, index], axis=0) if len(frames) > 1 else stack[0, index]
     nominal_at = nominal_xyz[index]
-    dent = check_unloaded(measured, nominal_at[:, 2], nominal, max_deviation_mm=max_deviation_mm)
-    if dent.loaded:
-        where = measured[dent.dented, :2].mean(axis=0)
-        raise InputError(
-            f"this frame is loaded: {int(dent.dented.sum())} neighbouring markers around "
-            f"({where[0]:.0f}, {where[1]:.0f}) mm are pushed in by up to {dent.residual_mm.max():.1f} mm "
-            f"(noise {dent.sigma_mm:.2f} mm, threshold {dent.threshold_mm:.2f} mm): a part is pressed onto "
-            "the jig. Survey a pair of the unloaded jig (its reference frame). If no part is pressed, the "
-            "jig's rest shape is that far from the rig's: accept it with --max-deviation (mm)"
-        )
     if smooth:
         measured = np.column_stack([measured[:, :2], smoothed_heights(measured, nominal.markers.pitch_mm)])
     jig = with_explicit_markers(nominal, measured[:, :2], measured[:, 2])
@@ -305,6 +331,7 @@ def survey_markers(
         nominal_xyz_mm=nominal_at,
         nominal_index=index,
         n_nominal=len(nominal_xyz),
-        n_unmatched=int((~known).sum()),
-        dent=dent,
+        n_unmatched=unmatched,
+        dent=dents[0],
+        n_frames=len(frames),
     )
