@@ -1159,14 +1159,17 @@ def marker_csv_text(xy_mm: np.ndarray, z_mm: np.ndarray | None = None) -> str:
 
 def with_explicit_markers(jig: JigConfig, centers: Any, z: Any = ()) -> JigConfig:
     """``jig`` with an explicit marker layout at ``centers`` (``(N, 2)``, J, mm) and optional measured
-    heights ``z`` (``(N,)``); ``markers.pitch_mm`` becomes the centres' median nearest-neighbour distance
-    (rounded to 1 um), the other marker fields are kept. Validated (ConfigError naming the field)."""
+    heights ``z`` (``(N,)``); ``markers.pitch_mm`` becomes the centres' typical spacing, the median
+    distance from each to its four nearest neighbours (rounded to 1 um: the first shell of a square or
+    hexagonal grid, and less biased by placement errors than the nearest one alone), the other marker
+    fields are kept. Validated (ConfigError naming the field)."""
     xy = np.asarray(centers, dtype=float).reshape(-1, 2)
     pitch = jig.markers.pitch_mm
     if len(xy) >= 2:
         from scipy.spatial import cKDTree
 
-        distance = cKDTree(xy).query(xy, k=2)[0][:, 1]
+        k = min(5, len(xy))
+        distance = cKDTree(xy).query(xy, k=k)[0][:, 1:]
         pitch = round(float(np.median(distance)), 3) or pitch
     markers = replace(
         jig.markers,
