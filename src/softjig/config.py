@@ -1161,16 +1161,18 @@ def with_explicit_markers(jig: JigConfig, centers: Any, z: Any = ()) -> JigConfi
     """``jig`` with an explicit marker layout at ``centers`` (``(N, 2)``, J, mm) and optional measured
     heights ``z`` (``(N,)``); ``markers.pitch_mm`` becomes the centres' typical spacing, the median
     distance from each to its four nearest neighbours (rounded to 1 um: the first shell of a square or
-    hexagonal grid, and less biased by placement errors than the nearest one alone), the other marker
-    fields are kept. Validated (ConfigError naming the field)."""
+    hexagonal grid, and less biased by placement errors than the nearest one alone; kept within the
+    third of the median nearest distance that validation allows), the other marker fields are kept.
+    Validated (ConfigError naming the field)."""
     xy = np.asarray(centers, dtype=float).reshape(-1, 2)
     pitch = jig.markers.pitch_mm
     if len(xy) >= 2:
         from scipy.spatial import cKDTree
 
-        k = min(5, len(xy))
-        distance = cKDTree(xy).query(xy, k=k)[0][:, 1:]
-        pitch = round(float(np.median(distance)), 3) or pitch
+        distance = cKDTree(xy).query(xy, k=min(5, len(xy)))[0][:, 1:]
+        nearest = float(np.median(distance[:, 0]))
+        # within what _validate_layout accepts (a sparse, irregular layout's fourth neighbour is far)
+        pitch = round(float(np.clip(np.median(distance), 0.76 * nearest, 1.32 * nearest)), 3) or pitch
     markers = replace(
         jig.markers,
         layout="explicit",
