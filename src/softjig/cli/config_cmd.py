@@ -28,7 +28,11 @@ def config_cmd(
         ),
     ] = None,
 ) -> None:
-    """Write a complete jig config (the default one, to edit for your own jig)."""
+    """Write the default (nominal) jig config, to edit for your own jig.
+
+    With --config, start from that jig; with --markers-csv, give it the explicit marker layout of a CSV
+    file (a hand-made membrane). The file is complete: every section is named, as loading requires.
+    """
     from softjig.config import load_marker_csv, save_jig, with_explicit_markers
 
     if out.exists() and out.is_dir():
