@@ -141,7 +141,7 @@ def estimate(
 
     from softjig.calibration.tilt import load_tilt_calibration
 
-    cal = load_tilt_calibration(calibration) if calibration else None
+    cal = load_tilt_calibration(calibration, method=method.value) if calibration else None
     method_name = method.value
     if len(inputs) == 1:
         pair_only = {
