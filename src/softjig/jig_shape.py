@@ -21,31 +21,36 @@ wall meets the plate vertically (``paraboloid_power`` with ``p < 1``) would make
 where the vertical offset stops meaning anything (the outer face there lies beside the inner face)."""
 
 
-def _profile(m: MembraneConfig, r_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Height ``h(r)`` (mm) and slope ``dh/dr`` of the inner rest face at radii ``r_mm``; 0 outside."""
+def _height(m: MembraneConfig, r_mm: np.ndarray) -> np.ndarray:
+    """Height ``h(r)`` (mm) of the inner rest face at radii ``r_mm``; 0 outside the footprint."""
+    R, H, k = m.footprint_radius_mm, m.dome_height_mm, m.dome_exponent
+    r = r_mm / R
+    if m.dome_profile == "power":  # the arithmetic of the first versions, to the last bit
+        return np.where(r < 1.0, H * (1.0 - np.minimum(r, 1.0) ** k), 0.0)
+    if m.dome_profile == "paraboloid_power":
+        return np.where(r < 1.0, H * (1.0 - np.minimum(r, 1.0) ** 2) ** k, 0.0)
+    return np.where(r_mm < R, m.table_spline(np.minimum(r_mm, R)), 0.0)
+
+
+def _slope(m: MembraneConfig, r_mm: np.ndarray) -> np.ndarray:
+    """Slope ``dh/dr`` of the inner rest face at radii ``r_mm``; 0 outside the footprint."""
     R, H, k = m.footprint_radius_mm, m.dome_height_mm, m.dome_exponent
     inside = r_mm < R
     s = np.minimum(r_mm / R, 1.0)
     if m.dome_profile == "power":  # the arithmetic of the first versions, to the last bit
-        h = np.where(r_mm / R < 1.0, H * (1.0 - s**k), 0.0)
-        dh = -H * k * s ** (k - 1) / R
-    elif m.dome_profile == "paraboloid_power":
-        base = 1.0 - s**2
-        h = np.where(inside, H * base**k, 0.0)
+        return np.where(inside, -H * k * s ** (k - 1) / R, 0.0)
+    if m.dome_profile == "paraboloid_power":
         with np.errstate(divide="ignore", invalid="ignore"):
-            dh = -2.0 * H * k * s * np.where(inside, base, 1.0) ** (k - 1) / R
-    else:
-        spline = m.table_spline
-        rr = np.minimum(r_mm, R)
-        h = np.where(inside, spline(rr), 0.0)
-        dh = spline(rr, 1)
-    return h, np.where(inside, dh, 0.0)
+            dh = -2.0 * H * k * s * np.where(inside, 1.0 - s**2, 1.0) ** (k - 1) / R
+        return np.where(inside, dh, 0.0)
+    return np.where(inside, m.table_spline(np.minimum(r_mm, R), 1), 0.0)
 
 
 def rest_profile_mm(jig: JigConfig, r_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The inner rest face along a radius: height ``h(r)`` in J (mm) and slope ``dh/dr``, at ``r_mm``
     (mm from the jig axis, ``>= 0``); both 0 outside the footprint."""
-    return _profile(jig.membrane, np.asarray(r_mm, dtype=float))
+    r = np.asarray(r_mm, dtype=float)
+    return _height(jig.membrane, r), _slope(jig.membrane, r)
 
 
 def rest_apex_height_mm(jig: JigConfig) -> float:
@@ -56,13 +61,13 @@ def rest_apex_height_mm(jig: JigConfig) -> float:
 
 def rest_inner_height_mm(jig: JigConfig, x_mm: np.ndarray, y_mm: np.ndarray) -> np.ndarray:
     """Height in J of the undeformed inner face above ``(x, y)``; 0 outside the footprint (mm)."""
-    return _profile(jig.membrane, np.hypot(x_mm, y_mm))[0]
+    return _height(jig.membrane, np.hypot(x_mm, y_mm))
 
 
 def rest_slope(jig: JigConfig, x_mm: np.ndarray, y_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Gradient ``(dh/dx, dh/dy)`` of the inner rest surface (dimensionless)."""
     r = np.hypot(x_mm, y_mm)
-    dh_dr = _profile(jig.membrane, r)[1]
+    dh_dr = _slope(jig.membrane, r)
     with np.errstate(invalid="ignore", divide="ignore"):
         cos, sin = np.where(r > 0, x_mm / r, 0.0), np.where(r > 0, y_mm / r, 0.0)
     return dh_dr * cos, dh_dr * sin
