@@ -39,6 +39,7 @@ import typer.main
 
 from softjig import __version__
 from softjig.errors import EstimationError, InputError, SoftjigError
+from softjig.io.workers import Terminated, terminate_raises
 
 if TYPE_CHECKING:
     import numpy as np
@@ -75,6 +76,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "estimate": (
         "softjig.cli.estimate",
         "Estimate the part's principal normal, tilt angles and push depth from a stereo pair or a dataset.",
+    ),
+    "mocap": (
+        "softjig.cli.mocap",
+        "Compare a dataset's normals with motion capture (T_d = inv(T_j) T_o, n_d = R_d z): RMSE, bias.",
     ),
     "live": (
         "softjig.cli.live",
@@ -247,19 +252,22 @@ def handle_errors(func: _F) -> _F:
     """Map softjig's exceptions to the contract's exit codes, with a message and no traceback.
 
     ``InputError`` (and ``ConfigError``) -> 2, ``EstimationError`` -> 3, any other ``SoftjigError`` -> 2,
-    Ctrl-C -> 130.
+    Ctrl-C -> 130, SIGTERM -> 143 (raised as :class:`~softjig.io.workers.Terminated`).
     """
 
     @functools.wraps(func)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
         try:
-            return func(*args, **kwargs)
+            with terminate_raises():  # SIGTERM: an exception, so every `finally` runs (io.workers)
+                return func(*args, **kwargs)
         except EstimationError as exc:
             error(str(exc), EXIT_NO_ESTIMATE)
         except InputError as exc:
             error(str(exc), EXIT_BAD_INPUT)
         except SoftjigError as exc:
             error(str(exc), EXIT_BAD_INPUT)
+        except Terminated as exc:
+            error(str(exc), exc.exit_code)
         except KeyboardInterrupt:
             error("interrupted", EXIT_INTERRUPTED)
 
