@@ -104,3 +104,38 @@ def test_unknown_command_suggests_the_close_one():
     result = CliRunner().invoke(app, ["estimat"])
     assert result.exit_code == 2
     assert "estimate" in result.output
+
+
+def test_choice_enums_mirror_the_librarys_lists():
+    from softjig.calibration.sweep import SELECTIONS
+    from softjig.cli.choices import DEFAULT_METHOD, FrameSelection, Method
+    from softjig.sensing.pipeline import DEFAULT_METHOD as LIB_DEFAULT
+    from softjig.sensing.pipeline import METHODS
+
+    assert [m.value for m in Method] == list(METHODS)
+    assert DEFAULT_METHOD.value == LIB_DEFAULT
+    assert [f.value for f in FrameSelection] == list(SELECTIONS)
+
+
+def test_calibrate_lists_its_choices_and_refuses_others_before_any_work(tmp_path):
+    runner = CliRunner()
+    text = runner.invoke(app, ["calibrate", "--help"], terminal_width=200).output
+    assert "refractive|paper" in text and "all|even|odd" in text
+    missing = tmp_path / "no-such-dataset"  # refused on the choice, not on the dataset
+    for option, value in (("--method", "svd"), ("--frames", "middle")):
+        result = runner.invoke(app, ["calibrate", str(missing), option, value])
+        assert result.exit_code == 2
+        assert "svd" in result.output or "middle" in result.output
+        assert "does not exist" not in result.output
+
+
+def test_nan_and_inf_are_refused_in_every_number_option(tmp_path):
+    runner = CliRunner()
+    for args in (
+        ["sweep-plan", "--push-depth", "nan"],
+        ["sweep-plan", "--clearance", "inf"],
+        ["align-jig", str(tmp_path / "x.png"), "--camera", "c", "--flange", "f", "--prior-yaw-deg", "nan"],
+    ):
+        result = runner.invoke(app, [*args, "--out", str(tmp_path / "out.json")])
+        assert result.exit_code == 2, (args, result.output)
+        assert not (tmp_path / "out.json").exists()

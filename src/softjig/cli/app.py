@@ -97,6 +97,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "softjig.cli.simulate",
         "Render a simulated dataset: the paper's tilt sweep, the cube experiment or a single frame.",
     ),
+    "survey": (
+        "softjig.cli.survey",
+        "Survey the unloaded jig: write a rig whose marker layout and rest shape are the measured ones.",
+    ),
     "sweep-plan": (
         "softjig.cli.sweep_plan",
         "Write the tilt sweep's poses (position, quaternion x,y,z,w) in J and the robot frame, in order.",
