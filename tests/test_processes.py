@@ -145,19 +145,20 @@ def test_sigkill_of_simulate_kills_its_workers(tmp_path):
     assert _gone(workers, 2.0), "workers outlived their parent"
 
 
-def test_sigterm_of_simulate_exits_143_without_temporary_files(tmp_path):
+@pytest.mark.parametrize(("signum", "code"), [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
+def test_sigterm_and_sigint_end_simulate_at_once_without_temporary_files(tmp_path, signum, code):
     args = ["simulate", "--scenario", "paper-sweep", "--diameters", "50,60", "--alphas", "10", "--theta-step",
             "30", "--workers", "2", "--no-progress", "--out", str(tmp_path / "sim")]  # fmt: skip
     proc, workers = _start_with_workers(args, tmp_path)
-    proc.terminate()
+    proc.send_signal(signum)
     try:
         returncode = proc.wait(END_WITHIN_S)
     except subprocess.TimeoutExpired:
         proc.kill()
-        pytest.fail(f"still running {END_WITHIN_S} s after SIGTERM")
+        pytest.fail(f"still running {END_WITHIN_S} s after {signal.Signals(signum).name}")
     assert _gone(workers, 1.0), "workers outlived their parent"
     stderr = proc.stderr.read()
-    assert returncode == 143 and "Traceback" not in stderr, stderr
+    assert returncode == code and "Traceback" not in stderr, stderr
     assert _temporary_files(tmp_path) == []
 
 
