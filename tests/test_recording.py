@@ -135,3 +135,15 @@ def test_record_overwrite_replaces_an_old_recording_only_when_the_new_one_is_com
     LiveLoop(ReplaySource(sweep, rate="fast"), LiveSettings(jig=sweep.jig), recorder=recorder).run()
     assert len(Dataset.open(tmp_path / "rec")) == 5
     assert sorted(p.name for p in tmp_path.iterdir()) == ["rec"]
+
+
+def test_record_into_the_replayed_dataset_is_refused(sweep):
+    from typer.testing import CliRunner
+
+    from softjig.cli import app
+
+    for target in (sweep.root, sweep.root / "again"):
+        args = ["live", "--replay", str(sweep.root), "--rate", "fast", "--record", str(target), "--overwrite"]
+        result = CliRunner().invoke(app, args)
+        assert result.exit_code == 2 and "inside the replayed dataset" in result.output
+    assert len(Dataset.open(sweep.root)) == 5 and (sweep.root / "truth").is_dir()

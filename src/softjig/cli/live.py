@@ -135,6 +135,11 @@ def live(
             warn(note)
         if len(cameras.dataset) == 0:
             raise InputError(f"{replay} has no frames (its frames.jsonl lists none): nothing to replay")
+        if record is not None and record.resolve().is_relative_to(cameras.dataset.root.resolve()):
+            raise InputError(
+                f"--record {record} is inside the replayed dataset {replay}: recording there would "
+                "replace what is replayed; record to another folder"
+            )
         jig = load_config(config) if config else cameras.dataset.jig
     else:
         if rate != "recorded":

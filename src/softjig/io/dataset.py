@@ -80,6 +80,7 @@ __all__ = [
     "Frame",
     "FrameTruth",
     "encode_png",
+    "is_dataset_member",
     "load_image",
 ]
 
@@ -167,6 +168,20 @@ def _member_path(root: Path, relative: str, what: str) -> Path:
             "its folder; copy the file into the dataset and name it relative to the folder"
         )
     return path
+
+
+def is_dataset_member(path: str | os.PathLike[str]) -> bool:
+    """Whether ``path`` is (or would be) one of the files of *some* softjig dataset: a ``rig.toml``,
+    ``frames.jsonl`` or as-built file beside a ``frames.jsonl`` and a ``rig.toml``, or a file in the
+    ``left/``, ``right/`` or ``truth/`` folder of such a folder. Outputs must not be written there."""
+    path = Path(path).resolve()
+
+    def is_dataset(folder: Path) -> bool:
+        return (folder / FRAMES_NAME).is_file() and (folder / RIG_NAME).is_file()
+
+    if path.name in (RIG_NAME, FRAMES_NAME, AS_BUILT_NAME, AS_BUILT_MARKERS_NAME) and is_dataset(path.parent):
+        return True
+    return path.parent.name in _SUBDIRS and is_dataset(path.parent.parent)
 
 
 def _same_file(a: Path, b: Path) -> bool:
