@@ -296,5 +296,7 @@ def _refuse_to_overwrite_an_input(out: Path, dataset, inputs: tuple[Path | None,
             same = False
         if same:
             raise InputError(f"--out {out} is an input of this command ({given}): give a new file name")
+    if Path(out).is_dir():
+        raise InputError(f"cannot write {out}: it is a folder; give a file name inside it")
     if Path(out).suffix.lower() not in (".jsonl", ".json", ".ndjson", ".csv"):
         raise InputError(f"--out {out}: the results file must end in .jsonl or .csv")
