@@ -173,3 +173,30 @@ def test_terminate_raises_turns_sigterm_into_an_exception_and_restores_the_handl
             cleaned = True
     assert cleaned and info.value.exit_code == 143
     assert signal.getsignal(signal.SIGTERM) is before
+
+
+@pytest.mark.parametrize("signum", [signal.SIGKILL, signal.SIGTERM])
+def test_demo_leaves_no_worker_behind(tmp_path, signum):
+    args = [
+        "demo",
+        "--quick",
+        "--cube-frames",
+        "0",
+        "--workers",
+        "2",
+        "--no-progress",
+        "--out",
+        str(tmp_path / "d"),
+    ]
+    proc, workers = _start_with_workers(args, tmp_path)
+    proc.send_signal(signum)
+    try:
+        returncode = proc.wait(END_WITHIN_S)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        pytest.fail(f"still running {END_WITHIN_S} s after {signal.Signals(signum).name}")
+    assert _gone(workers, 2.0), "workers outlived their parent"
+    if signum == signal.SIGTERM:
+        stderr = proc.stderr.read()
+        assert returncode == 143 and "Traceback" not in stderr, stderr
+        assert _temporary_files(tmp_path) == []
