@@ -30,8 +30,10 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
-from concurrent.futures import ProcessPoolExecutor
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:  # imported when a pool is made: every command imports this module (the CLI's signals)
+    from concurrent.futures import ProcessPoolExecutor
 
 __all__ = ["Terminated", "die_with_parent", "init_worker", "stop_pool", "terminate_raises", "worker_pool"]
 
@@ -162,6 +164,8 @@ def worker_pool(
     """A :class:`ProcessPoolExecutor` whose workers die with this process (:func:`init_worker`); left
     normally it waits for its tasks, left by an exception (Ctrl-C, SIGTERM, an error, a generator closed
     early) it ends its workers at once (:func:`stop_pool`)."""
+    from concurrent.futures import ProcessPoolExecutor
+
     pool = ProcessPoolExecutor(
         workers,
         mp_context=mp_context,
