@@ -89,6 +89,7 @@ def test_fast_replay_estimates_every_frame_and_publishes_it(sweep):
         "failed": 1,
         "recorded": 0,
         "not_recorded": 0,
+        "unreadable": 0,
     }
     assert healths[-1]["latency_ms"]["median"] > 0
 

@@ -205,6 +205,7 @@ def health_message(snapshot: HealthSnapshot, *, seq: int, time_unix_s: float) ->
             "failed": snapshot.failed,
             "recorded": snapshot.recorded,
             "not_recorded": snapshot.not_recorded,
+            "unreadable": snapshot.bad_frames,
         },
         "latency_ms": {
             "last": _ms(snapshot.latency_last_s),
