@@ -200,3 +200,17 @@ def test_demo_leaves_no_worker_behind(tmp_path, signum):
         stderr = proc.stderr.read()
         assert returncode == 143 and "Traceback" not in stderr, stderr
         assert _temporary_files(tmp_path) == []
+
+
+def test_a_worker_killed_from_outside_ends_estimate_with_a_message_not_a_traceback(long_dataset, tmp_path):
+    proc, workers = _start_with_workers(_estimate_args(long_dataset, tmp_path / "est.jsonl"), tmp_path)
+    os.kill(min(workers), signal.SIGKILL)  # as the kernel's out-of-memory killer would
+    try:
+        returncode = proc.wait(END_WITHIN_S)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        pytest.fail(f"still running {END_WITHIN_S} s after a worker was killed")
+    assert _gone(workers, 1.0)
+    stderr = proc.stderr.read()
+    assert returncode == 2 and "a worker process died" in stderr and "Traceback" not in stderr, stderr
+    assert _temporary_files(tmp_path) == [] and not (tmp_path / "est.jsonl").exists()

@@ -32,6 +32,8 @@ import time
 from collections.abc import Callable, Iterator
 from typing import TYPE_CHECKING, Any
 
+from softjig.errors import SoftjigError
+
 if TYPE_CHECKING:  # imported when a pool is made: every command imports this module (the CLI's signals)
     from concurrent.futures import ProcessPoolExecutor
 
@@ -163,7 +165,13 @@ def worker_pool(
 ) -> Iterator[ProcessPoolExecutor]:
     """A :class:`ProcessPoolExecutor` whose workers die with this process (:func:`init_worker`); left
     normally it waits for its tasks, left by an exception (Ctrl-C, SIGTERM, an error, a generator closed
-    early) it ends its workers at once (:func:`stop_pool`)."""
+    early) it ends its workers at once (:func:`stop_pool`).
+
+    Raises
+    ------
+    SoftjigError
+        A worker died (``BrokenProcessPool``: the kernel's out-of-memory killer, a signal): a message
+        saying so instead of a traceback (exit 2)."""
     from concurrent.futures import ProcessPoolExecutor
 
     pool = ProcessPoolExecutor(
@@ -174,7 +182,14 @@ def worker_pool(
     )
     try:
         yield pool
-    except BaseException:
+    except BaseException as exc:
         stop_pool(pool, abort=True)
+        from concurrent.futures.process import BrokenProcessPool
+
+        if isinstance(exc, BrokenProcessPool):  # a worker was killed (out of memory, by hand)
+            raise SoftjigError(
+                "a worker process died (killed by the system, for instance out of memory, or by a "
+                "signal): nothing was lost; run again, with fewer --workers if memory is short"
+            ) from None
         raise
     stop_pool(pool, abort=False)
