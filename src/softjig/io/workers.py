@@ -67,20 +67,16 @@ class Terminated(KeyboardInterrupt):
 def terminate_raises(signums: tuple[int, ...] = (signal.SIGTERM, signal.SIGHUP)) -> Iterator[None]:
     """Inside: ``SIGTERM`` (and ``SIGHUP``) raise :class:`Terminated` in the main thread; restored after.
 
-    Only the first such signal raises (a second one while the ``finally`` blocks clean up is ignored;
-    ``SIGKILL`` still ends the process). Outside the main thread (signals cannot be handled there) this
-    does nothing.
+    Each such signal raises, as each Ctrl-C raises :class:`KeyboardInterrupt` (ignoring a second one would
+    leave a process that swallowed the first deaf to SIGTERM for ever). Outside the main thread (signals
+    cannot be handled there) this does nothing.
     """
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    raised = False
 
     def handler(signum: int, _frame: object) -> None:
-        nonlocal raised
-        if not raised:
-            raised = True
-            raise Terminated(signum)
+        raise Terminated(signum)
 
     previous = {}
     for signum in signums:
