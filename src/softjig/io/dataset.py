@@ -831,7 +831,7 @@ class DatasetWriter:
         :data:`STAGING_SUFFIX`) and swapped in by :meth:`close`; until then, and if the writer is killed,
         the old dataset stays whole (the new frames written so far stay readable in the staging folder).
         Left by an exception, a simulation's (``durable=False``) staging folder is deleted, a recording's
-        kept.
+        kept; a new dataset without any frame never replaces the old one.
     png_compression : zlib level of the PNGs (0-9; all lossless).
     durable : fsync every file and line (a recording survives a power cut); ``False`` keeps the writes
         atomic (a killed writer leaves only complete frames) without the disk waits, for data that can be
@@ -925,6 +925,9 @@ class DatasetWriter:
             self._frames_fh.close()
             self._frames_fh = None
         if self._replacing:
+            if self._next_index == 0:  # replacing a dataset by an empty one would lose it for nothing
+                self._abandon(keep=False)
+                return
             self._replacing = False
             self._swap()
 
@@ -945,16 +948,19 @@ class DatasetWriter:
         fsync_folder(final.parent)
         shutil.rmtree(retired, ignore_errors=True)
 
-    def _abandon(self) -> None:
+    def _abandon(self, *, keep: bool | None = None) -> None:
         """Left by an exception while overwriting: the old dataset stays; a simulation's staging folder is
-        deleted, a recording's kept (its frames are readable there)."""
+        deleted, a recording's kept (its frames are readable there) unless it has none."""
         if self._frames_fh is not None:
             self._frames_fh.close()
             self._frames_fh = None
         if self._replacing:
             self._replacing = False
-            if not self.durable:
+            if keep is None:
+                keep = self.durable and self._next_index > 0
+            if not keep:
                 shutil.rmtree(self._dir, ignore_errors=True)
+            self._dir = self.root
 
     def __enter__(self) -> DatasetWriter:
         return self.open()

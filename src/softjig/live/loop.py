@@ -645,7 +645,15 @@ class LiveLoop:
         """Run until the end; returns the summary. The source is opened here (a camera that cannot be
         opened at all raises :class:`~softjig.io.cameras.CameraError`, exit code 2) and closed on exit."""
         t_start = time.monotonic()
-        self.source.open()
+        try:
+            self.source.open()
+        except BaseException:  # nothing ran: the recorder and the sinks are closed all the same
+            if self.recorder is not None:
+                self.recorder.close()  # an overwrite with no frame leaves the old recording in place
+            for sink in self.sinks:
+                with contextlib.suppress(Exception):
+                    sink.close()
+            raise
         capture = threading.Thread(target=self._capture, name="softjig-capture", daemon=True)
         interrupted = False
         next_health = time.monotonic()
