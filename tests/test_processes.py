@@ -107,11 +107,18 @@ def _temporary_files(root: Path) -> list[Path]:
     return sorted(root.rglob("*.tmp"))
 
 
-def test_sigkill_of_estimate_kills_its_workers(long_dataset, tmp_path):
+def test_sigkill_of_estimate_kills_its_workers_and_the_next_run_removes_its_temporary_file(
+    long_dataset, tmp_path
+):
     proc, workers = _start_with_workers(_estimate_args(long_dataset, tmp_path / "est.jsonl"), tmp_path)
     proc.kill()
     proc.wait(10)
     assert _gone(workers, 2.0), "workers outlived their parent"
+    left = _temporary_files(tmp_path)  # nothing runs in a killed process: its results file's temporary
+    assert [p.name.split(".")[3].split("-")[0] for p in left] == [str(proc.pid)]
+    from softjig.io.files import remove_stale_temporaries
+
+    assert remove_stale_temporaries(tmp_path / "est.jsonl") == left  # what the next run does first
 
 
 @pytest.mark.parametrize(("signum", "code"), [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
