@@ -582,3 +582,12 @@ def test_an_overwrite_without_any_frame_keeps_the_old_dataset(tmp_path, jig):
     ds = Dataset.open(tmp_path / "ds")
     assert len(ds) == 3 and ds.jig == jig
     assert sorted(p.name for p in tmp_path.iterdir()) == ["ds"]
+
+
+def test_overwriting_the_current_folder_by_its_name_dot(tmp_path, jig, monkeypatch):
+    _write(tmp_path / "ds", jig, 3)
+    monkeypatch.chdir(tmp_path / "ds")
+    with DatasetWriter(Path("."), jig, overwrite=True) as writer:
+        writer.add_frame(*_images(np.random.default_rng(2)), {})
+    assert len(Dataset.open(tmp_path / "ds")) == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ds"]

@@ -862,6 +862,7 @@ class DatasetWriter:
         self._next_index = 0
         self._frames_fh: io.BufferedWriter | None = None
         self._dir = self.root  # where the files go: the staging folder while an overwrite is pending
+        self._target = self.root  # the folder an overwrite replaces, resolved
         self._replacing = False
 
     # -- lifecycle
@@ -891,8 +892,10 @@ class DatasetWriter:
                     f"{final} holds files softjig did not write ({shown}): overwriting would delete them; "
                     "move them out or choose another output folder"
                 )
-            root = final.with_name(final.name + STAGING_SUFFIX)
-            for other in (root, final.with_name(final.name + RETIRED_SUFFIX)):
+            target = final.resolve()  # a name to put "-new" / "-old" beside, even for "." or a link
+            self._target = target
+            root = target.with_name(target.name + STAGING_SUFFIX)
+            for other in (root, target.with_name(target.name + RETIRED_SUFFIX)):
                 if other.exists():
                     raise InputError(
                         f"{other} exists: an earlier overwrite of {final} did not finish (it may hold "
@@ -934,17 +937,21 @@ class DatasetWriter:
     def _swap(self) -> None:
         """Put the complete new dataset (the staging folder) in place of the old one: two renames, then the
         old one is deleted. A kill between the renames leaves both, under their suffixed names."""
-        final, staging = self.root, self._dir
+        final, staging = self._target, self._dir
         retired = final.with_name(final.name + RETIRED_SUFFIX)
         try:
             os.rename(final, retired)
-            os.rename(staging, final)
+            try:
+                os.rename(staging, final)
+            except OSError:
+                os.rename(retired, final)  # put the old one back
+                raise
         except OSError as exc:
             raise InputError(
                 f"cannot replace {final} by the new dataset {staging}: {exc.strerror or exc}; the new "
                 "dataset is complete there"
             ) from None
-        self._dir = final
+        self._dir = self.root
         fsync_folder(final.parent)
         shutil.rmtree(retired, ignore_errors=True)
 
