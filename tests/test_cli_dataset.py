@@ -131,3 +131,15 @@ def test_out_elsewhere_in_the_dataset_folder_is_fine(ds):
     assert result.exit_code == 0, result.output
     again = _estimate(ds, "--out", ds / "results.csv")  # our own results file: replaced
     assert again.exit_code == 0, again.output
+
+
+def test_out_into_another_datasets_files_or_not_a_results_file_is_refused(ds, source, tmp_path):
+    other = shutil.copytree(source, tmp_path / "other")
+    for target in (other / "frames.jsonl", other / "left" / "000009.jsonl"):
+        result = _estimate(ds, "--out", target)
+        assert result.exit_code == 2 and "one of the dataset's own files" in result.output
+    photo = tmp_path / "photo.png"
+    photo.write_bytes(b"precious")
+    result = _estimate(ds, "--out", photo)
+    assert result.exit_code == 2 and "must end in .jsonl or .csv" in result.output
+    assert photo.read_bytes() == b"precious" and len(Dataset.open(other)) == 4

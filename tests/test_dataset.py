@@ -573,3 +573,21 @@ def test_writer_rejects_bad_frames(tmp_path, jig):
         assert writer.add_frame(left, right, {"alpha_deg": np.float64(5.0)}) == 0
     ds = Dataset.open(tmp_path / "ds")
     assert len(ds) == 1 and ds[0].alpha_deg == 5.0
+
+
+def test_an_overwrite_without_any_frame_keeps_the_old_dataset(tmp_path, jig):
+    _write(tmp_path / "ds", jig, 3)
+    with DatasetWriter(tmp_path / "ds", exact_jig(jig), overwrite=True):
+        pass  # a camera that delivered nothing
+    ds = Dataset.open(tmp_path / "ds")
+    assert len(ds) == 3 and ds.jig == jig
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ds"]
+
+
+def test_overwriting_the_current_folder_by_its_name_dot(tmp_path, jig, monkeypatch):
+    _write(tmp_path / "ds", jig, 3)
+    monkeypatch.chdir(tmp_path / "ds")
+    with DatasetWriter(Path("."), jig, overwrite=True) as writer:
+        writer.add_frame(*_images(np.random.default_rng(2)), {})
+    assert len(Dataset.open(tmp_path / "ds")) == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ds"]

@@ -85,3 +85,27 @@ def test_no_temporary_file_survives_any_exception(tmp_path, monkeypatch):
 def test_a_folder_target_is_refused(tmp_path):
     with pytest.raises(InputError, match="it is a folder"):
         write_bytes_atomic(tmp_path, b"x")
+
+
+def _dead_pid() -> int:
+    proc = subprocess.Popen([sys.executable, "-c", "pass"])
+    proc.wait()
+    return proc.pid
+
+
+def test_the_next_writer_removes_the_temporary_files_of_killed_writers_only(tmp_path):
+    dead = _dead_pid()
+    stale = [tmp_path / f".rows.jsonl.{dead}-0badf00d.tmp", tmp_path / f".x.toml.{dead}-12345678.tmp"]
+    kept = [
+        tmp_path / f".rows.jsonl.{os.getpid()}-0badf00d.tmp",  # a running writer's
+        tmp_path / ".rows.jsonl.k3j4h5g6.tmp",  # not our pattern
+        tmp_path / f".other.jsonl.{dead}-0badf00d.tmp",  # another target's
+    ]
+    for path in stale + kept:
+        path.write_text("partial")
+    with RowsWriter(tmp_path / "rows.jsonl") as out:
+        out.write({"index": 0})
+    write_text_atomic(tmp_path / "x.toml", "x = 1\n")
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
+        ["rows.jsonl", "x.toml", *(p.name for p in kept)]
+    )

@@ -89,6 +89,7 @@ def test_fast_replay_estimates_every_frame_and_publishes_it(sweep):
         "failed": 1,
         "recorded": 0,
         "not_recorded": 0,
+        "unreadable": 0,
     }
     assert healths[-1]["latency_ms"]["median"] > 0
 
@@ -323,3 +324,71 @@ def test_ctrl_c_stops_the_live_command_cleanly(sweep, sig):
             proc.wait()
     assert proc.returncode == 0, err
     assert "stopped:" in err and "Traceback" not in err
+
+
+def _with_bad_frames(sweep, tmp_path, n_bad: int, keep_good: bool = True):
+    """A copy of the sweep with ``n_bad`` frames whose images are missing (after its good ones)."""
+    import json
+    import shutil
+
+    root = shutil.copytree(sweep.root, tmp_path / "bad")
+    lines = (root / "frames.jsonl").read_text().splitlines() if keep_good else []
+    for k in range(n_bad):
+        lines.append(
+            json.dumps({"index": 100 + k, "left": f"left/gone{k}.png", "right": f"right/gone{k}.png"})
+        )
+    (root / "frames.jsonl").write_text("\n".join(lines) + "\n")
+    return root
+
+
+def test_a_replays_unreadable_frames_are_skipped_at_once_not_retried_like_a_camera(sweep, tmp_path):
+    root = _with_bad_frames(sweep, tmp_path, 6)
+    settings = LiveSettings(jig=sweep.jig)  # the real back-off: 0.5 s doubling to 5 s per camera error
+    assert settings.retry_delay_s >= 0.5
+    t0 = time.monotonic()
+    summary = LiveLoop(ReplaySource(root, rate="fast"), settings).run()
+    elapsed = time.monotonic() - t0
+    final = summary.final
+    assert (final.bad_frames, final.camera_errors, final.reopens) == (6, 0, 0)
+    assert final.captured == final.processed == 5 and summary.exhausted
+    assert "frame 100" in summary.first_bad_frame and "does not exist" in summary.first_bad_frame
+    assert elapsed < 6 * settings.retry_delay_s  # one back-off per frame would take 17.5 s
+
+
+def test_cli_live_reports_skipped_frames_and_exits_2_when_none_could_be_read(sweep, tmp_path):
+    some = _with_bad_frames(sweep, tmp_path / "some", 2)
+    result = runner.invoke(app, ["live", "--replay", str(some), "--rate", "fast"])
+    assert result.exit_code == 0, result.output
+    assert "2 unreadable frames skipped" in result.output and "warning:" in result.output
+    none = _with_bad_frames(sweep, tmp_path / "none", 3, keep_good=False)
+    result = runner.invoke(app, ["live", "--replay", str(none), "--rate", "fast"])
+    assert result.exit_code == 2 and "no frame of the replay could be read" in result.output
+
+
+def test_cli_live_refuses_an_empty_replay(sweep, tmp_path):
+    import shutil
+
+    root = shutil.copytree(sweep.root, tmp_path / "empty")
+    (root / "frames.jsonl").write_text("")
+    result = runner.invoke(app, ["live", "--replay", str(root)])
+    assert result.exit_code == 2 and "has no frames" in result.output
+
+
+@pytest.mark.parametrize(("option", "value"), [("--method", "svd"), ("--rate", "slow")])
+def test_cli_live_choices_are_checked_before_any_work_and_listed(tmp_path, option, value):
+    result = runner.invoke(app, ["live", "--replay", str(tmp_path / "not-yet-read"), option, value])
+    assert result.exit_code == 2
+    assert value in result.output and "does not exist" not in result.output  # refused before the replay
+    choices = ("refractive", "paper") if option == "--method" else ("recorded", "fast")
+    assert all(choice in result.output for choice in choices)
+    help_text = runner.invoke(app, ["live", "--help"], env={"COLUMNS": "200"}).output
+    assert "|".join(choices) in help_text or all(choice in help_text for choice in choices)
+
+
+def test_mcap_overwrite_replaces_only_an_mcap_file(tmp_path):
+    from softjig.live.viewer import _is_mcap
+
+    (tmp_path / "log.mcap").write_bytes(b"\x89MCAP0\r\n...")
+    (tmp_path / "photo.png").write_bytes(b"\x89PNG\r\n\x1a\n")
+    assert _is_mcap(tmp_path / "log.mcap") and not _is_mcap(tmp_path / "photo.png")
+    assert not _is_mcap(tmp_path)

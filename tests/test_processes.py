@@ -107,11 +107,18 @@ def _temporary_files(root: Path) -> list[Path]:
     return sorted(root.rglob("*.tmp"))
 
 
-def test_sigkill_of_estimate_kills_its_workers(long_dataset, tmp_path):
+def test_sigkill_of_estimate_kills_its_workers_and_the_next_run_removes_its_temporary_file(
+    long_dataset, tmp_path
+):
     proc, workers = _start_with_workers(_estimate_args(long_dataset, tmp_path / "est.jsonl"), tmp_path)
     proc.kill()
     proc.wait(10)
     assert _gone(workers, 2.0), "workers outlived their parent"
+    left = _temporary_files(tmp_path)  # nothing runs in a killed process: its results file's temporary
+    assert [p.name.split(".")[3].split("-")[0] for p in left] == [str(proc.pid)]
+    from softjig.io.files import remove_stale_temporaries
+
+    assert remove_stale_temporaries(tmp_path / "est.jsonl") == left  # what the next run does first
 
 
 @pytest.mark.parametrize(("signum", "code"), [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
@@ -145,19 +152,20 @@ def test_sigkill_of_simulate_kills_its_workers(tmp_path):
     assert _gone(workers, 2.0), "workers outlived their parent"
 
 
-def test_sigterm_of_simulate_exits_143_without_temporary_files(tmp_path):
+@pytest.mark.parametrize(("signum", "code"), [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
+def test_sigterm_and_sigint_end_simulate_at_once_without_temporary_files(tmp_path, signum, code):
     args = ["simulate", "--scenario", "paper-sweep", "--diameters", "50,60", "--alphas", "10", "--theta-step",
             "30", "--workers", "2", "--no-progress", "--out", str(tmp_path / "sim")]  # fmt: skip
     proc, workers = _start_with_workers(args, tmp_path)
-    proc.terminate()
+    proc.send_signal(signum)
     try:
         returncode = proc.wait(END_WITHIN_S)
     except subprocess.TimeoutExpired:
         proc.kill()
-        pytest.fail(f"still running {END_WITHIN_S} s after SIGTERM")
+        pytest.fail(f"still running {END_WITHIN_S} s after {signal.Signals(signum).name}")
     assert _gone(workers, 1.0), "workers outlived their parent"
     stderr = proc.stderr.read()
-    assert returncode == 143 and "Traceback" not in stderr, stderr
+    assert returncode == code and "Traceback" not in stderr, stderr
     assert _temporary_files(tmp_path) == []
 
 
@@ -172,3 +180,44 @@ def test_terminate_raises_turns_sigterm_into_an_exception_and_restores_the_handl
             cleaned = True
     assert cleaned and info.value.exit_code == 143
     assert signal.getsignal(signal.SIGTERM) is before
+
+
+@pytest.mark.parametrize("signum", [signal.SIGKILL, signal.SIGTERM])
+def test_demo_leaves_no_worker_behind(tmp_path, signum):
+    args = [
+        "demo",
+        "--quick",
+        "--cube-frames",
+        "0",
+        "--workers",
+        "2",
+        "--no-progress",
+        "--out",
+        str(tmp_path / "d"),
+    ]
+    proc, workers = _start_with_workers(args, tmp_path)
+    proc.send_signal(signum)
+    try:
+        returncode = proc.wait(END_WITHIN_S)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        pytest.fail(f"still running {END_WITHIN_S} s after {signal.Signals(signum).name}")
+    assert _gone(workers, 2.0), "workers outlived their parent"
+    if signum == signal.SIGTERM:
+        stderr = proc.stderr.read()
+        assert returncode == 143 and "Traceback" not in stderr, stderr
+        assert _temporary_files(tmp_path) == []
+
+
+def test_a_worker_killed_from_outside_ends_estimate_with_a_message_not_a_traceback(long_dataset, tmp_path):
+    proc, workers = _start_with_workers(_estimate_args(long_dataset, tmp_path / "est.jsonl"), tmp_path)
+    os.kill(min(workers), signal.SIGKILL)  # as the kernel's out-of-memory killer would
+    try:
+        returncode = proc.wait(END_WITHIN_S)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        pytest.fail(f"still running {END_WITHIN_S} s after a worker was killed")
+    assert _gone(workers, 1.0)
+    stderr = proc.stderr.read()
+    assert returncode == 2 and "a worker process died" in stderr and "Traceback" not in stderr, stderr
+    assert _temporary_files(tmp_path) == [] and not (tmp_path / "est.jsonl").exists()

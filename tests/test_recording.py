@@ -135,3 +135,47 @@ def test_record_overwrite_replaces_an_old_recording_only_when_the_new_one_is_com
     LiveLoop(ReplaySource(sweep, rate="fast"), LiveSettings(jig=sweep.jig), recorder=recorder).run()
     assert len(Dataset.open(tmp_path / "rec")) == 5
     assert sorted(p.name for p in tmp_path.iterdir()) == ["rec"]
+
+
+def test_record_into_the_replayed_dataset_is_refused(sweep):
+    from typer.testing import CliRunner
+
+    from softjig.cli import app
+
+    for target in (sweep.root, sweep.root / "again"):
+        args = ["live", "--replay", str(sweep.root), "--rate", "fast", "--record", str(target), "--overwrite"]
+        result = CliRunner().invoke(app, args)
+        assert result.exit_code == 2 and "inside the replayed dataset" in result.output
+    assert len(Dataset.open(sweep.root)) == 5 and (sweep.root / "truth").is_dir()
+
+
+def test_a_camera_that_cannot_be_opened_leaves_an_old_recording_in_place(sweep, tmp_path):
+    from softjig.io.cameras import CameraError, StereoSource
+
+    class _Unplugged(StereoSource):
+        name, realtime = "unplugged", True
+
+        def open(self):
+            raise CameraError("unplugged: no such device")
+
+        def read(self, timeout_s):
+            raise AssertionError("never read")
+
+        def close(self):
+            pass
+
+    Recorder(tmp_path / "rec", sweep.jig).close()
+    LiveLoop(
+        ReplaySource(sweep, rate="fast"),
+        LiveSettings(jig=sweep.jig),
+        recorder=Recorder(tmp_path / "rec", sweep.jig, overwrite=True),
+    ).run()
+    loop = LiveLoop(
+        _Unplugged(),
+        LiveSettings(jig=sweep.jig),
+        recorder=Recorder(tmp_path / "rec", sweep.jig, overwrite=True),
+    )
+    with pytest.raises(CameraError, match="unplugged"):
+        loop.run()
+    assert len(Dataset.open(tmp_path / "rec")) == 5
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["rec"]  # and the next --overwrite may go ahead

@@ -298,10 +298,13 @@ def _estimate_dataset(
 
 
 def _refuse_to_overwrite_an_input(out: Path, dataset, inputs: tuple[Path | None, ...]) -> None:
-    """An InputError if ``out`` is one of the dataset's own files or one of the command's input files."""
+    """An InputError if ``out`` is not a results file name, is one of the dataset's (or another
+    dataset's) own files, or one of the command's input files."""
     import os
 
-    if dataset.owns(out):
+    from softjig.io.dataset import is_dataset_member
+
+    if dataset.owns(out) or is_dataset_member(out):
         raise InputError(
             f"--out {out} is one of the dataset's own files: writing there would destroy it; give a "
             "new file name (e.g. DATASET/estimates.jsonl, the default)"
@@ -315,3 +318,7 @@ def _refuse_to_overwrite_an_input(out: Path, dataset, inputs: tuple[Path | None,
             same = False
         if same:
             raise InputError(f"--out {out} is an input of this command ({given}): give a new file name")
+    if Path(out).is_dir():
+        raise InputError(f"cannot write {out}: it is a folder; give a file name inside it")
+    if Path(out).suffix.lower() not in (".jsonl", ".json", ".ndjson", ".csv"):
+        raise InputError(f"--out {out}: the results file must end in .jsonl or .csv")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import signal
+from enum import StrEnum
 from pathlib import Path
 from typing import Annotated
 
@@ -11,6 +12,20 @@ import typer
 from softjig.cli.app import EXIT_BAD_INPUT, EXIT_NO_ESTIMATE, app, error, handle_errors, load_config, warn
 from softjig.errors import InputError
 from softjig.sensing.pipeline import DEFAULT_METHOD
+
+
+class LiveMethod(StrEnum):
+    """``--method``: checked (and listed in the help) before any frame is read."""
+
+    refractive = "refractive"
+    paper = "paper"
+
+
+class ReplayRate(StrEnum):
+    """``--rate``."""
+
+    recorded = "recorded"
+    fast = "fast"
 
 
 @app.command()
@@ -67,19 +82,19 @@ def live(
         Path | None, typer.Option(help="Tilt calibration JSON to apply.", show_default=False)
     ] = None,
     method: Annotated[
-        str | None,
+        LiveMethod | None,
         typer.Option(
             help="Estimation method: refractive (ours) or paper (as published).",
-            show_default="the estimator's default",
+            show_default=f"the estimator's default, {DEFAULT_METHOD}",
         ),
     ] = None,
     rate: Annotated[
-        str,
+        ReplayRate,
         typer.Option(
             help="Replay: 'recorded' (its own rate; busy frames are dropped, as with cameras) or "
             "'fast' (every frame, as fast as possible)."
         ),
-    ] = "recorded",
+    ] = ReplayRate.recorded,
     fps: Annotated[
         float,
         typer.Option(min=0.1, help="Camera frame rate; a replay's rate for frames without time_s (Hz)."),
@@ -110,11 +125,28 @@ def live(
     from softjig.io.stream import TOPIC_ESTIMATE, encode_message
     from softjig.live.loop import LiveLoop, LiveSettings, PublisherSink, Recorder
 
+    method = None if method is None else method.value
+    rate = rate.value
     if (replay is None) == (source is None):
         raise InputError("give either --replay DATASET or --source CAMERAS (e.g. --source opencv:0,1)")
     cal = load_tilt_calibration(calibration) if calibration else None
     if replay is not None:
-        cameras = ReplaySource(replay, rate=rate, fps=fps)
+        import warnings
+
+        from softjig.io.dataset import DatasetLineWarning
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", DatasetLineWarning)  # shown below, once, as a warning line
+            cameras = ReplaySource(replay, rate=rate, fps=fps)
+        for note in cameras.dataset.warnings:
+            warn(note)
+        if len(cameras.dataset) == 0:
+            raise InputError(f"{replay} has no frames (its frames.jsonl lists none): nothing to replay")
+        if record is not None and record.resolve().is_relative_to(cameras.dataset.root.resolve()):
+            raise InputError(
+                f"--record {record} is inside the replayed dataset {replay}: recording there would "
+                "replace what is replayed; record to another folder"
+            )
         jig = load_config(config) if config else cameras.dataset.jig
     else:
         if rate != "recorded":
@@ -202,11 +234,18 @@ def live(
         f"{summary.throughput_hz:.1f} frames/s"
         + (f", {final.recorded} recorded to {record or record_bag}" if record or record_bag else "")
         + (f" ({final.not_recorded} not recorded)" if final.not_recorded else "")
-        + (f", {final.camera_errors} camera errors" if final.camera_errors else ""),
+        + (f", {final.camera_errors} camera errors" if final.camera_errors else "")
+        + (f", {final.bad_frames} unreadable frames skipped" if final.bad_frames else ""),
         err=True,
     )
     for note in summary.sink_errors:
         warn(note)
+    if final.bad_frames:
+        if not final.captured and not summary.interrupted:
+            error(f"no frame of the replay could be read ({final.bad_frames} tried); the first: "
+                  f"{summary.first_bad_frame}", EXIT_BAD_INPUT)  # fmt: skip
+        warn(f"{final.bad_frames} frames of the replay could not be read and were skipped; the first: "
+             f"{summary.first_bad_frame}")  # fmt: skip
     if final.processed and not final.estimated:
         message = f"no frame gave an estimate; the last: {summary.last_error}"
         if summary.interrupted:  # stopped by the user: a clean stop, not a failure of this run

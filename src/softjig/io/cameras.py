@@ -70,6 +70,12 @@ class SourceExhausted(Exception):
     """A finite source (a replay) has delivered its last frame."""
 
 
+class BadFrame(InputError):
+    """One frame of a replay cannot be read (a missing or corrupt image): the source is fine and goes on
+    with the next frame, so the loop skips it at once and counts it instead of backing off as it does
+    for a failed camera (51 missing images used to stall a replay for 243 s)."""
+
+
 @dataclass(frozen=True, eq=False)
 class StereoFrame:
     """One stereo pair from a source.
@@ -278,7 +284,7 @@ class ReplaySource(StereoSource):
         try:
             left, right = frame.load_left(), frame.load_right()
         except InputError as exc:
-            raise CameraError(f"{self.name}, frame {frame.index}: {exc}") from None
+            raise BadFrame(f"{self.name}, frame {frame.index}: {exc}") from None
         return StereoFrame(
             left=left,
             right=right,

@@ -80,6 +80,7 @@ __all__ = [
     "Frame",
     "FrameTruth",
     "encode_png",
+    "is_dataset_member",
     "load_image",
 ]
 
@@ -167,6 +168,20 @@ def _member_path(root: Path, relative: str, what: str) -> Path:
             "its folder; copy the file into the dataset and name it relative to the folder"
         )
     return path
+
+
+def is_dataset_member(path: str | os.PathLike[str]) -> bool:
+    """Whether ``path`` is (or would be) one of the files of *some* softjig dataset: a ``rig.toml``,
+    ``frames.jsonl`` or as-built file beside a ``frames.jsonl`` and a ``rig.toml``, or a file in the
+    ``left/``, ``right/`` or ``truth/`` folder of such a folder. Outputs must not be written there."""
+    path = Path(path).resolve()
+
+    def is_dataset(folder: Path) -> bool:
+        return (folder / FRAMES_NAME).is_file() and (folder / RIG_NAME).is_file()
+
+    if path.name in (RIG_NAME, FRAMES_NAME, AS_BUILT_NAME, AS_BUILT_MARKERS_NAME) and is_dataset(path.parent):
+        return True
+    return path.parent.name in _SUBDIRS and is_dataset(path.parent.parent)
 
 
 def _same_file(a: Path, b: Path) -> bool:
@@ -816,7 +831,7 @@ class DatasetWriter:
         :data:`STAGING_SUFFIX`) and swapped in by :meth:`close`; until then, and if the writer is killed,
         the old dataset stays whole (the new frames written so far stay readable in the staging folder).
         Left by an exception, a simulation's (``durable=False``) staging folder is deleted, a recording's
-        kept.
+        kept; a new dataset without any frame never replaces the old one.
     png_compression : zlib level of the PNGs (0-9; all lossless).
     durable : fsync every file and line (a recording survives a power cut); ``False`` keeps the writes
         atomic (a killed writer leaves only complete frames) without the disk waits, for data that can be
@@ -847,6 +862,7 @@ class DatasetWriter:
         self._next_index = 0
         self._frames_fh: io.BufferedWriter | None = None
         self._dir = self.root  # where the files go: the staging folder while an overwrite is pending
+        self._target = self.root  # the folder an overwrite replaces, resolved
         self._replacing = False
 
     # -- lifecycle
@@ -876,8 +892,10 @@ class DatasetWriter:
                     f"{final} holds files softjig did not write ({shown}): overwriting would delete them; "
                     "move them out or choose another output folder"
                 )
-            root = final.with_name(final.name + STAGING_SUFFIX)
-            for other in (root, final.with_name(final.name + RETIRED_SUFFIX)):
+            target = final.resolve()  # a name to put "-new" / "-old" beside, even for "." or a link
+            self._target = target
+            root = target.with_name(target.name + STAGING_SUFFIX)
+            for other in (root, target.with_name(target.name + RETIRED_SUFFIX)):
                 if other.exists():
                     raise InputError(
                         f"{other} exists: an earlier overwrite of {final} did not finish (it may hold "
@@ -910,36 +928,46 @@ class DatasetWriter:
             self._frames_fh.close()
             self._frames_fh = None
         if self._replacing:
+            if self._next_index == 0:  # replacing a dataset by an empty one would lose it for nothing
+                self._abandon(keep=False)
+                return
             self._replacing = False
             self._swap()
 
     def _swap(self) -> None:
         """Put the complete new dataset (the staging folder) in place of the old one: two renames, then the
         old one is deleted. A kill between the renames leaves both, under their suffixed names."""
-        final, staging = self.root, self._dir
+        final, staging = self._target, self._dir
         retired = final.with_name(final.name + RETIRED_SUFFIX)
         try:
             os.rename(final, retired)
-            os.rename(staging, final)
+            try:
+                os.rename(staging, final)
+            except OSError:
+                os.rename(retired, final)  # put the old one back
+                raise
         except OSError as exc:
             raise InputError(
                 f"cannot replace {final} by the new dataset {staging}: {exc.strerror or exc}; the new "
                 "dataset is complete there"
             ) from None
-        self._dir = final
+        self._dir = self.root
         fsync_folder(final.parent)
         shutil.rmtree(retired, ignore_errors=True)
 
-    def _abandon(self) -> None:
+    def _abandon(self, *, keep: bool | None = None) -> None:
         """Left by an exception while overwriting: the old dataset stays; a simulation's staging folder is
-        deleted, a recording's kept (its frames are readable there)."""
+        deleted, a recording's kept (its frames are readable there) unless it has none."""
         if self._frames_fh is not None:
             self._frames_fh.close()
             self._frames_fh = None
         if self._replacing:
             self._replacing = False
-            if not self.durable:
+            if keep is None:
+                keep = self.durable and self._next_index > 0
+            if not keep:
                 shutil.rmtree(self._dir, ignore_errors=True)
+            self._dir = self.root
 
     def __enter__(self) -> DatasetWriter:
         return self.open()

@@ -5,12 +5,15 @@ file is created with mode ``0o666`` and the kernel applies the process's umask, 
 any other program's would (``0644`` under the usual umask ``022``, ``0600`` under ``077``); a
 :func:`tempfile.mkstemp` file would be ``0600`` whatever the umask, unreadable by a robot process of
 another user. The temporary file is removed on every exception (a full disk, Ctrl-C, a SIGTERM turned into
-an exception by :func:`softjig.io.processes.terminate_raises`).
+an exception by :func:`softjig.io.workers.terminate_raises`). A process killed outright (SIGKILL, a power
+cut) cannot remove its temporary file: its name holds the writer's pid, and the next writer of the same
+results file or text file (:func:`remove_stale_temporaries`) deletes those whose process is gone.
 """
 
 from __future__ import annotations
 
 import os
+import re
 import secrets
 from pathlib import Path
 
@@ -63,7 +66,7 @@ def temp_file_beside(path: Path) -> tuple[int, Path]:
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         for _ in range(100):
-            tmp = path.parent / f".{path.name}.{secrets.token_hex(4)}.tmp"
+            tmp = path.parent / f".{path.name}.{os.getpid()}-{secrets.token_hex(4)}.tmp"
             try:
                 # 0o666 & ~umask, applied by the kernel: no umask read, no race with other threads.
                 return os.open(tmp, flags, 0o666), tmp
@@ -72,6 +75,43 @@ def temp_file_beside(path: Path) -> tuple[int, Path]:
         raise FileExistsError(f"no free temporary name beside {path}")
     except OSError as exc:
         raise InputError(f"cannot write {path}: {exc.strerror or exc}; choose another path") from None
+
+
+def _running(pid: int) -> bool:
+    """Whether a process ``pid`` runs on this machine (of any user)."""
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OSError):
+        return True  # another user's process, or a platform that cannot tell: keep its file
+    return True
+
+
+def remove_stale_temporaries(path: str | os.PathLike[str]) -> list[Path]:
+    """Delete the temporary files :func:`temp_file_beside` made for ``path`` in processes that are gone
+    (killed before they could clean up); returns what was deleted. One listing of ``path``'s folder: for
+    files written once per command (results, configs, calibrations), not per frame.
+
+    Only names of our pattern (``.NAME.PID-HEX.tmp``) whose pid no longer runs are touched."""
+    path = Path(path)
+    pattern = re.compile(rf"\.{re.escape(path.name)}\.(\d+)-[0-9a-f]+\.tmp")
+    removed = []
+    try:
+        entries = list(os.scandir(path.parent))
+    except OSError:
+        return removed
+    for entry in entries:
+        match = pattern.fullmatch(entry.name)
+        if match and not _running(int(match.group(1))) and entry.is_file(follow_symlinks=False):
+            try:
+                os.unlink(entry.path)
+            except OSError:
+                continue
+            removed.append(Path(entry.path))
+    return removed
 
 
 def fsync_folder(folder: Path) -> None:
@@ -89,5 +129,7 @@ def fsync_folder(folder: Path) -> None:
 
 
 def write_text_atomic(path: str | os.PathLike[str], text: str) -> None:
-    """Write a UTF-8 text file atomically (see :func:`write_bytes_atomic`)."""
+    """Write a UTF-8 text file atomically (see :func:`write_bytes_atomic`), removing the temporary files
+    of killed writers of the same file (:func:`remove_stale_temporaries`)."""
+    remove_stale_temporaries(path)
     write_bytes_atomic(path, text.encode("utf-8"))

@@ -30,8 +30,12 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
-from concurrent.futures import ProcessPoolExecutor
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+from softjig.errors import SoftjigError
+
+if TYPE_CHECKING:  # imported when a pool is made: every command imports this module (the CLI's signals)
+    from concurrent.futures import ProcessPoolExecutor
 
 __all__ = ["Terminated", "die_with_parent", "init_worker", "stop_pool", "terminate_raises", "worker_pool"]
 
@@ -63,20 +67,16 @@ class Terminated(KeyboardInterrupt):
 def terminate_raises(signums: tuple[int, ...] = (signal.SIGTERM, signal.SIGHUP)) -> Iterator[None]:
     """Inside: ``SIGTERM`` (and ``SIGHUP``) raise :class:`Terminated` in the main thread; restored after.
 
-    Only the first such signal raises (a second one while the ``finally`` blocks clean up is ignored;
-    ``SIGKILL`` still ends the process). Outside the main thread (signals cannot be handled there) this
-    does nothing.
+    Each such signal raises, as each Ctrl-C raises :class:`KeyboardInterrupt` (ignoring a second one would
+    leave a process that swallowed the first deaf to SIGTERM for ever). Outside the main thread (signals
+    cannot be handled there) this does nothing.
     """
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    raised = False
 
     def handler(signum: int, _frame: object) -> None:
-        nonlocal raised
-        if not raised:
-            raised = True
-            raise Terminated(signum)
+        raise Terminated(signum)
 
     previous = {}
     for signum in signums:
@@ -161,7 +161,15 @@ def worker_pool(
 ) -> Iterator[ProcessPoolExecutor]:
     """A :class:`ProcessPoolExecutor` whose workers die with this process (:func:`init_worker`); left
     normally it waits for its tasks, left by an exception (Ctrl-C, SIGTERM, an error, a generator closed
-    early) it ends its workers at once (:func:`stop_pool`)."""
+    early) it ends its workers at once (:func:`stop_pool`).
+
+    Raises
+    ------
+    SoftjigError
+        A worker died (``BrokenProcessPool``: the kernel's out-of-memory killer, a signal): a message
+        saying so instead of a traceback (exit 2)."""
+    from concurrent.futures import ProcessPoolExecutor
+
     pool = ProcessPoolExecutor(
         workers,
         mp_context=mp_context,
@@ -170,7 +178,14 @@ def worker_pool(
     )
     try:
         yield pool
-    except BaseException:
+    except BaseException as exc:
         stop_pool(pool, abort=True)
+        from concurrent.futures.process import BrokenProcessPool
+
+        if isinstance(exc, BrokenProcessPool):  # a worker was killed (out of memory, by hand)
+            raise SoftjigError(
+                "a worker process died (killed by the system, for instance out of memory, or by a "
+                "signal): nothing was lost; run again, with fewer --workers if memory is short"
+            ) from None
         raise
     stop_pool(pool, abort=False)

@@ -9,7 +9,8 @@ Two threads share one slot:
   so every frame is estimated and its latency is its processing time. Each pair is also
   handed to the recorder (if any). A camera that fails or falls silent is reported unhealthy at once,
   closed, and re-opened after a back-off (0.5 s doubling to 5 s) until it delivers again: the loop never
-  dies of it.
+  dies of it. A replay's frame that cannot be read (:class:`~softjig.io.cameras.BadFrame`: a missing or
+  corrupt image) is not a camera failure: it is skipped at once and counted (``bad_frames``).
 * the **estimator** (the caller's thread) takes the newest pair, runs
   :func:`~softjig.sensing.pipeline.estimate_pair`, builds the estimate message (:func:`estimate_message`)
   and hands it to the sinks (the ZeroMQ publisher, the viewer). The *latency* of a frame is the time from
@@ -43,7 +44,7 @@ from typing import Any, Protocol
 from softjig.calibration.tilt import TiltCalibration
 from softjig.config import JigConfig
 from softjig.errors import EstimationError, InputError
-from softjig.io.cameras import SourceExhausted, StereoFrame, StereoSource
+from softjig.io.cameras import BadFrame, SourceExhausted, StereoFrame, StereoSource
 
 __all__ = [
     "HealthSnapshot",
@@ -132,6 +133,7 @@ class HealthSnapshot:
     camera_message : why it is unhealthy, or ``None``.
     last_frame_age_s : time since the last pair arrived (s), ``None`` before the first.
     camera_errors, reopens : camera failures met, and re-openings of the source.
+    bad_frames : replayed frames skipped because they cannot be read (a replay's missing images).
     captured, processed, dropped, estimated, failed, recorded, not_recorded : frame counts.
     last_ok : whether the last processed frame gave an estimate (``None`` before the first).
     latency_last_s, latency_median_s, latency_p95_s : latencies (s), ``None`` before the first frame.
@@ -158,6 +160,7 @@ class HealthSnapshot:
     latency_p95_s: float | None
     rate_hz: float
     stopped: bool = False
+    bad_frames: int = 0
 
 
 def health_status(snapshot: HealthSnapshot) -> str:
@@ -202,6 +205,7 @@ def health_message(snapshot: HealthSnapshot, *, seq: int, time_unix_s: float) ->
             "failed": snapshot.failed,
             "recorded": snapshot.recorded,
             "not_recorded": snapshot.not_recorded,
+            "unreadable": snapshot.bad_frames,
         },
         "latency_ms": {
             "last": _ms(snapshot.latency_last_s),
@@ -381,6 +385,8 @@ class LiveSummary:
     exhausted : whether the source ended (a replay's last frame).
     last_error, last_exit_code : the last estimation error, if any, and its exit code (2 or 3).
     sink_errors : errors raised by sinks (each is reported once, then the loop goes on).
+    first_bad_frame : why the first skipped replay frame could not be read, if any (see
+        :attr:`HealthSnapshot.bad_frames`).
     """
 
     final: HealthSnapshot
@@ -390,6 +396,7 @@ class LiveSummary:
     last_error: str | None = None
     last_exit_code: int = 0
     sink_errors: tuple[str, ...] = field(default_factory=tuple)
+    first_bad_frame: str | None = None
 
     @property
     def throughput_hz(self) -> float:
@@ -438,7 +445,8 @@ class LiveLoop:
         self._health_dirty = False
         # counters (written by one thread each; read under the condition's lock for snapshots)
         self._captured = self._dropped = self._processed = self._estimated = self._failed = 0
-        self._camera_errors = self._reopens = 0
+        self._camera_errors = self._reopens = self._bad_frames = 0
+        self._first_bad_frame: str | None = None
         self._camera_healthy = True
         self._camera_message: str | None = None
         self._last_frame_s: float | None = None
@@ -488,6 +496,11 @@ class LiveLoop:
                 except SourceExhausted:
                     self._exhausted = True
                     return
+                except BadFrame as exc:  # the source is fine: on to the next frame, no back-off
+                    with self._cond:
+                        self._bad_frames += 1
+                        self._first_bad_frame = self._first_bad_frame or str(exc)
+                    continue
                 except Exception as exc:
                     self._camera_errors += 1
                     self._set_camera(False, f"{self.source.name}: {exc}")
@@ -577,6 +590,7 @@ class LiveLoop:
                 camera_message=self._camera_message,
                 last_frame_age_s=None if self._last_frame_s is None else now - self._last_frame_s,
                 camera_errors=self._camera_errors,
+                bad_frames=self._bad_frames,
                 reopens=self._reopens,
                 captured=self._captured,
                 processed=self._processed,
@@ -631,7 +645,15 @@ class LiveLoop:
         """Run until the end; returns the summary. The source is opened here (a camera that cannot be
         opened at all raises :class:`~softjig.io.cameras.CameraError`, exit code 2) and closed on exit."""
         t_start = time.monotonic()
-        self.source.open()
+        try:
+            self.source.open()
+        except BaseException:  # nothing ran: the recorder and the sinks are closed all the same
+            if self.recorder is not None:
+                self.recorder.close()  # an overwrite with no frame leaves the old recording in place
+            for sink in self.sinks:
+                with contextlib.suppress(Exception):
+                    sink.close()
+            raise
         capture = threading.Thread(target=self._capture, name="softjig-capture", daemon=True)
         interrupted = False
         next_health = time.monotonic()
@@ -683,4 +705,5 @@ class LiveLoop:
             last_error=self._last_error,
             last_exit_code=self._last_exit_code,
             sink_errors=tuple(self._sink_errors),
+            first_bad_frame=self._first_bad_frame,
         )

@@ -87,6 +87,19 @@ def plane_square_pose(normal: np.ndarray, point_mm: np.ndarray) -> tuple[np.ndar
     )
 
 
+_MCAP_MAGIC = b"\x89MCAP"
+
+
+def _is_mcap(path: Path) -> bool:
+    """Whether ``path`` is a regular file starting with MCAP's magic bytes (or an empty file)."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(len(_MCAP_MAGIC))
+    except OSError:
+        return False
+    return path.is_file() and head in (b"", _MCAP_MAGIC)
+
+
 class FoxgloveViewer:
     """Log the live loop's images, markers, point cloud, plane and normal to Foxglove.
 
@@ -134,6 +147,11 @@ class FoxgloveViewer:
             path = Path(mcap_path)
             if path.exists() and not overwrite:
                 raise InputError(f"{path} exists: choose another MCAP file name or overwrite it")
+            if path.exists() and not _is_mcap(path):  # --overwrite replaces only what we wrote
+                raise InputError(
+                    f"{path} exists and is not an MCAP file: --overwrite replaces only an MCAP log; "
+                    "choose another file name"
+                )
             path.parent.mkdir(parents=True, exist_ok=True)
             self._mcap = foxglove.open_mcap(path, allow_overwrite=overwrite, context=self.context)
         if serve:

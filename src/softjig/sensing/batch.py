@@ -51,7 +51,7 @@ from softjig.calibration.tilt import TiltCalibration
 from softjig.config import JigConfig
 from softjig.errors import EstimationError, InputError
 from softjig.io.dataset import Dataset, Frame
-from softjig.io.files import fsync_folder, temp_file_beside
+from softjig.io.files import fsync_folder, remove_stale_temporaries, temp_file_beside
 from softjig.io.workers import worker_pool
 from softjig.sensing.identities import ReferenceMarkers
 from softjig.sensing.pipeline import DEFAULT_METHOD, estimate_pair, reference_from_pair, sensing_setup
@@ -419,6 +419,8 @@ class RowsWriter:
 
     def __enter__(self) -> RowsWriter:
         path = self.path
+        if not path.is_dir():
+            remove_stale_temporaries(path)  # a killed earlier run's (SIGKILL: nothing ran to remove it)
         fd, self._tmp = temp_file_beside(path)
         # newline="": the text is written byte for byte as rows_to_text makes it (CSV's \r\n kept).
         self._fh = open(fd, "w", encoding="utf-8", newline="")
