@@ -255,7 +255,7 @@ def table_by(rows: Sequence[Row], key, title: str) -> list[str]:
     out = [
         f"**{title}**",
         "",
-        "| group | way | frames | RMSE deg | p95 deg | max deg | failures | silent | suspect | 1-sigma cover |",
+        "| group | way | frames | RMSE deg | p95 deg | max deg | failed | silent | suspect | 1-sigma cover |",
         "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for g in sorted(groups):
