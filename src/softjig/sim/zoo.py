@@ -274,7 +274,8 @@ def _draw_jig(
         dome_exponent=exponent,
     )
     diameter = _u(rng, zr.marker_diameter_mm)
-    pitch = _u(rng, (max(zr.marker_pitch_mm[0], zr.min_pitch_diameters * diameter), zr.marker_pitch_mm[1]))
+    lo = max(zr.marker_pitch_mm[0], zr.min_pitch_diameters * diameter)
+    pitch = _u(rng, (lo, zr.marker_pitch_mm[1])) if lo <= zr.marker_pitch_mm[1] else zr.marker_pitch_mm[1]
     grid = "square" if rng.uniform() < 0.5 else "hex"
     markers = MarkerConfig(
         diameter_mm=diameter,
@@ -349,6 +350,8 @@ def _draw_jig(
 
 def _unmakeable(jig: JigConfig, zr: ZooRanges) -> str | None:
     """Why the design cannot be built or used, or ``None``."""
+    if jig.markers.pitch_mm < zr.min_pitch_diameters * jig.markers.diameter_mm:
+        return f"markers closer than {zr.min_pitch_diameters:g} diameters (their blurred images merge)"
     try:
         validate_jig(jig)
     except ConfigError as exc:
