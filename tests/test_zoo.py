@@ -103,6 +103,8 @@ def test_cli_writes_each_design_as_a_dataset(tmp_path):
         (["--designs", "0"], "at least one design"),
         (["--frames", "0"], "at least one loaded frame"),
         (["--alphas", "5"], "--alphas"),
+        (["--push-depth", "5"], "--push-depth"),
+        (["--config", "rig.toml"], "--config does not apply"),
     ],
 )
 def test_cli_zoo_bad_input_exits_2(tmp_path, extra, message):

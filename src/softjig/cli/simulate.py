@@ -41,7 +41,10 @@ def simulate(
     theta_step: Annotated[
         float | None, typer.Option(help="paper-sweep: azimuth step in degrees.", show_default="10")
     ] = None,
-    push_depth: Annotated[float, typer.Option(help="Push depth of the part in mm.")] = 3.0,
+    push_depth: Annotated[
+        float | None,
+        typer.Option(help="Push depth of the part in mm (not zoo: it draws 2-8 mm).", show_default="3"),
+    ] = None,
     part_diameter: Annotated[
         float | None, typer.Option(help="single: the cylinder's diameter in mm.")
     ] = None,
@@ -79,11 +82,12 @@ def simulate(
         "--theta": theta,
         "--frames": frames,
         "--designs": designs,
+        "--push-depth": push_depth,
     }
     allowed = {
-        Scenario.paper_sweep: {"--diameters", "--alphas", "--theta-step"},
-        Scenario.cube: {"--frames"},
-        Scenario.single: {"--part-diameter", "--alpha", "--theta"},
+        Scenario.paper_sweep: {"--diameters", "--alphas", "--theta-step", "--push-depth"},
+        Scenario.cube: {"--frames", "--push-depth"},
+        Scenario.single: {"--part-diameter", "--alpha", "--theta", "--push-depth"},
         Scenario.zoo: {"--frames", "--designs"},
     }[scenario]
     stray = [name for name, value in given.items() if value is not None and name not in allowed]
@@ -107,6 +111,7 @@ def simulate(
         )
         return
     jig = load_config(config)
+    push_depth = 3.0 if push_depth is None else push_depth
     if scenario is Scenario.paper_sweep:
         specs = list(
             scenarios.paper_sweep(
