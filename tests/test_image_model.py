@@ -151,8 +151,10 @@ def test_redrawn_fraction_under_the_contact(fraction):
     assert inside.sum() > 5000
     corr = np.corrcoef(s_ref[inside], s_load[inside])[0, 1]
     assert corr == pytest.approx(1.0 - fraction, abs=0.08)
-    # the texture keeps its standard deviation where it is redrawn
-    assert np.std(s_load[inside]) == pytest.approx(jig.medium.speckle_std, rel=0.15)
+    # the texture keeps its standard deviation where it is redrawn (a few hundred speckle grains: the
+    # sample std of either is within ~10 % of the configured one)
+    assert np.std(s_load[inside]) == pytest.approx(np.std(s_ref[inside]), rel=0.15)
+    assert np.std(s_load[inside]) == pytest.approx(jig.medium.speckle_std, rel=0.2)
 
 
 def _marker_light(pair, side: str, radius_px: float, bg: float) -> tuple[np.ndarray, np.ndarray]:

@@ -705,17 +705,20 @@ def _speckle(rng: np.random.Generator, shape: tuple[int, int], corr_px: float, s
     return fine[:h, :w]
 
 
-def _coarse_texture(
-    rng: np.random.Generator, shape: tuple[int, int], corr_px: float
-) -> tuple[np.ndarray, int]:
-    """The coarse grid of :func:`_speckle`'s texture, of unit standard deviation, and its factor ``f``."""
+def _coarse_grid(shape: tuple[int, int], corr_px: float) -> tuple[int, tuple[int, int], float]:
+    """:func:`_speckle`'s coarse grid for an image of ``shape``: its factor ``f``, its shape and the
+    smoothing sigma on it (coarse px)."""
     h, w = shape
     f = max(1, round(corr_px / 2.0))
-    coarse = _standard_normal(rng, (h // f + 2, w // f + 2))
-    sigma = max(corr_px / (2.0 * f), 0.3)
+    return f, (h // f + 2, w // f + 2), max(corr_px / (2.0 * f), 0.3)
+
+
+def _coarse_texture(rng: np.random.Generator, coarse_shape: tuple[int, int], sigma: float) -> np.ndarray:
+    """White noise on the coarse grid smoothed by ``sigma`` coarse px, of unit standard deviation."""
+    coarse = _standard_normal(rng, coarse_shape)
     coarse = cv2.GaussianBlur(coarse, (0, 0), sigmaX=sigma, borderType=cv2.BORDER_REFLECT)
     coarse *= np.float32(1.0 / max(float(coarse.std()), 1e-12))
-    return coarse, f
+    return coarse
 
 
 def _upsample(coarse: np.ndarray, f: int, shape: tuple[int, int], std: float) -> np.ndarray:
@@ -730,15 +733,20 @@ def _upsample(coarse: np.ndarray, f: int, shape: tuple[int, int], std: float) ->
 
 
 def speckle_correlation_px(jig: JigConfig, camera: CameraConfig) -> float:
-    """One bead diameter projected into ``camera`` (px), on the membrane's rest surface above the camera:
-    the static texture's correlation length, a property of the jig and the camera only (not of the
-    frame, so every frame's texture is the same)."""
-    x, y = float(camera.position_mm[0]), float(camera.position_mm[1])
+    """One bead diameter projected into ``camera`` (px) on the membrane's rest surface above it: the
+    static texture's correlation length, a property of the jig and the camera only (not of the frame, so
+    every frame's texture is the same).
+
+    Paraxially, a ray leaving the camera at a small angle ``t`` in air runs at ``t / n`` in a flat layer
+    of index ``n``, so a lateral offset ``dx`` at height ``z`` images at ``fx dx / D`` px with the
+    equivalent distance ``D = d_air + t_plate / n_plate + z / n_oil`` (``d_air`` from the camera up to
+    the plate's bottom face).
+    """
+    x, y, z_cam = (float(v) for v in camera.position_mm)
     z = max(float(rest_inner_height_mm(jig, np.array([x]), np.array([y]))[0]), 0.0)
-    d = jig.medium.bead_diameter_mm
-    P = np.array([[x, y, z], [x + d, y, z], [x, y + d, z]])
-    px = project_points(P, camera.K, distortion_of(camera), camera.T_J_cam, flat_layers(jig))
-    corr = 0.5 * (np.linalg.norm(px[1] - px[0]) + np.linalg.norm(px[2] - px[0]))
+    t = jig.plate.thickness_mm
+    distance = (-t - z_cam) + t / jig.plate.refractive_index + z / jig.medium.oil_refractive_index
+    corr = 0.5 * (camera.fx_px + camera.fy_px) * jig.medium.bead_diameter_mm / max(distance, 1e-6)
     return float(corr) if math.isfinite(corr) and corr > 0 else 5.0
 
 
@@ -764,20 +772,30 @@ def _bead_speckle(
     md = jig.medium
     shape = (camera.height_px, camera.width_px)
     corr_px = speckle_correlation_px(jig, camera)
+    f, coarse_shape, sigma = _coarse_grid(shape, corr_px)
     seed = np.random.SeedSequence(md.speckle_seed, spawn_key=(0, _CAMERA_INDEX[side]))
-    coarse, f = _coarse_texture(np.random.default_rng(seed), shape, corr_px)
+    coarse = _coarse_texture(np.random.default_rng(seed), coarse_shape, sigma)
     if md.speckle_redraw_fraction > 0 and moved.any():
-        mask = np.zeros(coarse.shape, dtype=np.float32)
         centre = (optics.px[moved] + 0.5) / f - 0.5  # coarse-grid coordinates of the fine pixel
         radius = jig.markers.pitch_mm / math.sqrt(2.0) * optics.scale_px_per_mm[moved] / f
-        for (u, v), r in zip(np.rint(centre * 16).astype(int).tolist(), radius.tolist(), strict=True):
-            cv2.circle(mask, (u, v), max(1, round(16 * r)), 1.0, thickness=-1, lineType=cv2.LINE_AA, shift=4)
-        mask = cv2.GaussianBlur(mask, (0, 0), sigmaX=1.0)
-        keep = 1.0 - np.float32(md.speckle_redraw_fraction) * mask  # correlation with the static texture
-        fresh, _ = _coarse_texture(rng, shape, corr_px)
-        fresh *= np.sqrt(np.maximum(1.0 - keep * keep, 0.0))
-        coarse *= keep
-        coarse += fresh
+        # Only the box around the moved region is redrawn (its mask is zero elsewhere).
+        reach = radius + 5.0  # the mask's softening kernel reaches 4 coarse px
+        hs, ws = coarse_shape
+        x0, y0 = (max(int(np.floor(np.min(centre[:, k] - reach))), 0) for k in (0, 1))
+        x1 = min(int(np.ceil(np.max(centre[:, 0] + reach))) + 1, ws)
+        y1 = min(int(np.ceil(np.max(centre[:, 1] + reach))) + 1, hs)
+        if x0 < x1 and y0 < y1:
+            mask = np.zeros((y1 - y0, x1 - x0), dtype=np.float32)
+            local = np.rint((centre - [x0, y0]) * 16).astype(int).tolist()
+            for (u, v), r in zip(local, radius.tolist(), strict=True):  # 4 fractional bits (shift=4)
+                cv2.circle(mask, (u, v), max(1, round(16 * r)), 1.0, -1, cv2.LINE_AA, 4)
+            mask = cv2.GaussianBlur(mask, (0, 0), sigmaX=1.0)
+            keep = 1.0 - np.float32(md.speckle_redraw_fraction) * mask  # correlation with the static one
+            fresh = _coarse_texture(rng, mask.shape, sigma)
+            fresh *= np.sqrt(np.maximum(1.0 - keep * keep, 0.0))
+            box = coarse[y0:y1, x0:x1]
+            box *= keep
+            box += fresh
     return _upsample(coarse, f, shape, md.speckle_std)
 
 
