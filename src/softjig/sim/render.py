@@ -254,11 +254,13 @@ def render_view(
     jig : JigConfig
         The jig as built (plate, medium, markers, fiducials, imaging).
     camera : CameraConfig
-        The camera: intrinsics, distortion and pose in J.
+        The camera: intrinsics, distortion and pose in J. If it equals ``jig.cameras.right`` (and not
+        the left one) it is rendered as the right camera (its exposure, gain, mirrored illumination
+        centre and bead-pack texture), otherwise as the left.
     state : MembraneState
         Marker base centres and axes in J (mm).
     rng : numpy.random.Generator, int or None
-        Source of every random draw (speckle, sensor noise).
+        Source of every per-frame random draw (redrawn or per-frame speckle, sensor noise).
     color : bool
         Return ``(H, W, 3)`` RGB (equal channels) instead of ``(H, W)``.
 
