@@ -159,6 +159,13 @@ class MediumConfig:
     perfectly clear and transmit light unevenly: bead speckle multiplies the image by ``1 + s``, ``s`` a
     spatially correlated texture of standard deviation ``speckle_std`` and correlation length one bead
     diameter, projected into the image.
+
+    The speckle is a property of *this* bead pack: the beads do not move between frames except where
+    the part pushes the membrane into the pack, so each camera sees one fixed texture (a function of
+    ``speckle_seed`` and the camera), the same in the unloaded reference frame and in every loaded
+    frame. Where the membrane has moved by more than ``speckle_redraw_displacement_mm`` the beads next
+    to it are pushed aside and re-pack, and a fraction ``speckle_redraw_fraction`` of the texture's
+    variance is new in that frame (see :mod:`softjig.sim.render`, step 4).
     """
 
     __pydantic_config__ = _STRICT
@@ -167,11 +174,29 @@ class MediumConfig:
     bead_diameter_mm: float = 1.0
     blur_coefficient: float = 0.0035  # mm^-1/2
     speckle_std: float = 0.04  # relative: ~5 gray levels on a marker, ~1 on the black membrane
+    # True: the bead pack's fixed texture (a real jig); False: a new texture every frame (a pack stirred
+    # between frames: an idealisation, and the simulator's behaviour before the static texture).
+    speckle_static: bool = True
+    speckle_seed: int = 0  # which bead pack: the static texture is drawn from this seed and the camera
+    # Fraction of the speckle's variance redrawn where the membrane moved beads: only the beads next to
+    # the membrane (a few of the ~20-30 bead layers along the optical path) re-pack, the rest of the
+    # column stays put, so well below 1. The texture's correlation with the reference frame's there is
+    # 1 - speckle_redraw_fraction (the kept layers' share of the variance).
+    speckle_redraw_fraction: float = 0.3
+    # How far (mm) the membrane must move to push a bead out of its pocket: about half a bead diameter.
+    speckle_redraw_displacement_mm: float = 0.5
 
 
 @dataclass(frozen=True)
 class ImagingConfig:
-    """Illumination, sensor noise and output format of the rendered images (fractions of full scale)."""
+    """Illumination, sensor noise and output format of the rendered images (fractions of full scale).
+
+    Levels are radiances at an exposure of 1, as fractions of the sensor's full scale. The markers are
+    hand-cast: each reflects ``1 + marker_brightness_spread * z`` times the nominal light (``z`` standard
+    normal, fixed per marker and jig, drawn from ``marker_brightness_seed``). Each camera's light
+    collection (its ``exposure``, relative: shutter time x aperture) scales the radiance before the
+    sensor's shot and read noise; its ``gain`` (relative) scales the signal and its noise after.
+    """
 
     __pydantic_config__ = _STRICT
     background_level: float = 0.08  # the black membrane
@@ -181,6 +206,17 @@ class ImagingConfig:
     read_noise: float = 0.008
     bit_depth: Literal[8, 16] = 8
     supersampling: int = 4  # sub-samples per pixel side when rendering marker shapes
+    marker_brightness_spread: float = 0.08  # relative std of a marker's brightness (paint, cast shape)
+    marker_brightness_seed: int = 0  # which set of markers: each marker's brightness factor
+    # "hemisphere": a cast white dome, shaded (1 + cos) / 2 by its normal; "disc": a flat painted disc
+    # on the membrane, uniformly bright (Lambertian: times the cosine of its tilt to the view ray).
+    marker_appearance: Literal["hemisphere", "disc"] = "hemisphere"
+    # Centre of the illumination's fall-off, off the image centre: (u, v) as fractions of the half-width
+    # and half-height, for the left camera; the right camera's is mirrored in u (one LED ring between the
+    # two cameras lights each image's inner side more).
+    illumination_center: Vec2 = (0.1, 0.05)
+    exposure: Vec2 = (1.0, 0.93)  # (left, right) light collected, relative to the levels above
+    gain: Vec2 = (1.0, 1.05)  # (left, right) sensor gain, relative: multiplies signal and noise
 
 
 @dataclass(frozen=True)
@@ -718,6 +754,7 @@ def validate_jig(jig: JigConfig) -> None:
     _non_negative(im.read_noise, "imaging.read_noise")
     if not 1 <= im.supersampling <= 16:
         _fail("imaging.supersampling", f"must be between 1 and 16, got {im.supersampling}")
+    _validate_image_model(md, im)
     for side in ("left", "right"):
         _validate_camera(getattr(jig.cameras, side), f"cameras.{side}", jig)
     if jig.cameras.baseline_mm <= 0:
@@ -735,6 +772,38 @@ def validate_jig(jig: JigConfig) -> None:
     _non_negative(s.disparity_margin_px, "sensing.disparity_margin_px")
     if s.min_points < 3:
         _fail("sensing.min_points", f"a plane needs at least 3 points, got {s.min_points}")
+
+
+def _validate_image_model(md: MediumConfig, im: ImagingConfig) -> None:
+    """The simulated image model's fields (bead-pack speckle, marker brightness, illumination, sensors)."""
+    if not 0.0 <= md.speckle_redraw_fraction <= 1.0:
+        _fail(
+            "medium.speckle_redraw_fraction",
+            f"must be a fraction in [0, 1], got {md.speckle_redraw_fraction}",
+        )
+    _non_negative(md.speckle_redraw_displacement_mm, "medium.speckle_redraw_displacement_mm")
+    if md.speckle_seed < 0:
+        _fail("medium.speckle_seed", f"must be a non-negative integer, got {md.speckle_seed}")
+    if im.marker_brightness_seed < 0:
+        _fail(
+            "imaging.marker_brightness_seed",
+            f"must be a non-negative integer, got {im.marker_brightness_seed}",
+        )
+    if not 0.0 <= im.marker_brightness_spread <= 0.5:
+        _fail(
+            "imaging.marker_brightness_spread",
+            f"must be a relative standard deviation in [0, 0.5], got {im.marker_brightness_spread}",
+        )
+    for k, value in enumerate(im.illumination_center):
+        if not (math.isfinite(value) and abs(value) <= 1.0):
+            _fail(
+                f"imaging.illumination_center[{k}]",
+                f"must lie in the image (a fraction of its half-size, in [-1, 1]), got {value}",
+            )
+    for name in ("exposure", "gain"):
+        for k, value in enumerate(getattr(im, name)):
+            if not (math.isfinite(value) and 0.05 <= value <= 20.0):
+                _fail(f"imaging.{name}[{k}]", f"must be a relative factor in [0.05, 20], got {value}")
 
 
 MAX_IMAGE_SIDE_PX = 8192
