@@ -111,7 +111,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     ),
     "jig": (
         "softjig.cli.jig_cmd",
-        "Jamming control: fix (jam) or release the jig, or read its state, through the pump controller.",
+        "Jamming control: fix (jam), hold, release or stop the jig, or read its state, through the pump "
+        "controller.",
     ),
 }
 
