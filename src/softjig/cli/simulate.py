@@ -68,8 +68,10 @@ def simulate(
     overwrite: Annotated[bool, typer.Option(help="Replace an existing dataset in --out.")] = False,
     progress: Annotated[bool, typer.Option(help="Show a progress bar on stderr.")] = True,
 ) -> None:
-    """Render a simulated dataset: the paper's tilt sweep, the cube experiment, a single frame, or a zoo of
-    random jig designs (DIR/000, DIR/001, ...: each a dataset with its own rig, reference frame first)."""
+    """Render a simulated dataset: the paper's tilt sweep, the cube experiment, a single frame or a jig zoo.
+
+    The zoo draws random jig designs into DIR/000, DIR/001, ...: each a dataset with its own rig, its
+    reference frame first."""
     from softjig.config import CylinderPart
     from softjig.sim import scenarios
 
