@@ -219,6 +219,11 @@ def live(
     def on_sigterm(_signum, _frame) -> None:
         raise KeyboardInterrupt
 
+    from softjig.live.serve import first_loaded_pair, warm_up
+
+    # Before the cameras open (loop.run opens them): the first pair is estimated as fast as the hundredth.
+    first_pair = first_loaded_pair(cameras.dataset) if replay is not None else None
+    typer.echo(f"warmed up in {warm_up(settings, first_pair):.2f} s", err=True)
     previous = signal.signal(signal.SIGTERM, on_sigterm)
     try:
         summary = loop.run()

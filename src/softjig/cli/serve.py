@@ -92,7 +92,14 @@ def serve(
     from softjig.io.dataset import Dataset
     from softjig.io.stream import check_endpoint
     from softjig.live.loop import LiveSettings
-    from softjig.live.serve import EstimationService, LoopingReplay, PumpAdapter, ServeSettings, warm_up
+    from softjig.live.serve import (
+        EstimationService,
+        LoopingReplay,
+        PumpAdapter,
+        ServeSettings,
+        first_loaded_pair,
+        warm_up,
+    )
 
     if (replay is None) == (source is None):
         raise InputError("give either --replay DATASET or --source CAMERAS (e.g. --source opencv:0,1)")
@@ -115,11 +122,7 @@ def serve(
 
         cameras = LoopingReplay(make) if loop else make()
         jig = load_config(config) if config else dataset.jig
-        for frame in dataset:  # warm up on the first loaded frame
-            if not frame.reference:
-                diameter = None if frame.part is None else float(frame.part.diameter_mm)
-                first_pair = (frame.load_left(), frame.load_right(), diameter)
-                break
+        first_pair = first_loaded_pair(dataset)  # warm up on the first loaded frame
     else:
         if rate != "recorded":
             raise InputError("--rate applies to --replay, not to cameras")

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import itertools
 import json
 import math
 import threading
@@ -308,6 +309,23 @@ class OutcomeBoard:
 
 
 # ------------------------------------------------------------------------------------------- warm-up
+
+
+#: Loaded frames of a replay tried for the warm-up before a rendered pair is used instead.
+WARM_UP_CANDIDATES = 5
+
+
+def first_loaded_pair(dataset: Any) -> tuple[Any, Any, float | None] | None:
+    """``(left, right, part_diameter_mm)`` of a dataset's first readable loaded frame among its first
+    :data:`WARM_UP_CANDIDATES` (what :func:`warm_up` takes), or ``None`` (warm up on a rendered pair)."""
+    loaded = (frame for frame in dataset if not frame.reference)
+    for frame in itertools.islice(loaded, WARM_UP_CANDIDATES):
+        diameter = None if frame.part is None else float(frame.part.diameter_mm)
+        try:
+            return frame.load_left(), frame.load_right(), diameter
+        except SoftjigError:  # an unreadable frame: the replay skips it too
+            continue
+    return None
 
 
 def warm_up(settings: LiveSettings, pair: tuple[Any, Any, float | None] | None = None) -> float:
