@@ -74,6 +74,9 @@ class Board:
     kind : ``"chessboard"`` or ``"charuco"``.
     marker_mm : ChArUco only: side of the ArUco marker inside a white square (mm); default 0.75 square.
     dictionary : ChArUco only: the ArUco dictionary's OpenCV name.
+    legacy : ChArUco only: the board has the pattern OpenCV drew before 4.6 (``setLegacyPattern``); it
+        differs from the current one only for an even number of rows, and the two cannot be told apart
+        from a partial view, so it is the user's to say.
     """
 
     cols: int
@@ -82,6 +85,7 @@ class Board:
     kind: Literal["chessboard", "charuco"] = "chessboard"
     marker_mm: float | None = None
     dictionary: str = "DICT_4X4_50"
+    legacy: bool = False
 
     def __post_init__(self) -> None:
         if self.kind not in ("chessboard", "charuco"):
@@ -150,6 +154,7 @@ def _charuco_board(board: Board) -> cv2.aruco.CharucoBoard:
             board.marker_side_mm,
             aruco_dictionary(board.dictionary),
         )
+        _CHARUCO_CACHE[board].setLegacyPattern(board.legacy)
     return _CHARUCO_CACHE[board]
 
 
@@ -449,6 +454,12 @@ def calibrate_stereo(
             f"the board ({what}) was found in both images of only {len(used)} of {len(names)} pairs; "
             f"calibration needs at least {MIN_VIEWS} (10-20 advisable). Check --board (inner corners as "
             "OpenCV counts them, i.e. squares minus one each way) and that the whole board is in view"
+            + (
+                f"; a ChArUco board with an even number of rows printed by OpenCV < 4.6 has the legacy "
+                f"pattern: try {'without' if board.legacy else 'with'} --legacy-pattern"
+                if board.kind == "charuco" and board.rows % 2 == 0
+                else ""
+            )
         )
     cal = _calibrate(obj, img_l, img_r, (w, h), used, fix_k3)
     if drop_outliers and cal.outliers and len(used) - len(cal.outliers) >= MIN_VIEWS:
