@@ -208,7 +208,18 @@ def detect_board(image: np.ndarray, board: Board, *, name: str = "image") -> Boa
         corners, ids, _, _ = cv2.aruco.CharucoDetector(_charuco_board(board)).detectBoard(gray)
         if ids is None or len(ids) < 6:
             return None
-        return BoardView(corners.reshape(-1, 2).astype(float), ids.ravel().astype(int))
+        # Refine again with cornerSubPix in a window that stays within the white between a corner and
+        # the nearest marker (80 % of it): OpenCV 4.8's detector returns corners 0.5 px off in u and v
+        # (rendered truth), 5.0's are unbiased; refined, both agree (RMS 0.14 px on rendered boards).
+        pts = corners.reshape(-1, 2).astype(np.float32)
+        gaps = np.linalg.norm(pts[:, None] - pts[None], axis=2)
+        np.fill_diagonal(gaps, np.inf)
+        step = float(np.median(gaps.min(axis=1)))  # one square (px), neighbouring corners' distance
+        inset = (board.square_mm - board.marker_side_mm) / 2.0 / board.square_mm
+        half = int(np.clip(round(0.8 * inset * step), 2, 11))
+        crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-4)
+        pts = cv2.cornerSubPix(gray, pts.reshape(-1, 1, 2), (half, half), (-1, -1), crit)
+        return BoardView(pts.reshape(-1, 2).astype(float), ids.ravel().astype(int))
     size = (board.cols, board.rows)
     ok, corners = cv2.findChessboardCornersSB(gray, size, flags=0)
     if not ok:
