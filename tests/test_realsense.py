@@ -151,3 +151,22 @@ def test_config_from_realsense_without_a_device_exits_2_naming_what_is_connected
     assert "found 0 RealSense cameras" in res.output and not out.exists()
     res = CliRunner().invoke(app, ["config", "--from-realsense", "0123", "--out", str(out)])
     assert res.exit_code == 2 and "0123 not found" in res.output and not out.exists()
+
+
+def test_colour_pair_source_kept_and_names_missing_cameras():
+    from softjig.io.cameras import CameraError, RealSenseStereoSource
+
+    with pytest.raises(CameraError, match=r"RealSense camera 1, 2 not found; connected: none"):
+        RealSenseStereoSource("1", "2").open()
+    with pytest.raises(CameraError, match="found 0 RealSense cameras"):
+        RealSenseStereoSource().open()
+
+
+def test_without_pyrealsense2_the_ir_source_says_how_to_install(monkeypatch):
+    import sys
+
+    from softjig.io.cameras import CameraError
+
+    monkeypatch.setitem(sys.modules, "pyrealsense2", None)  # as if not installed
+    with pytest.raises(CameraError, match=r"softjig\[realsense\]"):
+        RealSenseIRSource().open()
