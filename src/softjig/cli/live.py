@@ -138,6 +138,10 @@ def live(
     sinks: list = []
     recorder = None
     try:
+        if rerun or rerun_save is not None:
+            from softjig.live.rerun_viewer import RerunViewer
+
+            sinks.append(RerunViewer(save_path=rerun_save, spawn=rerun, overwrite=overwrite))
         if publish is not None:
             from softjig.io.stream import Publisher
 
@@ -158,10 +162,6 @@ def live(
             sinks.append(viewer)
             if view:
                 typer.echo(f"live view: open ws://127.0.0.1:{viewer.port} in the Foxglove app", err=True)
-        if rerun or rerun_save is not None:
-            from softjig.live.rerun_viewer import RerunViewer
-
-            sinks.append(RerunViewer(save_path=rerun_save, spawn=rerun, overwrite=overwrite))
         if record is not None:
             default_part = part_to_dict(CylinderPart(part_diameter)) if part_diameter else None
             recorder = Recorder(record, jig, default_part=default_part, overwrite=overwrite)
