@@ -123,3 +123,116 @@ def test_cli_align_jig(tmp_path, scene):
     assert res.exit_code == 0, res.output
     T = np.array(json.loads(out.read_text())["T_robot_jig"])
     assert _errors(T, T_true)[0] < 0.3
+
+
+# ---------------------------------------------------------------- issue 14: no pose that is not credible
+
+
+def _write_inputs(tmp_path, image, T_flange, cam_changes=None, flange_json=None):
+    import json
+
+    import cv2
+
+    cv2.imwrite(str(tmp_path / "he.png"), image)
+    cam = {k: getattr(CAM, k) for k in ("width_px", "height_px", "fx_px", "fy_px", "cx_px", "cy_px")}
+    cam["distortion"] = list(CAM.distortion)
+    cam["T_flange_cam"] = T_FLANGE_CAM.tolist()
+    cam.update(cam_changes or {})
+    (tmp_path / "cam.json").write_text(json.dumps(cam))
+    flange = flange_json if flange_json is not None else json.dumps({"T_robot_flange": T_flange.tolist()})
+    (tmp_path / "flange.json").write_text(flange)
+
+
+def _align_cli(tmp_path):
+    from typer.testing import CliRunner
+
+    from softjig.cli import app
+
+    out = tmp_path / "robot-jig.json"
+    args = ["align-jig", str(tmp_path / "he.png"), "--camera", str(tmp_path / "cam.json")]
+    args += ["--flange", str(tmp_path / "flange.json"), "--out", str(out)]
+    return CliRunner().invoke(app, args), out
+
+
+def _stereo_camera_image():
+    """A crop of the stereo camera's view of the membrane's markers (many bright blobs, no circles)."""
+    from softjig.config import CylinderPart
+    from softjig.sim.asbuilt import draw_as_built
+    from softjig.sim.parts import PartPose
+    from softjig.sim.render import render_pair
+
+    jig = default_jig()
+    left = render_pair(draw_as_built(jig, rng=0), CylinderPart(diameter_mm=50.0), PartPose(), rng=0).left
+    return np.ascontiguousarray(left[100:580, 300:940])
+
+
+@pytest.mark.parametrize("kind", ["noise", "stereo"])
+def test_an_image_without_the_circles_gives_no_pose(tmp_path, scene, kind):
+    """Issue 14: a noise image and a stereo image gave exit 0 and a robot pose (RMS 64-128 px)."""
+    _, _, T_flange = scene
+    if kind == "noise":
+        image = (np.random.default_rng(0).random((480, 640)) * 255).astype(np.uint8)
+    else:
+        image = _stereo_camera_image()
+    _write_inputs(tmp_path, image, T_flange)
+    result, out = _align_cli(tmp_path)
+    assert result.exit_code == 3, result.output
+    assert "no credible pose" in result.output or "alignment circles" in result.output
+    assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    ("cam_changes", "flange_change", "match"),
+    [
+        ({"fx_px": -560.0}, None, "fx_px must be positive"),
+        ({"cx_px": 5000.0}, None, "principal point"),
+        ({"width_px": 1280, "height_px": 720, "cx_px": 640.0, "cy_px": 360.0}, None, "640 x 480 px"),
+        (None, "scaled", "not orthonormal"),
+        (None, "reflected", "determinant -1"),
+        (None, "nan", "NaN"),
+        (None, "km", "no robot reaches"),
+        (None, "quaternion", "unit norm"),
+    ],
+)
+def test_inputs_that_are_not_credible_are_refused(tmp_path, scene, cam_changes, flange_change, match):
+    """Issue 14: a flange matrix that is not a rotation, fx < 0 gave a pose; NaN gave NaN, then a
+    traceback."""
+    import json
+
+    image, _, T_flange = scene
+    T = T_flange.copy()
+    flange_json = None
+    if flange_change == "scaled":
+        T[:3, :3] *= 1.1
+    elif flange_change == "reflected":
+        T[:3, 0] *= -1
+    elif flange_change == "nan":
+        T[0, 3] = np.nan
+        flange_json = json.dumps({"T_robot_flange": T.tolist()})  # Python's json writes NaN
+    elif flange_change == "km":
+        T[:3, 3] = [1e9, 0, 0]
+    elif flange_change == "quaternion":
+        flange_json = json.dumps({"position_mm": [600.0, 0, 400.0], "quaternion_xyzw": [0, 0, 0, 2.0]})
+    _write_inputs(tmp_path, image, T, cam_changes, flange_json)
+    result, out = _align_cli(tmp_path)
+    assert result.exit_code == 2, result.output
+    assert match in result.output
+    assert not out.exists()
+    assert "Traceback" not in result.output
+
+
+def test_a_wrong_circle_diameter_is_refused(scene):
+    image, _, T_flange = scene
+    jig = JIG.replace(alignment=AlignmentConfig(circle_diameter_mm=JIG.alignment.circle_diameter_mm / 2))
+    with pytest.raises(EstimationError, match="times the area"):
+        align_jig_to_robot(image, jig, CAM, T_flange, T_FLANGE_CAM)
+
+
+def test_check_pose_orthonormalises_within_tolerance(scene):
+    from softjig.calibration.alignment import check_pose
+
+    _, _, T_flange = scene
+    typed = np.round(T_flange, 4)  # as printed with 4 decimals
+    T = check_pose(typed, "T")
+    np.testing.assert_allclose(T[:3, :3].T @ T[:3, :3], np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(T, typed, atol=1e-3)

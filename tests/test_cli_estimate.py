@@ -66,7 +66,7 @@ def test_pair_table_and_overlay(sweep, tmp_path):
 
 def test_pair_calibration_is_applied(sweep, tmp_path):
     cal = tmp_path / "cal.json"
-    cal.write_text(json.dumps({"offset_x_deg": 0.0, "offset_y_deg": 0.0, "scale": 2.0}))
+    cal.write_text(json.dumps({"method": "refractive", "offset_x_deg": 0, "offset_y_deg": 0, "scale": 2.0}))
     plain = json.loads(
         runner.invoke(app, ["estimate", *_pair_args(sweep), "--part-diameter", "50", "--json"]).stdout
     )

@@ -14,17 +14,18 @@ from softjig.sim.scenarios import paper_sweep, simulate_dataset
 @pytest.fixture(scope="module")
 def sweep(tmp_path_factory):
     out = tmp_path_factory.mktemp("compare") / "sweep"
-    specs = list(paper_sweep(diameters_mm=(50, 80), alphas_deg=(5, 10), theta_step_deg=90))
+    # 6 directions a turn: each half (even steps to calibrate, odd to evaluate) is 3 evenly spaced
+    specs = list(paper_sweep(diameters_mm=(50, 80), alphas_deg=(5, 10), theta_step_deg=60))
     simulate_dataset(out, specs, default_jig(), seed=4, workers=2, progress=False)
     return Dataset.open(out)
 
 
 def test_compare_on_held_out_frames(sweep):
     result = compare_methods(sweep, workers=2)
-    assert result.n_frames == 8 and result.n_failed_paper == result.n_failed_ours == 0
+    assert result.n_frames == 12 and result.n_failed_paper == result.n_failed_ours == 0
     for grid in (result.paper_calibrated, result.ours_uncalibrated, result.ours_calibrated):
         assert list(grid.diameters_mm) == [50, 80] and list(grid.alphas_deg) == [5, 10]
-        assert np.all(np.isfinite(grid.rmse_deg)) and np.all(grid.count == 2)
+        assert np.all(np.isfinite(grid.rmse_deg)) and np.all(grid.count == 3)
     # where the parts touch fully, ours needs no calibration to be within 1.5 deg
     assert result.ours_uncalibrated.cell(80, 5) < 1.5
     assert 0.0 <= result.coverage_x <= 1.0

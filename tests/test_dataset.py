@@ -17,6 +17,7 @@ from softjig.errors import ConfigError, InputError
 from softjig.io import dataset as ds_mod
 from softjig.io.dataset import (
     Dataset,
+    DatasetLineWarning,
     DatasetTruncationWarning,
     DatasetWriter,
     Frame,
@@ -321,14 +322,82 @@ def test_missing_frames_file(tmp_path, jig):
         Dataset.open(tmp_path / "ds")
 
 
-def test_corrupt_line_in_the_middle_is_named(tmp_path, jig):
+@pytest.mark.parametrize("garbage", ["cut", "ascii", "binary"])
+def test_a_garbage_line_in_the_middle_is_skipped_with_a_warning(tmp_path, jig, garbage):
+    written = _write(tmp_path / "ds", jig, 4)
+    path = tmp_path / "ds" / "frames.jsonl"
+    lines = path.read_bytes().splitlines()
+    lines[1] = {"cut": lines[1][:20], "ascii": b"hello world", "binary": b"\xff\xfe\x00garbage"}[garbage]
+    path.write_bytes(b"\n".join(lines) + b"\n")
+    with pytest.warns(DatasetLineWarning, match=r"frames\.jsonl, line 2: not valid JSON") as caught:
+        ds = Dataset.open(tmp_path / "ds")
+    assert not any(isinstance(w.message, DatasetTruncationWarning) for w in caught)
+    assert [frame.index for frame in ds] == [0, 2, 3]
+    assert len(ds.warnings) == 1 and "line 2" in ds.warnings[0]
+    np.testing.assert_array_equal(ds[1].load_left(), written[2][0])
+
+
+def test_several_garbage_lines_are_counted_in_one_warning(tmp_path, jig):
+    _write(tmp_path / "ds", jig, 2)
+    path = tmp_path / "ds" / "frames.jsonl"
+    path.write_text("junk\n" + path.read_text() + "more junk\n{\n" + path.read_text().splitlines()[0][:5])
+    with pytest.warns(DatasetLineWarning) as caught:
+        ds = Dataset.open(tmp_path / "ds")
+    assert len(ds) == 2
+    notes = [str(w.message) for w in caught]
+    assert any("line 1 and 2 more lines" in note for note in notes)
+    assert any("last line is cut short" in note and "line 6" in note for note in notes)
+
+
+def test_a_duplicate_frame_index_is_refused_naming_both_lines(tmp_path, jig):
     _write(tmp_path / "ds", jig, 3)
     path = tmp_path / "ds" / "frames.jsonl"
     lines = path.read_text().splitlines()
-    lines[1] = lines[1][:20]
+    lines[2] = lines[2].replace('"index":2', '"index":1')
     path.write_text("\n".join(lines) + "\n")
-    with pytest.raises(InputError, match=r"frames\.jsonl, line 2: not valid JSON"):
+    with pytest.raises(InputError, match=r"line 3: frame index 1 was already used on line 2"):
         Dataset.open(tmp_path / "ds")
+
+
+@pytest.mark.parametrize(
+    ("key", "value"),
+    [
+        ("left", "../../etc/passwd"),
+        ("right", "/etc/passwd"),
+        ("left", "left/../../outside.png"),
+        ("right", "C:\\Windows\\x.png"),
+        ("left", "..\\..\\x.png"),
+    ],
+)
+def test_paths_leaving_the_dataset_are_refused_naming_the_line(tmp_path, jig, key, value):
+    _write(tmp_path / "ds", jig, 1)
+    line = {"index": 1, "left": "left/000000.png", "right": "right/000000.png", key: value}
+    with open(tmp_path / "ds" / "frames.jsonl", "a") as fh:
+        fh.write(json.dumps(line) + "\n")
+    with pytest.raises(InputError, match=f"line 2: {key} .* is outside the dataset folder"):
+        Dataset.open(tmp_path / "ds")
+
+
+def test_truth_markers_leaving_the_dataset_are_refused(tmp_path, jig):
+    _write(tmp_path / "ds", jig, 1)
+    line = {"index": 1, "left": "left/000000.png", "right": "right/000000.png",
+            "truth": {"markers": "../secret.npz"}}  # fmt: skip
+    with open(tmp_path / "ds" / "frames.jsonl", "a") as fh:
+        fh.write(json.dumps(line) + "\n")
+    with pytest.raises(InputError, match=r"line 2: truth\.markers .* is outside the dataset folder"):
+        Dataset.open(tmp_path / "ds")
+
+
+def test_a_symbolic_link_leading_out_of_the_dataset_is_not_followed(tmp_path, jig):
+    written = _write(tmp_path / "ds", jig, 2)
+    secret = tmp_path / "secret.png"
+    secret.write_bytes(encode_png(written[0][0]))
+    (tmp_path / "ds" / "left" / "000001.png").unlink()
+    (tmp_path / "ds" / "left" / "000001.png").symlink_to(secret)
+    ds = Dataset.open(tmp_path / "ds")
+    with pytest.raises(InputError, match=r"frame 1: left image 'left/000001\.png' is outside the dataset"):
+        ds[1].load_left()
+    np.testing.assert_array_equal(ds[1].load_right(), written[1][1])
 
 
 @pytest.mark.parametrize(
@@ -412,6 +481,81 @@ def test_refuses_a_non_dataset_folder_even_with_overwrite(tmp_path, jig):
     (tmp_path / "afile").write_text("x")
     with pytest.raises(InputError, match="not a folder"), DatasetWriter(tmp_path / "afile", jig):
         pass
+
+
+def test_overwrite_refuses_a_folder_of_calibration_photos(tmp_path, jig):
+    photos = tmp_path / "calib"
+    for side in ("left", "right"):
+        (photos / side).mkdir(parents=True)
+        (photos / side / "board-01.png").write_bytes(encode_png(np.zeros((4, 4), np.uint8)))
+    (photos / "rig.toml").write_text("# calibrated by hand\n")
+    before = {p: p.read_bytes() for p in photos.rglob("*") if p.is_file()}
+    with (
+        pytest.raises(InputError, match="not a softjig dataset"),
+        DatasetWriter(photos, jig, overwrite=True),
+    ):
+        pass
+    assert {p: p.read_bytes() for p in photos.rglob("*") if p.is_file()} == before
+
+
+@pytest.mark.parametrize("foreign", ["notes.txt", "left/board-01.png", "truth/x.npz", "photos/a.png"])
+def test_overwrite_refuses_a_dataset_holding_files_softjig_did_not_write(tmp_path, jig, foreign):
+    _write(tmp_path / "ds", jig, 2)
+    (tmp_path / "ds" / foreign).parent.mkdir(exist_ok=True)
+    (tmp_path / "ds" / foreign).write_text("precious")
+    with (
+        pytest.raises(InputError, match=f"holds files softjig did not write \\({foreign.split('/')[0]}"),
+        DatasetWriter(tmp_path / "ds", jig, overwrite=True),
+    ):
+        pass
+    assert (tmp_path / "ds" / foreign).read_text() == "precious" and len(Dataset.open(tmp_path / "ds")) == 2
+
+
+def test_overwrite_is_atomic_the_old_dataset_stays_until_the_new_one_is_complete(tmp_path, jig):
+    old = _write(tmp_path / "ds", jig, 3)
+    (tmp_path / "ds" / "estimates.jsonl").write_text("{}\n")  # softjig's own results: replaced too
+    rng = np.random.default_rng(9)
+    writer = DatasetWriter(tmp_path / "ds", exact_jig(jig), overwrite=True).open()
+    new = _images(rng)
+    writer.add_frame(*new, {})
+    during = Dataset.open(tmp_path / "ds")  # a reader, or a kill now, sees the old dataset whole
+    assert len(during) == 3 and during.jig == jig
+    np.testing.assert_array_equal(during[2].load_left(), old[2][0])
+    staged = Dataset.open(tmp_path / "ds.softjig-new")  # and the new frames so far
+    assert len(staged) == 1
+    writer.close()
+    ds = Dataset.open(tmp_path / "ds")
+    assert len(ds) == 1 and ds.jig == exact_jig(jig) and not ds.has_as_built
+    np.testing.assert_array_equal(ds[0].load_left(), new[0])
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ds"]
+    assert not (tmp_path / "ds" / "estimates.jsonl").exists()
+
+
+def test_a_killed_overwrite_leaves_both_and_the_next_one_is_refused_until_looked_at(tmp_path, jig):
+    _write(tmp_path / "ds", jig, 3)
+    writer = DatasetWriter(tmp_path / "ds", jig, overwrite=True).open()
+    writer.add_frame(*_images(np.random.default_rng(1)), {})
+    writer._frames_fh.close()  # killed: never closed
+    assert len(Dataset.open(tmp_path / "ds")) == 3 and len(Dataset.open(tmp_path / "ds.softjig-new")) == 1
+    with (
+        pytest.raises(InputError, match=r"ds\.softjig-new exists: an earlier overwrite .* did not finish"),
+        DatasetWriter(tmp_path / "ds", jig, overwrite=True),
+    ):
+        pass
+    assert len(Dataset.open(tmp_path / "ds.softjig-new")) == 1
+
+
+@pytest.mark.parametrize(("durable", "kept"), [(False, False), (True, True)])
+def test_an_overwrite_left_by_an_exception_keeps_the_old_dataset(tmp_path, jig, durable, kept):
+    _write(tmp_path / "ds", jig, 3)
+    with (
+        pytest.raises(KeyboardInterrupt),
+        DatasetWriter(tmp_path / "ds", jig, overwrite=True, durable=durable) as w,
+    ):
+        w.add_frame(*_images(np.random.default_rng(1)), {})
+        raise KeyboardInterrupt
+    assert len(Dataset.open(tmp_path / "ds")) == 3
+    assert (tmp_path / "ds.softjig-new").exists() == kept  # a recording's new frames are never deleted
 
 
 def test_writer_rejects_bad_frames(tmp_path, jig):

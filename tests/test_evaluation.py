@@ -110,3 +110,20 @@ def test_figures_are_pngs(tmp_path):
     figures.normal_projection_figure([("raw", truth * [0.5, 0.5, 1])], truth, tmp_path / "cube.png")
     for name in ("before", "after", "grid", "cube"):
         assert (tmp_path / f"{name}.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_rmse_panels_share_one_colour_scale():
+    """Issue 14: the calibrated and uncalibrated grids were each on their own scale, so the same colour
+    meant 1 deg in one panel and 8 deg in the other."""
+    from softjig.evaluation import figures
+
+    d = np.repeat([30.0, 50.0], 2)
+    a = np.tile([10.0, 20.0], 2)
+    small, large = rmse_grid(d, a, np.full(4, 0.5), np.full(4, 0.5)), rmse_grid(d, a, d / 10, d / 10)
+    for fig in (
+        figures.rmse_grid_plot([("small", small), ("large", large)]),
+        figures.methods_plot([("a", small), ("b", large), ("c", small)], [("x", 1.0), ("y", float("nan"))]),
+    ):
+        limits = [im.get_clim() for ax in fig.axes for im in ax.images]
+        assert len(limits) >= 2 and all(lim == pytest.approx((0.0, 5.0)) for lim in limits)
+        assert len([ax for ax in fig.axes if ax.get_label() == "<colorbar>"]) == 1

@@ -108,3 +108,30 @@ def test_a_recorder_killed_mid_recording_leaves_every_completed_frame_readable(s
         original = sweep[frame.meta["source_index"]]
         np.testing.assert_array_equal(frame.load_left(), original.load_left())
         np.testing.assert_array_equal(frame.load_right(), original.load_right())
+
+
+def test_record_overwrite_never_deletes_a_folder_of_calibration_photos(sweep, tmp_path):
+    from typer.testing import CliRunner
+
+    from softjig.cli import app
+
+    photos = tmp_path / "calib"
+    for side in ("left", "right"):
+        (photos / side).mkdir(parents=True)
+        (photos / side / "board-01.png").write_bytes(b"a photo")
+    (photos / "rig.toml").write_text("# calibrated\n")
+    before = {p: p.read_bytes() for p in photos.rglob("*") if p.is_file()}
+    args = ["live", "--replay", str(sweep.root), "--rate", "fast", "--record", str(photos), "--overwrite"]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 2 and "not a softjig dataset" in result.output
+    assert {p: p.read_bytes() for p in photos.rglob("*") if p.is_file()} == before
+
+
+def test_record_overwrite_replaces_an_old_recording_only_when_the_new_one_is_complete(sweep, tmp_path):
+    old = Recorder(tmp_path / "rec", sweep.jig)
+    LiveLoop(ReplaySource(sweep, rate="fast"), LiveSettings(jig=sweep.jig, max_frames=2), recorder=old).run()
+    recorder = Recorder(tmp_path / "rec", sweep.jig, overwrite=True)
+    assert len(Dataset.open(tmp_path / "rec")) == 2  # while recording, the old recording is whole
+    LiveLoop(ReplaySource(sweep, rate="fast"), LiveSettings(jig=sweep.jig), recorder=recorder).run()
+    assert len(Dataset.open(tmp_path / "rec")) == 5
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["rec"]

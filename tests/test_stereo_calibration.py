@@ -232,3 +232,43 @@ def test_too_few_views_is_an_input_error(sim_views):
         calibrate_stereo(lefts[:2], rights[:2], Board(COLS, ROWS, SQUARE))
     with pytest.raises(InputError, match="one right image per left"):
         calibrate_stereo(lefts[:3], rights[:2], Board(COLS, ROWS, SQUARE))
+
+
+# ------------------------------------------------------------- issue 14: --out is never overwritten unasked
+
+
+def _cli_args(tmp_path, out):
+    return [
+        "calibrate-stereo",
+        str(tmp_path / "l*.png"),
+        str(tmp_path / "r*.png"),
+        "--board",
+        f"{COLS}x{ROWS}",
+        "--square-mm",
+        str(SQUARE),
+        "--out",
+        str(out),
+    ]
+
+
+def test_cli_refuses_an_existing_out_without_overwrite(tmp_path):
+    out = tmp_path / "rig.toml"
+    out.write_text("# the rig calibrated last week\n")
+    res = CliRunner().invoke(app, _cli_args(tmp_path, out))
+    assert res.exit_code == 2
+    assert str(out) in res.output and "--overwrite" in res.output
+    assert out.read_text() == "# the rig calibrated last week\n"  # refused before any work
+
+
+def test_cli_overwrite_replaces_the_out(tmp_path, sim_views):
+    import cv2
+
+    lefts, rights, _ = sim_views
+    for k in range(6):
+        cv2.imwrite(str(tmp_path / f"l{k}.png"), lefts[k])
+        cv2.imwrite(str(tmp_path / f"r{k}.png"), rights[k])
+    out = tmp_path / "rig.toml"
+    out.write_text("# the rig calibrated last week\n")
+    res = CliRunner().invoke(app, [*_cli_args(tmp_path, out), "--overwrite", "--json"])
+    assert res.exit_code == 0, res.output
+    assert load_jig(out).cameras.left.width_px == 640

@@ -175,3 +175,64 @@ def test_a_slow_subscriber_neither_blocks_the_publisher_nor_grows_its_memory():
 def test_binding_a_used_port_is_an_input_error():
     with Publisher(LOCAL) as pub, pytest.raises(InputError, match="cannot bind"):
         Publisher(pub.endpoint)
+
+
+def _slow_subscriber_lags(receive, pub, loops: int = 5, nap_s: float = 0.2) -> list[int]:
+    """How many messages behind the publisher each of a slow subscriber's receipts is.
+
+    A thread publishes estimates with their ``seq`` at about 200 Hz; the subscriber takes one message per
+    loop, then naps ``nap_s`` (a slow robot program). The lag is the number published before the receive
+    began minus the ``seq`` received: a backlog read one at a time grows it by ~40 per loop.
+    """
+    stop = threading.Event()
+    published = {"n": 0}
+
+    def publish():
+        while not stop.is_set():
+            pub.publish(TOPIC_ESTIMATE, {"seq": published["n"]})
+            published["n"] += 1
+            time.sleep(0.005)
+
+    thread = threading.Thread(target=publish, daemon=True)
+    thread.start()
+    lags = []
+    try:
+        for _ in range(loops):
+            time.sleep(nap_s)
+            before = published["n"]
+            seq = receive()
+            lags.append(before - 1 - seq)
+    finally:
+        stop.set()
+        thread.join(timeout=5)
+    return lags
+
+
+def test_a_latest_only_subscriber_gets_the_newest_message_not_a_backlog():
+    with Publisher(LOCAL) as pub, Subscriber(pub.endpoint, latest_only=True) as sub:
+        _publish_until_received(pub, sub)
+
+        def receive():
+            while True:
+                message = sub.receive(5.0)
+                assert message is not None, "nothing received"
+                if message[0] == TOPIC_ESTIMATE:
+                    return message[1]["seq"]
+
+        lags = _slow_subscriber_lags(receive, pub)
+        assert max(lags) <= 20, f"lags behind the publisher: {lags}"  # 20 messages = 0.1 s
+        assert sub.skipped > 100  # it did pass over the backlog
+
+
+def test_a_latest_only_subscriber_keeps_the_newest_of_each_topic():
+    with Publisher(LOCAL) as pub, Subscriber(pub.endpoint, latest_only=True) as sub:
+        _publish_until_received(pub, sub)
+        while sub.receive(0.2) is not None:  # forget the connection heartbeats
+            pass
+        for seq in range(10):
+            pub.publish(TOPIC_ESTIMATE, {"seq": seq})
+            pub.publish(TOPIC_HEALTH, {"seq": 100 + seq})
+        time.sleep(0.5)  # all queued at the subscriber
+        got = [sub.receive(1.0), sub.receive(1.0), sub.receive(0.1)]
+        assert [(t, p["seq"]) for t, p in got[:2]] == [(TOPIC_ESTIMATE, 9), (TOPIC_HEALTH, 109)]
+        assert got[2] is None

@@ -202,3 +202,70 @@ def test_cli_calibrate_from_a_results_file(tmp_path):
     assert bad.exit_code == 2
     missing = runner.invoke(app, ["calibrate", str(tmp_path / "nope"), "--out", str(out)])
     assert missing.exit_code == 2
+
+
+def _write_sweep(root, frames):
+    tiny = np.zeros((4, 4), np.uint8)
+    with DatasetWriter(root, default_jig()) as writer:  # images never read: refused before estimating
+        for f in frames:
+            meta = (
+                {"reference": True}
+                if f.reference
+                else {"alpha_deg": f.alpha_deg, "theta_deg": f.theta_deg, "part": part_to_dict(f.part)}
+            )
+            writer.add_frame(tiny, tiny, meta)
+
+
+def test_cli_calibrate_refuses_a_sweep_at_alpha_zero(tmp_path):
+    """Issue 14: `softjig calibrate` of a sweep at alpha = 0 wrote S = 0 with exit 0."""
+    frames, rows = _sweep(diameters=(50.0,), alphas=(0.0,), step=30.0)
+    root = tmp_path / "sweep"
+    _write_sweep(root, frames)
+    write_rows(rows, root / "estimates.jsonl")
+    out = tmp_path / "cal.json"
+    for extra in ([], ["--results", str(root / "estimates.jsonl")]):
+        result = runner.invoke(app, ["calibrate", str(root), "--out", str(out), "--no-progress", *extra])
+        assert result.exit_code == 2, result.output
+        assert "alpha_deg = 0" in result.output and "--alphas" in result.output
+        assert not out.exists()
+
+
+@pytest.mark.parametrize(("step", "frames_option", "needed"), [(180.0, "all", 3), (120.0, "even", 6)])
+def test_cli_calibrate_refuses_too_few_tilt_directions(tmp_path, step, frames_option, needed):
+    frames, _ = _sweep(diameters=(50.0,), alphas=(10.0,), step=step)
+    root = tmp_path / "sweep"
+    _write_sweep(root, frames)
+    out = tmp_path / "cal.json"
+    result = runner.invoke(
+        app, ["calibrate", str(root), "--out", str(out), "--frames", frames_option, "--no-progress"]
+    )
+    assert result.exit_code == 2, result.output
+    assert f"at least {needed} per turn" in result.output
+    assert f"--theta-step {360 / needed:g}" in result.output
+    assert not out.exists()
+
+
+def test_rows_method_is_recorded_at_the_top_level(tmp_path):
+    """The demo's writer (fit_sweep_calibration + save_sweep_calibration) gets the method from its rows."""
+    frames, rows = _sweep(diameters=(50.0,), alphas=(10.0,), step=30.0)
+    rows = [{**row, "method": "paper"} for row in rows]
+    cal = fit_sweep_calibration(sweep_samples(frames, rows), mode="per-diameter")
+    path = tmp_path / "cal.json"
+    save_sweep_calibration(cal, path)
+    data = json.loads(path.read_text())
+    assert data["method"] == "paper"
+    assert load_sweep_calibration(path).for_diameter(50.0).method == "paper"
+    mixed = rows[:5] + [{**row, "method": "refractive"} for row in rows[5:]]
+    with pytest.raises(InputError, match="mix the methods"):
+        sweep_samples(frames, mixed)
+
+
+def test_compare_refuses_a_theta_step_too_coarse_before_estimating(tmp_path):
+    """Issue 14: `softjig compare out/small` (theta step 90) blamed 'failed frames'."""
+    frames, _ = _sweep(diameters=(50.0,), alphas=(10.0,), step=90.0)
+    root = tmp_path / "small"
+    _write_sweep(root, frames)
+    result = runner.invoke(app, ["compare", str(root), "--no-progress"])
+    assert result.exit_code == 2, result.output
+    assert "failed" not in result.output
+    assert "at least 6 per turn" in result.output and "--theta-step 60" in result.output

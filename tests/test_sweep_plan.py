@@ -136,3 +136,58 @@ def test_cli_writes_json_and_csv(tmp_path):
 def test_cli_bad_alphas_exit_2(tmp_path):
     res = CliRunner().invoke(app, ["sweep-plan", "--alphas", "5,x", "--out", str(tmp_path / "p.json")])
     assert res.exit_code == 2
+
+
+# ------------------------------------------------------------- issue 14: every number bounded by physics
+
+
+def _plan_cli(tmp_path, *args):
+    out = tmp_path / "plan.json"
+    res = CliRunner().invoke(app, ["sweep-plan", "--out", str(out), *args])
+    return res, out
+
+
+@pytest.mark.parametrize(
+    ("args", "match"),
+    [
+        (["--push-depth", "1e9"], "dome height"),  # was: a pose 1000 km into the plate
+        (["--push-depth", "-1"], "push depth"),
+        (["--push-depth", "nan"], "finite"),
+        (["--step", "1e-9"], "more than 100,000"),  # was: the machine out of memory
+        (["--step", "0"], "theta step"),
+        (["--step", "inf"], "finite"),
+        (["--clearance", "1e7"], "clearance"),
+        (["--diameters", "80", "--alphas", "50", "--push-depth", "20"], "base plate"),
+    ],
+)
+def test_cli_out_of_physics_values_exit_2_and_write_nothing(tmp_path, args, match):
+    res, out = _plan_cli(tmp_path, *args)
+    assert res.exit_code == 2, res.output
+    assert match in res.output
+    assert not out.exists() and not out.with_suffix(".csv").exists()
+
+
+def test_the_pose_count_is_checked_before_allocating():
+    """A step of 1e-9 deg is refused at once (10^12 poses were allocated until the kernel killed us)."""
+    with pytest.raises(InputError, match="poses"):
+        sweep_plan(JIG, [50], [10], 1e-12)
+
+
+def test_poses_beyond_the_robots_reach_are_refused(tmp_path):
+    T = pose_from_rotvec_translation([0, 0, 0.2], [900.0, 0.0, 10.0])
+    plan = sweep_plan(JIG, [50], [10], 90, T_robot_jig=T, reach_mm=1000.0)
+    assert max(np.linalg.norm(p.T_robot_part[:3, 3]) for p in plan) <= 1000.0
+    with pytest.raises(InputError, match="beyond its reach"):
+        sweep_plan(JIG, [50], [10], 90, T_robot_jig=T, reach_mm=850.0)
+    (tmp_path / "robot-jig.json").write_text(json.dumps({"T_robot_jig": T.tolist()}))
+    res, out = _plan_cli(tmp_path, "--robot-jig", str(tmp_path / "robot-jig.json"), "--reach-mm", "850")
+    assert res.exit_code == 2 and "beyond its reach" in res.output and not out.exists()
+    res, _ = _plan_cli(tmp_path, "--reach-mm", "850")
+    assert res.exit_code == 2 and "T_robot_jig" in res.output
+
+
+def test_a_robot_jig_pose_that_is_not_rigid_is_refused(tmp_path):
+    T = np.eye(4)
+    T[:3, :3] *= 2.0
+    with pytest.raises(InputError, match="not orthonormal"):
+        sweep_plan(JIG, [50], [10], 90, T_robot_jig=T)

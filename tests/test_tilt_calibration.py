@@ -72,10 +72,11 @@ def test_identity_and_errors():
 def test_calibration_file_round_trip_and_errors(tmp_path):
     from softjig.calibration.tilt import load_tilt_calibration, save_tilt_calibration
 
-    cal = TiltCalibration(np.radians(0.7), np.radians(-0.4), 1.52)
+    cal = TiltCalibration(np.radians(0.7), np.radians(-0.4), 1.52, method="paper")
     path = tmp_path / "cal.json"
     save_tilt_calibration(cal, path, source={"dataset": "x"})
     back = load_tilt_calibration(path)
+    assert back.method == "paper"
     assert back.scale == cal.scale
     assert back.offset_x_rad == pytest.approx(cal.offset_x_rad, abs=1e-15)
     with pytest.raises(InputError, match="does not exist"):
@@ -86,3 +87,58 @@ def test_calibration_file_round_trip_and_errors(tmp_path):
     path.write_text("{not json")
     with pytest.raises(InputError, match="cannot read"):
         load_tilt_calibration(path)
+
+
+def test_every_calibration_written_names_its_method(tmp_path):
+    from softjig.calibration.tilt import save_tilt_calibration, tilt_calibration_to_dict
+
+    unnamed = TiltCalibration(0.0, 0.0, 1.5)
+    assert tilt_calibration_to_dict(unnamed, source={"method": "paper"})["method"] == "paper"
+    with pytest.raises(InputError, match="must record the estimation method"):
+        save_tilt_calibration(unnamed, tmp_path / "cal.json")
+    assert not (tmp_path / "cal.json").exists()
+
+
+def test_a_file_without_its_method_is_refused_with_how_to_redo_it(tmp_path):
+    from softjig.calibration.tilt import load_tilt_calibration
+
+    path = tmp_path / "old.json"
+    path.write_text('{"offset_x_deg": 0.1, "offset_y_deg": 0.2, "scale": 1.8, "source": {"method": "paper"}}')
+    with pytest.raises(InputError, match=r"softjig calibrate DATASET --method METHOD --out CAL\.json") as err:
+        load_tilt_calibration(path)
+    assert '"method": "paper"' in str(err.value)  # what the old file's source says, and how to use it
+
+
+def test_a_method_mismatch_is_refused(tmp_path):
+    from softjig.calibration.tilt import check_calibration_for, load_tilt_calibration, save_tilt_calibration
+
+    path = tmp_path / "cal.json"
+    save_tilt_calibration(TiltCalibration(0.0, 0.0, 1.8, method="paper"), path)
+    assert load_tilt_calibration(path, method="paper").method == "paper"
+    with pytest.raises(InputError, match="--method paper"):
+        load_tilt_calibration(path, method="refractive")
+    check_calibration_for(None, "refractive")
+    with pytest.raises(InputError, match="does not record"):
+        check_calibration_for(TiltCalibration(), "refractive")
+
+
+@pytest.mark.parametrize(
+    ("ax", "ay", "alpha", "match"),
+    [
+        (np.sin(np.arange(6.0)), np.cos(np.arange(6.0)), 0.0, "alpha = 0"),
+        (np.full(6, 0.1), np.full(6, 0.1) + 1e-12, 0.1, "do not vary"),
+        (0.01 * np.sin(np.arange(6.0)), 0.01 * np.cos(np.arange(6.0)), np.radians(10) * 57.3, "outside"),
+        (np.sin(np.arange(6.0)), np.cos(np.arange(6.0)), 0.001, "outside"),
+    ],
+)
+def test_a_sweep_that_cannot_determine_the_scale_is_refused(ax, ay, alpha, match):
+    with pytest.raises(InputError, match=match):
+        fit_tilt_calibration(ax, ay, alpha)
+
+
+@pytest.mark.parametrize("scale", [0.0, -1.0, np.nan, np.inf])
+def test_a_calibration_with_a_scale_not_finite_and_positive_cannot_exist(scale):
+    with pytest.raises(InputError, match="scale"):
+        TiltCalibration(0.0, 0.0, scale)
+    with pytest.raises(InputError, match="offset_x_rad"):
+        TiltCalibration(np.nan, 0.0, 1.0)

@@ -28,10 +28,22 @@ def pose_from_rotation_translation(rotation: np.ndarray, translation_mm: np.ndar
 
 def pose_from_rotvec_translation(rotvec_rad, translation_mm) -> np.ndarray:
     """A 4x4 pose from a rotation vector (axis times angle, rad) and a translation (mm)."""
-    from scipy.spatial.transform import Rotation  # here: 0.4 s of every command's start-up at the top
-
-    rotation = Rotation.from_rotvec(np.asarray(rotvec_rad, dtype=float)).as_matrix()
+    rotation = rotation_from_rotvec(rotvec_rad)
     return pose_from_rotation_translation(rotation, np.asarray(translation_mm, dtype=float))
+
+
+def rotation_from_rotvec(rotvec_rad) -> np.ndarray:
+    """The 3x3 rotation of a rotation vector (axis times angle, rad): Rodrigues' formula
+    ``R = I + sin(t) K + (1 - cos(t)) K^2`` (``K`` the cross-product matrix of the unit axis), with its
+    Taylor series below 1e-4 rad (no division by a small angle)."""
+    r = np.asarray(rotvec_rad, dtype=float).reshape(3)
+    theta = float(np.sqrt(r @ r))
+    k = np.array([[0.0, -r[2], r[1]], [r[2], 0.0, -r[0]], [-r[1], r[0], 0.0]])
+    if theta < 1e-4:
+        a, b = 1.0 - theta**2 / 6.0, 0.5 - theta**2 / 24.0
+    else:
+        a, b = np.sin(theta) / theta, (1.0 - np.cos(theta)) / theta**2
+    return np.eye(3) + a * k + b * (k @ k)
 
 
 def invert_pose(T: np.ndarray) -> np.ndarray:
@@ -59,9 +71,7 @@ def rotation_from_tilt(alpha_rad: float, theta_rad: float) -> np.ndarray:
     """The rotation that tilts ``+z`` by ``alpha`` towards azimuth ``theta``, about the horizontal axis
     ``(-sin t, cos t, 0)``: ``rotation_from_tilt(a, t) @ z == normal_from_tilt(a, t)``."""
     axis = np.array([-np.sin(theta_rad), np.cos(theta_rad), 0.0])
-    from scipy.spatial.transform import Rotation
-
-    return Rotation.from_rotvec(alpha_rad * axis).as_matrix()
+    return rotation_from_rotvec(alpha_rad * axis)
 
 
 def tilt_angles(normal: np.ndarray) -> tuple[float, float]:

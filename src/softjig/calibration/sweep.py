@@ -49,17 +49,20 @@ from softjig.errors import InputError
 from softjig.io.files import write_text_atomic
 
 __all__ = [
+    "MIN_THETAS",
     "MODES",
     "SELECTIONS",
     "SweepCalibration",
     "SweepSamples",
     "alternate_theta_mask",
     "calibrate_dataset",
+    "check_sweep_design",
     "fit_sweep_calibration",
     "load_result_rows",
     "load_sweep_calibration",
     "save_sweep_calibration",
     "sweep_calibration_to_dict",
+    "sweep_design",
     "sweep_samples",
 ]
 
@@ -85,6 +88,7 @@ class SweepSamples:
         no estimate.
     failed_errors : (m,) why each failed (the estimator's message).
     n_skipped : frames that are not sweep frames (reference frames, frames without alpha/theta/part).
+    method : the estimation method of the rows (their ``method``), ``None`` if they do not say.
     """
 
     index: np.ndarray
@@ -99,6 +103,7 @@ class SweepSamples:
     failed_theta_deg: np.ndarray = field(default_factory=lambda: np.zeros(0))
     failed_errors: tuple[str, ...] = ()
     n_skipped: int = 0
+    method: str | None = None
 
     def __len__(self) -> int:
         return len(self.index)
@@ -140,6 +145,16 @@ class SweepSamples:
             failed_theta_deg=self.failed_theta_deg[bad],
             failed_errors=tuple(e for e, k in zip(self.failed_errors, bad, strict=True) if k),
             n_skipped=self.n_skipped,
+            method=self.method,
+        )
+
+    def check_design(self, selection: str = "all") -> None:
+        """:func:`check_sweep_design` on every sweep frame, those that gave no estimate included."""
+        check_sweep_design(
+            np.concatenate([self.diameter_mm, self.failed_diameter_mm]),
+            np.concatenate([self.alpha_deg, self.failed_alpha_deg]),
+            np.concatenate([self.theta_deg, self.failed_theta_deg]),
+            selection=selection,
         )
 
     def diameters(self) -> np.ndarray:
@@ -169,6 +184,61 @@ def alternate_theta_mask(diameter_mm, alpha_deg, theta_deg) -> np.ndarray:
     return mask
 
 
+#: Tilt directions (distinct ``theta``) a sweep at one (diameter, alpha) needs at the least: for N >= 3
+#: directions evenly spaced over a turn, the mean of ``sin(theta)`` is 0 and its population variance 1/2
+#: exactly, which the paper's ``Ox, Oy, S`` assume; with 2 (``theta`` = 0, 180) one tilt angle does not vary
+#: and ``S`` is off by sqrt(2), with 1 nothing is determined.
+MIN_THETAS = 3
+
+
+def check_sweep_design(diameter_mm, alpha_deg, theta_deg, *, selection: str = "all") -> None:
+    """Refuse a sweep whose design cannot determine ``Ox, Oy, S``, before anything is estimated.
+
+    Parameters
+    ----------
+    diameter_mm, alpha_deg, theta_deg : (n,) every sweep frame's part diameter (mm), commanded tilt and
+        azimuth (deg).
+    selection : the frames the calibration is fitted to (:data:`SELECTIONS`); ``"even"`` and ``"odd"``
+        keep every other ``theta`` step of each sweep (a held-out evaluation fits on one half).
+
+    Raises
+    ------
+    InputError
+        No frame tilted (every ``alpha = 0``: no scale), or a sweep at ``alpha > 0`` with fewer than
+        :data:`MIN_THETAS` tilt directions in the selection, naming it and the theta step needed.
+    """
+    if selection not in SELECTIONS:
+        raise InputError(f"unknown frame selection {selection!r}; valid: {', '.join(SELECTIONS)}")
+    d = np.round(np.asarray(diameter_mm, dtype=float), _DECIMALS)
+    a = np.round(np.asarray(alpha_deg, dtype=float), _DECIMALS)
+    t = np.round(np.mod(np.asarray(theta_deg, dtype=float), 360.0), _DECIMALS)
+    if len(d) and not np.any(a != 0):
+        raise InputError(
+            "every sweep frame has alpha_deg = 0 (the part not tilted): the scale S compares measured tilts "
+            "with commanded ones and cannot be fitted; record the sweep at alpha > 0 "
+            "(e.g. `softjig simulate --scenario paper-sweep --alphas 5,10,15,20`)"
+        )
+    keep = np.ones(len(d), bool) if selection == "all" else alternate_theta_mask(d, a, t)
+    if selection == "odd":
+        keep = ~keep
+    halves = 1 if selection == "all" else 2
+    for dv, av in sorted({(float(x), float(y)) for x, y in zip(d, a, strict=True) if y != 0}):
+        members = (d == dv) & (a == av)
+        n_all = len(np.unique(t[members]))
+        n_used = len(np.unique(t[members & keep]))
+        if n_used < MIN_THETAS:
+            step = 360.0 / (MIN_THETAS * halves)
+            which = (
+                "" if selection == "all" else f" in its {selection} theta steps (the half it is fitted to)"
+            )
+            raise InputError(
+                f"the sweep at D = {dv:g} mm, alpha = {av:g} deg has {n_used} tilt direction(s){which}, "
+                f"of {n_all} in all: the tilt calibration needs at least {MIN_THETAS} evenly spaced over a "
+                f"turn{' in each half' if halves == 2 else ''}, so at least {MIN_THETAS * halves} per turn: "
+                f"record it with a theta step of at most {step:g} deg (--theta-step {step:g})"
+            )
+
+
 def _finite(value: Any) -> float | None:
     if value is None or isinstance(value, bool):
         return None
@@ -177,6 +247,23 @@ def _finite(value: Any) -> float | None:
     except (TypeError, ValueError):
         return None
     return number if math.isfinite(number) else None
+
+
+def sweep_design(frames: Iterable[Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(diameter_mm, alpha_deg, theta_deg) of a dataset's sweep frames (those :func:`sweep_samples`
+    joins), from the frames alone: the design :func:`check_sweep_design` checks before any estimate."""
+    design = [
+        (float(f.part.diameter_mm), float(f.alpha_deg), float(f.theta_deg))
+        for f in frames
+        if not f.reference and f.alpha_deg is not None and f.theta_deg is not None and f.part is not None
+    ]
+    if not design:
+        raise InputError(
+            "the dataset has no sweep frame (frames with alpha_deg, theta_deg and a part): a tilt "
+            "calibration needs a sweep such as `softjig simulate --scenario paper-sweep`"
+        )
+    d, a, t = (np.asarray(c, dtype=float) for c in zip(*design, strict=True))
+    return d, a, t
 
 
 def sweep_samples(frames: Iterable[Any], rows: Iterable[dict]) -> SweepSamples:
@@ -198,11 +285,19 @@ def sweep_samples(frames: Iterable[Any], rows: Iterable[dict]) -> SweepSamples:
     """
     # Only what the join needs is kept of each row (rows may be a stream of whole estimate rows).
     by_index: dict[int, tuple[float | None, float | None, Any]] = {}
+    methods: set[str] = set()
     for row in rows:
         if not isinstance(row, dict) or not isinstance(row.get("index"), int):
             raise InputError(f"an estimate row lacks an integer 'index': {str(row)[:120]}")
         ax, ay = _finite(row.get("raw_tilt_x_deg")), _finite(row.get("raw_tilt_y_deg"))
         by_index[row["index"]] = (ax, ay, row.get("error"))
+        if isinstance(row.get("method"), str):
+            methods.add(row["method"])
+    if len(methods) > 1:
+        raise InputError(
+            f"the estimate rows mix the methods {', '.join(sorted(methods))}: a calibration applies to one; "
+            "estimate the dataset again with one --method"
+        )
     ok: list[tuple[int, float, float, float, float, float]] = []
     bad: list[tuple[int, float, float, float, str]] = []
     skipped = 0
@@ -247,6 +342,7 @@ def sweep_samples(frames: Iterable[Any], rows: Iterable[dict]) -> SweepSamples:
         failed_theta_deg=np.asarray(fcols[3], dtype=float),
         failed_errors=tuple(fcols[4]),
         n_skipped=skipped,
+        method=next(iter(methods), None),
     )
 
 
@@ -323,11 +419,15 @@ def fit_sweep_calibration(
     Raises
     ------
     InputError
-        An unknown mode or selection; fewer than 3 frames with an estimate (in a diameter, per diameter);
-        no tilt (all ``alpha = 0``).
+        An unknown mode or selection; a sweep design that cannot determine the calibration
+        (:func:`check_sweep_design`); fewer than 3 frames with an estimate (in a diameter, per diameter);
+        a fit that is not credible (:func:`~softjig.calibration.tilt.fit_tilt_calibration`).
+
+    The calibration records the rows' estimation method (:attr:`SweepSamples.method`).
     """
     if mode not in MODES:
         raise InputError(f"unknown calibration mode {mode!r}; valid: {', '.join(MODES)}")
+    samples.check_design(selection)
     used = samples.select(selection)
     if len(used) < 3:
         raise InputError(
@@ -336,9 +436,10 @@ def fit_sweep_calibration(
         )
 
     def fit(sel: np.ndarray) -> TiltCalibration:
-        return fit_tilt_calibration(
+        cal = fit_tilt_calibration(
             np.radians(used.raw_x_deg[sel]), np.radians(used.raw_y_deg[sel]), np.radians(used.alpha_deg[sel])
         )
+        return replace(cal, method=samples.method)
 
     pooled = fit(np.ones(len(used), bool))
     per: list[tuple[float, TiltCalibration, int]] = []
@@ -365,8 +466,11 @@ def fit_sweep_calibration(
 
 
 def _calibration_entry(cal: TiltCalibration) -> dict[str, float]:
-    data = tilt_calibration_to_dict(cal)
-    return {k: data[k] for k in ("offset_x_deg", "offset_y_deg", "scale")}
+    return {
+        "offset_x_deg": float(np.degrees(cal.offset_x_rad)),
+        "offset_y_deg": float(np.degrees(cal.offset_y_rad)),
+        "scale": float(cal.scale),
+    }
 
 
 def sweep_calibration_to_dict(calibration: SweepCalibration, *, source: dict[str, Any] | None = None) -> dict:
@@ -427,7 +531,8 @@ def load_sweep_calibration(path: str | os.PathLike[str]) -> SweepCalibration:
         diameter = _finite(entry.get("diameter_mm")) if isinstance(entry, dict) else None
         if diameter is None or diameter <= 0:
             raise InputError(f"{where}: 'diameter_mm' must be a positive number")
-        per.append((diameter, tilt_calibration_from_dict(entry, where=where), int(entry.get("n_frames", 0))))
+        entry_cal = tilt_calibration_from_dict(entry, where=where, default_method=pooled.method)
+        per.append((diameter, entry_cal, int(entry.get("n_frames", 0))))
     source = data.get("source") if isinstance(data.get("source"), dict) else {}
     mode = data.get("mode", "per-diameter" if per else "pooled")
     if mode not in MODES:
@@ -518,6 +623,7 @@ def calibrate_dataset(
     (SweepCalibration, SweepSamples, rows)
         The fit, the sweep it was fitted to (every frame, before the selection) and the estimate rows.
     """
+    check_sweep_design(*sweep_design(dataset), selection=selection)  # before hours of estimation
     if rows is None:
         from softjig.sensing.batch import BatchSettings, dataset_reference, estimate_dataset
 

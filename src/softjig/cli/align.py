@@ -35,14 +35,27 @@ def align_jig(
     out: Annotated[Path, typer.Option(help="Where to write T_robot_jig (JSON).")] = Path("robot-jig.json"),
     config: Annotated[Path | None, typer.Option(help="The jig (alignment circles).")] = None,
     prior_yaw_deg: Annotated[
-        float, typer.Option(help="Roughly how the jig is turned about the robot's z (deg); within 45 deg.")
+        float,
+        typer.Option(
+            min=-180.0,
+            max=180.0,
+            help="Roughly how the jig is turned about the robot's z (deg); within 45 deg.",
+        ),
     ] = 0.0,
+    max_reprojection_px: Annotated[
+        float,
+        typer.Option(
+            min=0.1,
+            max=20.0,
+            help="Refuse a pose whose circles reproject with a larger RMS (px): a right one is within ~1 px.",
+        ),
+    ] = 2.0,
     json_output: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
     """Find the jig's pose in the robot base frame (T_robot_jig) by PnP on its four white circles."""
     from scipy.spatial.transform import Rotation
 
-    from softjig.calibration.alignment import align_jig_to_robot
+    from softjig.calibration.alignment import align_jig_to_robot, check_intrinsics
     from softjig.config import CameraConfig
     from softjig.io.dataset import load_image
     from softjig.io.files import write_text_atomic
@@ -51,16 +64,29 @@ def align_jig(
     cam_data = read_json_file(camera, "--camera")
     T_flange_cam = pose_from_json(cam_data, "T_flange_cam", camera)
     fields = ("width_px", "height_px", "fx_px", "fy_px", "cx_px", "cy_px", "distortion")
+    missing = [k for k in fields if k not in cam_data and k != "distortion"]  # distortion: 0 if not given
+    if missing:
+        raise InputError(f"{camera}: give the hand-eye camera's {', '.join(missing)}")
     try:
         intrinsics = CameraConfig(
             **{k: (tuple(cam_data[k]) if k == "distortion" else cam_data[k]) for k in fields if k in cam_data}
         )
     except TypeError as exc:
         raise InputError(f"{camera}: {exc}") from None
+    try:
+        check_intrinsics(intrinsics)
+    except InputError as exc:
+        raise InputError(f"{camera}: {exc}") from None
     T_robot_flange = pose_from_json(read_json_file(flange, "--flange"), "T_robot_flange", flange)
     prior = Rotation.from_euler("z", prior_yaw_deg, degrees=True).as_matrix()
     result = align_jig_to_robot(
-        load_image(image), jig, intrinsics, T_robot_flange, T_flange_cam, R_robot_jig_prior=prior
+        load_image(image),
+        jig,
+        intrinsics,
+        T_robot_flange,
+        T_flange_cam,
+        R_robot_jig_prior=prior,
+        max_reprojection_px=max_reprojection_px,
     )
     data = result.to_dict()
     write_text_atomic(out, json.dumps(data, indent=1) + "\n")

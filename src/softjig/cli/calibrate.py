@@ -10,8 +10,7 @@ from typing import Annotated
 import typer
 
 from softjig.cli.app import app, handle_errors, stderr_console, warn
-from softjig.errors import InputError
-from softjig.sensing.pipeline import DEFAULT_METHOD, METHODS
+from softjig.cli.choices import DEFAULT_METHOD, FrameSelection, Method
 
 
 @app.command()
@@ -39,14 +38,14 @@ def calibrate(
         ),
     ] = False,
     frames: Annotated[
-        str,
+        FrameSelection,
         typer.Option(help="Frames to fit: all, or the even / odd theta steps (keep the rest to evaluate)."),
-    ] = "all",
+    ] = FrameSelection.all,
     workers: Annotated[
         int | None, typer.Option(min=1, help="Estimation processes.", show_default="all CPUs")
     ] = None,
     method: Annotated[
-        str,
+        Method,
         typer.Option(help="The estimation method to calibrate (the calibration applies to it only)."),
     ] = DEFAULT_METHOD,
     progress: Annotated[bool, typer.Option(help="Show a progress bar on stderr.")] = True,
@@ -54,18 +53,10 @@ def calibrate(
     """Fit the paper's tilt calibration (offsets Ox, Oy and scale S) to a tilt sweep and write it as JSON."""
     from rich.progress import Progress
 
-    from softjig.calibration.sweep import (
-        SELECTIONS,
-        calibrate_dataset,
-        load_result_rows,
-        save_sweep_calibration,
-    )
+    from softjig.calibration.sweep import calibrate_dataset, load_result_rows, save_sweep_calibration
     from softjig.io.dataset import Dataset
 
-    if method not in METHODS:
-        raise InputError(f"--method must be one of {', '.join(METHODS)}, got {method!r}")
-    if frames not in SELECTIONS:
-        raise InputError(f"--frames must be one of {', '.join(SELECTIONS)}, got {frames!r}")
+    method, frames = Method(method).value, FrameSelection(frames).value
     ds = Dataset.open(dataset)
     t0 = time.perf_counter()
     rows = load_result_rows(results) if results is not None else None

@@ -62,6 +62,9 @@ def calibrate_stereo(
         typer.Option(help="Also write the full calibration (per-view errors, rectification) as JSON."),
     ] = None,
     json_output: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+    overwrite: Annotated[
+        bool, typer.Option("--overwrite", help="Replace an existing --out (and --report) file.")
+    ] = False,
 ) -> None:
     """Calibrate the stereo pair (intrinsics, distortion, baseline, rectification); write the rig config."""
     from softjig.calibration.stereo import Board, calibrate_stereo, parse_board_size, rig_from_calibration
@@ -69,6 +72,14 @@ def calibrate_stereo(
     from softjig.io.dataset import load_image
     from softjig.io.files import write_text_atomic
 
+    for option, path in (("--out", out), ("--report", report)):
+        if path is not None and path.is_dir():
+            raise InputError(f"{option} {path} is a folder: give a file name")
+        if path is not None and path.exists() and not overwrite:
+            raise InputError(
+                f"{option} {path} already exists (a calibrated rig is hard to redo): choose another name, or "
+                "pass --overwrite to replace it"
+            )
     cols, rows = parse_board_size(board)
     target = Board(
         cols,

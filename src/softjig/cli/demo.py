@@ -55,13 +55,39 @@ def demo(
     ] = None,
     workers: Annotated[int | None, typer.Option(min=1, help="Processes.", show_default="all CPUs")] = None,
     progress: Annotated[bool, typer.Option(help="Show progress bars on stderr.")] = True,
+    keep_data: Annotated[
+        bool,
+        typer.Option(
+            "--keep-data",
+            help="Keep every rendered image (the full demo: about 850 MB); by default they are deleted "
+            "once estimated, and only what the report needs is kept.",
+        ),
+    ] = False,
+    overwrite: Annotated[
+        bool,
+        typer.Option(
+            "--overwrite",
+            help="Replace a finished run in --out (or an unfinished one with other options). An "
+            "unfinished run with the same options is always resumed.",
+        ),
+    ] = False,
 ) -> None:
-    """Run the paper's experiments on the simulated jig: sweep, calibration, RMSE grid, cube, report."""
+    """Run the paper's experiments on the simulated jig: sweep, calibration, RMSE grid, cube, report.
+
+    The paper's method and softjig's default (refractive) side by side, in report.md and a
+    self-contained report.html. Interrupted (Ctrl-C), the same command resumes where it stopped.
+    """
     from rich.console import Console
 
     from softjig.evaluation.experiment import ExperimentSettings, quick_settings, run_experiment
 
-    extra: dict = {"split": "alternate" if holdout else "none", "workers": workers, "progress": progress}
+    extra: dict = {
+        "split": "alternate" if holdout else "none",
+        "workers": workers,
+        "progress": progress,
+        "keep_data": keep_data,
+        "overwrite": overwrite,
+    }
     if cube_frames is not None:
         extra["cube_frames"] = cube_frames
     settings = (
@@ -71,7 +97,13 @@ def demo(
     )
     err = stderr_console()
     t0 = time.perf_counter()
-    result = run_experiment(settings, on_stage=lambda text: err.print(f"[bold]>[/bold] {text}"))
+    try:
+        result = run_experiment(settings, on_stage=lambda text: err.print(f"[bold]>[/bold] {text}"))
+    except KeyboardInterrupt:
+        err.print(f"interrupted: the finished chunks are kept in {out}; the same command resumes the run")
+        raise
+    if result.resumed:
+        err.print(f"resumed: {result.chunks_now} chunks rendered now, the others by the interrupted run")
     elapsed = time.perf_counter() - t0
 
     console = Console()
@@ -90,14 +122,37 @@ def demo(
     console.print(f"RMSE grids over {ev.n_frames} frames; {which}")
     console.print(_grid_table(ev.calibrated, "RMSE (deg), calibrated (pooled Ox, Oy, S)"))
     console.print(_grid_table(ev.uncalibrated, "RMSE (deg), uncalibrated, same frames"))
+    dm = result.default_method
+    if dm is not None:
+        console.print(
+            _grid_table(dm.evaluation.uncalibrated, f"RMSE (deg), {dm.method} (default), uncalibrated")
+        )
+        console.print(_grid_table(dm.evaluation.calibrated, f"RMSE (deg), {dm.method}, its own calibration"))
     if result.cube is not None:
         cb = result.cube
-        console.print(
-            f"cube vs motion capture ({cb.calibrated.n} frames): "
-            f"RMSE {cb.raw.rmse_deg:.2f} deg uncalibrated, "
-            f"{cb.calibrated.rmse_deg:.2f} deg calibrated"
+        text = (
+            f"cube vs motion capture ({cb.calibrated.n} frames): paper RMSE {cb.raw.rmse_deg:.2f} deg "
+            f"uncalibrated, {cb.calibrated.rmse_deg:.2f} deg calibrated"
         )
+        if dm is not None and dm.cube is not None:
+            text += (
+                f"; {dm.method} {dm.cube.raw.rmse_deg:.2f} deg uncalibrated, "
+                f"{dm.cube.calibrated.rmse_deg:.2f} deg with its own calibration"
+            )
+        console.print(text)
     n_failed = result.samples.n_failed + (result.cube.n_failed if result.cube is not None else 0)
     if n_failed:
         warn(f"{n_failed} frames gave no estimate (listed in the report)")
-    console.print(f"report: {result.paths['report']}  ({elapsed:.1f} s)")
+    console.print(f"report: {result.paths['report']} and {result.paths['report_html']}  ({elapsed:.1f} s)")
+    if result.disk is not None:
+        rendered = result.rendered
+        kept = (
+            "all kept (--keep-data)"
+            if settings.keep_data
+            else "the images deleted once estimated (--keep-data keeps them)"
+        )
+        console.print(
+            f"disk: {out} holds {result.disk.files} files, {result.disk.mb:.1f} MB (measured); the frames "
+            f"rendered took {rendered.files if rendered else 0} files, "
+            f"{rendered.mb if rendered else 0.0:.1f} MB, {kept}"
+        )

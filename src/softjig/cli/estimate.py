@@ -141,7 +141,7 @@ def estimate(
 
     from softjig.calibration.tilt import load_tilt_calibration
 
-    cal = load_tilt_calibration(calibration) if calibration else None
+    cal = load_tilt_calibration(calibration, method=method.value) if calibration else None
     method_name = method.value
     if len(inputs) == 1:
         pair_only = {
@@ -155,8 +155,9 @@ def estimate(
         if given:
             raise InputError(f"{', '.join(given)} apply to a stereo pair; a DATASET's results go to --out")
         _estimate_dataset(
-            inputs[0], config, part_diameter, cal, method_name, out, workers, progress, use_reference
-        )
+            inputs[0], config, part_diameter, cal, method_name, out, workers, progress, use_reference,
+            inputs=(config, calibration),
+        )  # fmt: skip
         return
     if len(inputs) != 2:
         raise InputError(f"give LEFT RIGHT (a stereo pair) or one DATASET folder, got {len(inputs)} paths")
@@ -212,25 +213,40 @@ def _estimate_dataset(
     workers: int | None,
     progress: bool,
     use_reference: bool,
+    inputs: tuple[Path | None, ...] = (),
 ) -> None:
     """Estimate every frame of a dataset on ``workers`` processes, streaming the rows to ``out``.
 
     This process opens the dataset (one pass over ``frames.jsonl``, only line offsets kept), computes the
     reference markers (refractive method; this also loads the Numba caches) and estimates up to the first
     loaded frame; the workers it then forks inherit that warm state and read and decode their frames
-    themselves (:func:`softjig.sensing.batch.estimate_dataset`)."""
+    themselves (:func:`softjig.sensing.batch.estimate_dataset`).
+
+    Refused before any work (exit 2): a dataset without frames, an ``out`` that is one of the dataset's own
+    files or one of the command's ``inputs`` (the rig, the calibration). A dataset of which no frame gave
+    an estimate exits 3, after writing every frame's error to ``out``."""
+    import warnings
+
     from rich.progress import Progress
 
-    from softjig.io.dataset import Dataset
+    from softjig.errors import EstimationError
+    from softjig.io.dataset import Dataset, DatasetLineWarning
     from softjig.sensing.batch import BatchSettings, dataset_reference, estimate_dataset_to_file
 
-    dataset = Dataset.open(path)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DatasetLineWarning)  # shown below, once, as a warning line
+        dataset = Dataset.open(path)
+    for note in dataset.warnings:
+        warn(note)
+    if len(dataset) == 0:
+        raise InputError(f"{path} has no frames (its frames.jsonl lists none): nothing to estimate")
+    out = out or Path(path) / "estimates.jsonl"
+    _refuse_to_overwrite_an_input(out, dataset, inputs)
     jig = load_config(config) if config else dataset.jig
     reference = dataset_reference(dataset, jig) if use_reference and method == "refractive" else None
     settings = BatchSettings(
         jig=jig, part_diameter_mm=part_diameter, calibration=cal, method=method, reference=reference
     )
-    out = out or Path(path) / "estimates.jsonl"
     t0 = time.perf_counter()
     # Rows stream to a temporary file as they complete, in frame order; it replaces `out` only at the end.
     with Progress(console=stderr_console(), disable=not progress, transient=True) as bar:
@@ -244,9 +260,36 @@ def _estimate_dataset(
         + (", indentations against the reference frame" if reference is not None else "")
         + f"); wrote {out}"
     )
+    if summary.n_loaded == 0:
+        raise EstimationError(
+            f"{path} has only unloaded reference frames: no frame with a part pressed in to estimate"
+        )
     if summary.first_failure is not None:
         first = summary.first_failure
-        warn(
+        message = (
             f"{summary.n_failed} frames gave no estimate (see their 'error' in {out}), e.g. frame "
             f"{first['index']}: {first['error']}"
         )
+        if summary.n_failed == summary.n_loaded:
+            raise EstimationError(f"no frame of {path} gave an estimate: {message}")
+        warn(message)
+
+
+def _refuse_to_overwrite_an_input(out: Path, dataset, inputs: tuple[Path | None, ...]) -> None:
+    """An InputError if ``out`` is one of the dataset's own files or one of the command's input files."""
+    import os
+
+    if dataset.owns(out):
+        raise InputError(
+            f"--out {out} is one of the dataset's own files: writing there would destroy it; give a "
+            "new file name (e.g. DATASET/estimates.jsonl, the default)"
+        )
+    for given in inputs:
+        if given is None:
+            continue
+        try:
+            same = Path(out).resolve() == Path(given).resolve() or os.path.samefile(out, given)
+        except OSError:
+            same = False
+        if same:
+            raise InputError(f"--out {out} is an input of this command ({given}): give a new file name")

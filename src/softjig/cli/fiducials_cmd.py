@@ -92,7 +92,17 @@ def check(
     from softjig.sensing.fiducial_layout import check_fiducials
 
     jig = load_config(config)
-    result = check_fiducials(load_image(left), load_image(right), jig, max_rms_px=max_rms_px)
+    images = {"left": load_image(left), "right": load_image(right)}
+    for side, image in images.items():
+        cam = getattr(jig.cameras, side)
+        h, w = image.shape[:2]
+        if (w, h) != (cam.width_px, cam.height_px):
+            raise InputError(
+                f"the {side} image ({left if side == 'left' else right}) is {w} x {h} px but the rig's "
+                f"{side} camera is {cam.width_px} x {cam.height_px}: give the rig.toml of the cameras that "
+                "took these images (--config), or images of this rig's cameras"
+            )
+    result = check_fiducials(images["left"], images["right"], jig, max_rms_px=max_rms_px)
     data = result.to_dict()
     if json_output:
         typer.echo(json.dumps(data))

@@ -109,4 +109,10 @@ def simulate(
     scenarios.simulate_dataset(
         out, specs, jig, seed=seed, workers=workers, progress=progress, overwrite=overwrite, color=color
     )
+    if scenario is Scenario.cube:  # the cube's true poses as motion capture would export them
+        from softjig.evaluation.experiment import write_simulated_mocap
+        from softjig.io.dataset import Dataset
+
+        write_simulated_mocap(Dataset.open(out), out / "mocap.csv")
+        typer.echo(f"wrote the motion capture (Motive CSV) to {out / 'mocap.csv'}: softjig mocap {out}")
     typer.echo(f"wrote {len(specs)} frames to {out} in {time.perf_counter() - t0:.1f} s")

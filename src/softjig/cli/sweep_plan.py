@@ -27,7 +27,7 @@ from softjig.cli.app import (
 def sweep_plan(
     diameters: Annotated[str, typer.Option(help="Part diameters (mm), e.g. 30,50,80.")] = "30,50,80",
     alphas: Annotated[str, typer.Option(help="Tilt angles (deg), e.g. 5,10,15,20.")] = "5,10,15,20",
-    step: Annotated[float, typer.Option(help="Step of the tilt direction theta (deg).")] = 10.0,
+    step: Annotated[float, typer.Option(help="Step of the tilt direction theta (deg), in (0, 360].")] = 10.0,
     out: Annotated[Path, typer.Option(help="The plan, JSON.")] = Path("sweep-plan.json"),
     csv_out: Annotated[
         Path | None, typer.Option("--csv", help="The plan, CSV.", show_default="OUT with .csv")
@@ -37,8 +37,21 @@ def sweep_plan(
         Path | None,
         typer.Option(help="JSON with T_robot_jig (written by `softjig align-jig`): adds robot-frame poses."),
     ] = None,
-    push_depth: Annotated[float, typer.Option(help="Push after contact (mm).")] = 3.0,
-    clearance: Annotated[float, typer.Option(help="Approach height above the membrane (mm).")] = 20.0,
+    push_depth: Annotated[
+        float, typer.Option(help="Push after contact (mm), at most the membrane's dome height.")
+    ] = 3.0,
+    clearance: Annotated[
+        float, typer.Option(help="Approach height above the membrane (mm), at most 1000.")
+    ] = 20.0,
+    reach: Annotated[
+        float | None,
+        typer.Option(
+            "--reach-mm",
+            help="The robot's reach (mm from its base frame's origin): refuse a plan with a pose beyond it "
+            "(needs --robot-jig).",
+            show_default=False,
+        ),
+    ] = None,
 ) -> None:
     """Write the tilt sweep's poses (position, quaternion x,y,z,w) in J and the robot frame, in order."""
     from softjig.io.files import write_text_atomic
@@ -58,6 +71,7 @@ def sweep_plan(
         push_depth_mm=push_depth,
         clearance_mm=clearance,
         T_robot_jig=T,
+        reach_mm=reach,
     )
     doc = {
         "frame": "part frame (origin at the centre of the part's bottom face, z into the part) in J"

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from softjig.calibration.sweep import fit_sweep_calibration, sweep_samples
+from softjig.calibration.sweep import check_sweep_design, fit_sweep_calibration, sweep_design, sweep_samples
 from softjig.calibration.tilt import TiltCalibration
 from softjig.evaluation.metrics import RmseGrid, commanded_tilt_angles_deg
 from softjig.evaluation.tilt_sweep import evaluate_sweep
@@ -70,6 +70,10 @@ def compare_methods(
     on its odd-theta frames."""
     jig = dataset.jig
     frames = list(dataset)
+    # Both calibrations are fitted on the even theta steps: refuse a sweep too coarse for that before
+    # estimating it three times.
+    check_sweep_design(*sweep_design(frames), selection="even")
+    check_sweep_design(*sweep_design(frames), selection="odd")
     paper_rows = list(
         estimate_dataset(dataset, BatchSettings(jig=jig, method="paper"), workers=workers, on_row=on_row)
     )

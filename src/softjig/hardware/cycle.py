@@ -4,8 +4,9 @@ The paper's cycle: the jig is soft (oil in), a part is placed and pushed in, the
 beads jam and the part is held, the cameras sense its orientation, the robot works on it, and the jig
 releases it. Each state has one *command* for the I/O layer (:func:`softjig.hardware.pump.run_cycle`) to
 carry out; the outcome comes back as an *event*; :func:`step` gives the next state and its command. Any
-fault, from any state, goes to ``FAULT`` with the command ``SAFE`` (pump off, valve to its safe
-position); only ``RESET`` leaves ``FAULT``, by releasing.
+fault, from any state, goes to ``FAULT`` with the command ``SAFE`` (``STOP``: pump off, valve closed, so
+a held part stays held -- see :mod:`softjig.hardware.protocol` for why); only ``RESET`` leaves ``FAULT``,
+by releasing, the deliberate step that frees the part.
 
 ::
 

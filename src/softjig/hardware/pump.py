@@ -1,56 +1,55 @@
-"""Jamming control: a driver for the pump/valve controller on a serial line, and the jig's work cycle.
+"""The host's driver for the pump/valve controller on a serial line, the heartbeat, and the jig's cycle.
 
-The jig jams by pumping oil *out* of the membrane (the beads pack and hold the part) and softens by
-letting it back in (Sakuma et al., "Design of soft-jig"). A small controller (a microcontroller driving
-the pump and a valve, reading a pressure sensor) talks to the host over a serial line.
-
-Line protocol (version 1)
--------------------------
-Serial, 115200 baud 8N1 by default; ASCII; one request per line, one reply per line, lines end in
-``\\n`` (a ``\\r`` before it is ignored). The host waits for each reply before sending the next request.
-
-=============  ===============================================  ============================================
-request        reply                                            effect
-=============  ===============================================  ============================================
-``HELLO``      ``OK softjig-pump 1``                            names the protocol and its version
-``FIX``        ``OK state=fixing``                              pump oil out; ``fixed`` once at set-point
-``RELEASE``    ``OK state=releasing``                           pump off, valve open: oil flows back;
-                                                                ``released`` once at ambient pressure
-``STOP``       ``OK state=safe``                                the safe state: pump off, valve
-                                                                de-energised (open), the jig softens
-``STATUS``     ``OK state=S pressure_kpa=P fault=F``            ``S`` one of :data:`STATES`; ``P`` the oil's
-                                                                gauge pressure, kPa (negative when drawn
-                                                                out); ``F`` ``none`` or a word
-``PRESSURE``   ``OK pressure_kpa=P``                            the pressure alone
-=============  ===============================================  ============================================
-
-A refused or failed request is answered ``ERR <text>``. The controller must also go to its safe state by
-itself when it hears nothing for a few seconds (its watchdog; the host polls ``STATUS`` while it waits).
+The protocol, and the decision of what the jig's safe state is (pump off, valve closed: a held part stays
+held; only ``RELEASE`` frees it), are in :mod:`softjig.hardware.protocol`.
 
 Faults
 ------
-:class:`PumpController` turns every fault -- no reply within ``timeout_s``, a garbled reply, ``ERR``, a
-controller reporting ``state=fault``, a set-point not reached in time, a serial error -- into the safe
-state: it sends ``STOP`` (best effort), remembers the fault (further ``FIX`` requests are refused until
-:meth:`~PumpController.reset`) and raises :class:`PumpError` saying what happened and what to check.
+:class:`PumpController` turns every fault -- no whole reply line within ``timeout_s``, a reply longer than
+:data:`~softjig.hardware.protocol.MAX_REPLY_BYTES`, a garbled reply, ``ERR``, a missing or non-finite
+pressure, a controller reporting ``state=fault``, a state left unexpectedly, a set-point not reached in
+time, a serial error (a port that disappears) -- into the safe state: it sends ``STOP``, and raises
+:class:`PumpError` saying what happened, whether the controller *confirmed* its safe state (``OK
+state=safe``), and what to check. Used as a context manager it also sends ``STOP`` when the block ends by
+any other exception, ``KeyboardInterrupt`` and :class:`~softjig.hardware.guard.Terminated` (SIGTERM)
+included. ``FIX`` is refused while the controller reports ``safe`` or ``fault`` (the latch, kept by the
+controller, so it holds across processes) and after a fault in this process, until :meth:`release`.
 
-:class:`SimulatedPumpController` answers this protocol on the master side of a pseudo-terminal, for the
-tests and for dry runs; it can be told to stop answering.
+:class:`~softjig.hardware.simulator.SimulatedPumpController` answers the protocol on a pseudo-terminal.
 """
 
 from __future__ import annotations
 
 import contextlib
-import os
-import select
-import threading
+import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
-from typing import Any
+from typing import Any, NoReturn
 
-from softjig.errors import SoftjigError
+try:
+    import termios
+except ImportError:  # pragma: no cover - Windows
+    termios = None  # type: ignore[assignment]
+
+from softjig.errors import InputError
 from softjig.hardware.cycle import Command, CycleEvent, JigCycle
+from softjig.hardware.guard import signals_deferred
+from softjig.hardware.protocol import (
+    DEFAULT_BAUDRATE,
+    HEARTBEAT_PERIOD_S,
+    MAX_REPLY_BYTES,
+    PROTOCOL_NAME,
+    PROTOCOL_VERSION,
+    SAFE_STATES,
+    STATES,
+    PumpError,
+    PumpStatus,
+    format_request,
+    parse_pressure,
+    parse_reply,
+    parse_status,
+)
+from softjig.hardware.simulator import SimulatedPumpController
 
 __all__ = [
     "PROTOCOL_VERSION",
@@ -65,94 +64,21 @@ __all__ = [
     "run_cycle",
 ]
 
-PROTOCOL_VERSION = 1
-PROTOCOL_NAME = "softjig-pump"
-REQUESTS = ("HELLO", "FIX", "RELEASE", "STOP", "STATUS", "PRESSURE")
-#: The controller's states.
-STATES = ("released", "fixing", "fixed", "releasing", "safe", "fault")
-DEFAULT_BAUDRATE = 115200
+#: The longest a single serial read waits (s); the reply's deadline is enforced across reads.
+_READ_SLICE_S = 0.05
+#: Errors of the serial line besides pyserial's and OSError (termios.error is neither, on a vanished tty).
+_PLATFORM_ERRORS: tuple[type[BaseException], ...] = (termios.error,) if termios is not None else ()
+#: What the safe state means, for messages.
+SAFE_MEANING = "pump off, valve closed: the jig keeps what it holds; `softjig jig release` frees the part"
 
 
-class PumpError(SoftjigError):
-    """The pump controller failed or could not be reached; the jig was sent to its safe state."""
-
-
-@dataclass(frozen=True)
-class PumpStatus:
-    """The controller's state.
-
-    Attributes
-    ----------
-    state : one of :data:`STATES`.
-    pressure_kpa : gauge pressure of the oil in the membrane (kPa; negative when oil is drawn out).
-    fault : the controller's fault word, or ``None``.
-    """
-
-    state: str
-    pressure_kpa: float
-    fault: str | None = None
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"state": self.state, "pressure_kpa": self.pressure_kpa, "fault": self.fault}
-
-
-# ------------------------------------------------------------------------------------ pure protocol
-
-
-def format_request(request: str) -> bytes:
-    """The bytes of a request line."""
-    if request not in REQUESTS:
-        raise PumpError(f"unknown pump request {request!r}; valid: {', '.join(REQUESTS)}")
-    return f"{request}\n".encode("ascii")
-
-
-def parse_reply(line: bytes | str, request: str = "") -> dict[str, str]:
-    """The ``key=value`` fields of an ``OK`` reply (a bare word is stored under its position, ``"0"``...).
-
-    Raises
-    ------
-    PumpError
-        An ``ERR`` reply, or a line that is neither ``OK ...`` nor ``ERR ...``.
-    """
-    text = line.decode("ascii", errors="replace") if isinstance(line, bytes) else line
-    text = text.strip()
-    what = f" to {request}" if request else ""
-    if text.startswith("ERR"):
-        raise PumpError(f"the pump controller refused{what}: {text[3:].strip() or 'no reason given'}")
-    words = text.split()
-    if not words or words[0] != "OK":
-        raise PumpError(
-            f"garbled reply{what} from the pump controller: {text!r} (wrong baud rate, or "
-            "not a softjig pump controller?)"
-        )
-    fields: dict[str, str] = {}
-    for i, word in enumerate(words[1:]):
-        key, eq, value = word.partition("=")
-        if eq:
-            fields[key] = value
-        else:
-            fields[str(i)] = word
-    return fields
-
-
-def parse_status(fields: dict[str, str]) -> PumpStatus:
-    """A :class:`PumpStatus` from the fields of a ``STATUS`` reply."""
-    state = fields.get("state")
-    if state not in STATES:
-        raise PumpError(
-            f"the pump controller reported an unknown state {state!r}; expected one of {', '.join(STATES)}"
-        )
-    try:
-        pressure = float(fields.get("pressure_kpa", "nan"))
-    except ValueError:
-        raise PumpError(
-            f"the pump controller reported a bad pressure {fields.get('pressure_kpa')!r}"
-        ) from None
-    fault = fields.get("fault", "none")
-    return PumpStatus(state=state, pressure_kpa=pressure, fault=None if fault == "none" else fault)
-
-
-# ------------------------------------------------------------------------------------------- driver
+def _seconds(name: str, value: float, *, zero_ok: bool = False) -> float:
+    """``value`` as a finite, positive (or, with ``zero_ok``, non-negative) duration in s; else InputError."""
+    seconds = float(value)
+    if not math.isfinite(seconds) or seconds < 0 or (seconds == 0 and not zero_ok):
+        bound = ">= 0" if zero_ok else "> 0"
+        raise InputError(f"{name} must be a finite number of seconds {bound}, got {value!r}")
+    return seconds
 
 
 class PumpController:
@@ -160,11 +86,17 @@ class PumpController:
 
     Parameters
     ----------
-    port : the serial device (``/dev/ttyACM0``, ``COM3``), or an open serial-like object with ``write``,
-        ``readline``, ``reset_input_buffer``, ``timeout`` and ``close`` (tests).
+    port : the serial device (``/dev/ttyACM0``, ``COM3``), or an open pyserial-like object with ``write``,
+        ``read``, ``in_waiting``, ``reset_input_buffer`` and ``close`` (whose read timeout should be short).
     baudrate : the line's speed.
-    timeout_s : how long to wait for a reply (s); a controller silent longer is a fault.
+    timeout_s : how long to wait for a whole reply line (s); a controller slower than that is a fault.
     poll_period_s : period of ``STATUS`` polls while waiting for a state (s).
+
+    Attributes
+    ----------
+    fault : the fault met in this process, or ``None``; ``FIX`` is refused until :meth:`release`.
+    safe_confirmed : after the last safe-state request, whether the controller confirmed it (``None``
+        before any).
     """
 
     def __init__(
@@ -175,15 +107,20 @@ class PumpController:
         timeout_s: float = 1.0,
         poll_period_s: float = 0.05,
     ) -> None:
-        self.timeout_s = float(timeout_s)
-        self.poll_period_s = float(poll_period_s)
+        self.timeout_s = _seconds("the reply timeout (--timeout)", timeout_s)
+        self.poll_period_s = _seconds("the poll period", poll_period_s)
         self.fault: str | None = None
+        self.safe_confirmed: bool | None = None
+        self._stop_problem = ""
         if isinstance(port, str):
             import serial
 
             try:
                 self._serial = serial.Serial(
-                    port, baudrate=baudrate, timeout=timeout_s, write_timeout=timeout_s
+                    port,
+                    baudrate=baudrate,
+                    timeout=min(self.timeout_s, _READ_SLICE_S),
+                    write_timeout=self.timeout_s,
                 )
             except (serial.SerialException, OSError, ValueError) as exc:
                 raise PumpError(
@@ -196,18 +133,43 @@ class PumpController:
             self._serial = port
             self.port = getattr(port, "port", None) or repr(port)
         try:
-            hello = self._request("HELLO")
-        except PumpError:
+            hello = self._exchange("HELLO")
+            if hello.get("0") != PROTOCOL_NAME or hello.get("1") != str(PROTOCOL_VERSION):
+                raise PumpError(
+                    f"{self.port} answered HELLO with {hello} instead of {PROTOCOL_NAME} "
+                    f"{PROTOCOL_VERSION}: not a softjig pump controller, or another protocol version"
+                )
+        except BaseException:
+            # Nothing was commanded yet: do not send STOP to what may not be a pump at all.
             self.close()
             raise
-        if hello.get("0") != PROTOCOL_NAME or hello.get("1") != str(PROTOCOL_VERSION):
-            self.close()
-            raise PumpError(
-                f"{self.port} answered HELLO with {hello} instead of {PROTOCOL_NAME} "
-                f"{PROTOCOL_VERSION}: not a softjig pump controller, or another protocol version"
-            )
 
-    # -- low level
+    # ---------------------------------------------------------------------------------- the line
+    def _read_reply(self, request: str) -> bytes:
+        """One reply line, within ``timeout_s`` for the *whole* line and at most MAX_REPLY_BYTES long."""
+        deadline = time.monotonic() + self.timeout_s
+        line = bytearray()
+        while True:
+            want = max(1, min(getattr(self._serial, "in_waiting", 0) or 1, MAX_REPLY_BYTES + 1 - len(line)))
+            chunk = self._serial.read(want)
+            if chunk:
+                line += chunk
+                end = line.find(b"\n")
+                if 0 <= end < MAX_REPLY_BYTES:
+                    return bytes(line[: end + 1])
+                if end >= 0 or len(line) > MAX_REPLY_BYTES:
+                    raise PumpError(
+                        f"the pump controller on {self.port} answered {request} with a reply too long "
+                        f"(over {MAX_REPLY_BYTES} bytes, newline included: wrong baud rate, or not a "
+                        "softjig pump controller?)"
+                    )
+            if time.monotonic() >= deadline:
+                got = f" (only {len(line)} bytes of it)" if line else ""
+                raise PumpError(
+                    f"the pump controller on {self.port} did not answer {request} within "
+                    f"{self.timeout_s:g} s{got} (powered? cable? right port?)"
+                )
+
     def _exchange(self, request: str) -> dict[str, str]:
         """Send one request and read its reply; raises PumpError without going safe."""
         import serial
@@ -215,91 +177,180 @@ class PumpController:
         try:
             self._serial.reset_input_buffer()  # a late reply to an earlier request must not be taken
             self._serial.write(format_request(request))
-            line = self._serial.readline()
-        except (serial.SerialException, OSError) as exc:
-            raise PumpError(f"serial error talking to the pump controller on {self.port}: {exc}") from None
-        if not line.endswith(b"\n"):
+            line = self._read_reply(request)
+        except (serial.SerialException, OSError, *_PLATFORM_ERRORS) as exc:
             raise PumpError(
-                f"the pump controller on {self.port} did not answer {request} within "
-                f"{self.timeout_s:g} s (powered? cable? right port?)"
-            )
+                f"serial error talking to the pump controller on {self.port}: {exc} (unplugged? "
+                "check the cable and the port)"
+            ) from None
         return parse_reply(line, request)
 
-    def _request(self, request: str) -> dict[str, str]:
+    def _transact(self, request: str, parse: Callable[[dict[str, str]], Any] = lambda f: f) -> Any:
+        """Send a request and parse its reply; on any fault go safe and raise (:meth:`fail`)."""
         try:
-            return self._exchange(request)
+            return parse(self._exchange(request))
         except PumpError as exc:
-            self._go_safe(str(exc))
-            raise PumpError(f"{exc}; the jig was sent to its safe state (pump off, valve open)") from None
+            self.fail(str(exc))
 
-    def _go_safe(self, reason: str) -> None:
+    # ----------------------------------------------------------------------------- the safe state
+    def go_safe(self, reason: str) -> bool:
+        """Record ``reason`` as a fault and send ``STOP``; whether the controller confirmed its safe state.
+
+        Never raises for the controller's sake (a dead line is reported in :meth:`safe_summary`);
+        further Ctrl-C/SIGTERM are held back while ``STOP`` is on the wire.
+        """
         self.fault = reason
-        with contextlib.suppress(Exception):
-            self._exchange("STOP")
+        with signals_deferred():
+            try:
+                fields = self._exchange("STOP")
+            except PumpError as exc:
+                self.safe_confirmed, self._stop_problem = False, str(exc)
+                return False
+        state = fields.get("state")
+        self.safe_confirmed = state in SAFE_STATES
+        self._stop_problem = "" if self.safe_confirmed else f"it answered STOP with state={state!r}"
+        return self.safe_confirmed
 
-    # -- requests
+    def safe_summary(self) -> str:
+        """What the last safe-state request achieved, and what to check when it was not confirmed."""
+        if self.safe_confirmed is None:
+            return "no safe-state request was sent"
+        if self.safe_confirmed:
+            return f"the pump controller confirmed its safe state ({SAFE_MEANING})"
+        return (
+            f"the safe state is NOT confirmed ({self._stop_problem}): the pump may still be running; "
+            "check the controller's power, cable and port, switch the pump off at its supply if it "
+            "runs, then check with `softjig jig status`"
+        )
+
+    def fail(self, reason: str) -> NoReturn:
+        """Go safe because of ``reason`` and raise :class:`PumpError` with the outcome."""
+        self.go_safe(reason)
+        raise PumpError(f"{reason}; {self.safe_summary()}", stop_attempted=True)
+
+    # ---------------------------------------------------------------------------------- requests
     def status(self) -> PumpStatus:
-        """The controller's state and pressure (``STATUS``)."""
-        status = parse_status(self._request("STATUS"))
+        """The controller's state and pressure (``STATUS``); the controller's own fault goes safe."""
+        status: PumpStatus = self._transact("STATUS", parse_status)
         if status.state == "fault":
-            self._go_safe(f"controller fault {status.fault}")
-            raise PumpError(
-                f"the pump controller on {self.port} reports a fault ({status.fault}); the jig was "
-                "sent to its safe state; check the pump and the tubing, then reset"
+            self.fail(
+                f"the pump controller on {self.port} reports a fault ({status.fault}, "
+                f"{status.pressure_kpa:g} kPa): check the pump, the tubing and the sensor, then "
+                "`softjig jig release`"
             )
         return status
 
     def pressure_kpa(self) -> float:
-        """The oil's gauge pressure (kPa)."""
-        fields = self._request("PRESSURE")
-        try:
-            return float(fields["pressure_kpa"])
-        except (KeyError, ValueError):
-            self._go_safe("bad PRESSURE reply")
-            raise PumpError(f"the pump controller answered PRESSURE with {fields}") from None
+        """The oil's gauge pressure (kPa); a missing or non-finite pressure is a fault."""
+        return self._transact("PRESSURE", parse_pressure)
 
     def fix(self, *, wait: bool = True, timeout_s: float = 10.0) -> PumpStatus:
-        """Jam the jig (``FIX``); with ``wait``, until the controller reports ``fixed``."""
+        """Jam the jig (``FIX``); with ``wait``, until the controller reports ``fixed``.
+
+        Refused (:class:`PumpError`, nothing sent) after a fault in this process, and while the
+        controller reports its latched ``safe``/``fault`` state: release first.
+        """
         if self.fault is not None:
             raise PumpError(
-                f"the pump controller is in fault ({self.fault}): fix the cause, then reset "
-                "(softjig jig release) before fixing again"
+                f"the pump controller had a fault ({self.fault}): fix the cause, then release the jig "
+                "(`softjig jig release`) before fixing again",
+                stop_attempted=True,
             )
-        self._request("FIX")
-        return self._wait_for("fixed", timeout_s) if wait else self.status()
+        current = self.status()
+        if current.state in SAFE_STATES:
+            raise PumpError(
+                f"FIX refused: the jig is in its safe state (state {current.state}, "
+                f"{current.pressure_kpa:g} kPa), latched after a fault, a STOP or the controller's "
+                "watchdog; check why, then release it (`softjig jig release`) before fixing again",
+                stop_attempted=True,
+            )
+        self._transact("FIX", self._expect("FIX", ("fixing", "fixed")))
+        return self._wait_for("fixed", ("fixing",), timeout_s) if wait else self.status()
 
     def release(self, *, wait: bool = True, timeout_s: float = 10.0) -> PumpStatus:
-        """Soften the jig (``RELEASE``); with ``wait``, until the controller reports ``released``."""
-        self._request("RELEASE")
-        return self._wait_for("released", timeout_s) if wait else self.status()
-
-    def safe(self) -> None:
-        """Send the safe state (``STOP``: pump off, valve open) at once."""
-        self._request("STOP")
+        """Soften the jig (``RELEASE``); with ``wait``, until ``released``. Also the way out of a fault."""
+        self.fault = None
+        self._transact("RELEASE", self._expect("RELEASE", ("releasing", "released")))
+        return self._wait_for("released", ("releasing",), timeout_s) if wait else self.status()
 
     def reset(self) -> PumpStatus:
-        """Clear a remembered fault by releasing the jig (the way out of the safe state)."""
-        self.fault = None
+        """Clear a fault by releasing the jig (the way out of the safe state)."""
         return self.release()
 
-    def _wait_for(self, state: str, timeout_s: float) -> PumpStatus:
-        deadline = time.monotonic() + timeout_s
+    def safe(self) -> None:
+        """Send the safe state (``STOP``) at once; raises :class:`PumpError` unless it is confirmed."""
+        if not self.go_safe("STOP requested"):
+            raise PumpError(f"STOP requested; {self.safe_summary()}", stop_attempted=True)
+        self.fault = None  # a requested STOP is no fault: the controller's latch still needs RELEASE
+
+    def hold(
+        self,
+        *,
+        period_s: float = HEARTBEAT_PERIOD_S,
+        duration_s: float | None = None,
+        on_status: Callable[[PumpStatus], None] | None = None,
+    ) -> PumpStatus:
+        """The heartbeat: poll ``STATUS`` every ``period_s`` while the jig must stay ``fixed``.
+
+        Keeps the controller's watchdog fed (so the pump keeps regulating the set-point) and checks the
+        jig stays ``fixed`` with a valid pressure; anything else is a fault (safe state, raise). Returns
+        the last status after ``duration_s`` (``None``: until interrupted -- by Ctrl-C or SIGTERM, which
+        the caller turns into the safe state). Does not ``STOP`` on a normal return: that is the caller's.
+        """
+        if duration_s is not None:
+            _seconds("the hold duration (--duration)", duration_s, zero_ok=True)
+        if not HEARTBEAT_PERIOD_S * 2 >= period_s > 0:
+            raise PumpError(
+                f"the heartbeat period must be in (0, {HEARTBEAT_PERIOD_S * 2:g}] s so the controller's "
+                f"watchdog (at least {HEARTBEAT_PERIOD_S * 4:g} s) never expires; got {period_s:g}"
+            )
+        start = time.monotonic()
+        beat = 0
+        while True:
+            status = self.status()
+            if status.state != "fixed":
+                self.fail(
+                    f"the jig left 'fixed' while holding (state {status.state}, {status.pressure_kpa:g} kPa)"
+                    ": check for a leak, the pump and the controller's watchdog setting"
+                )
+            if on_status is not None:
+                on_status(status)
+            beat += 1
+            next_beat = start + beat * period_s
+            if duration_s is not None and next_beat - start > duration_s:
+                return status
+            time.sleep(max(0.0, next_beat - time.monotonic()))
+
+    def _expect(self, request: str, states: tuple[str, ...]) -> Callable[[dict[str, str]], dict[str, str]]:
+        def check(fields: dict[str, str]) -> dict[str, str]:
+            if fields.get("state") not in states:
+                raise PumpError(
+                    f"the pump controller answered {request} with state={fields.get('state')!r} "
+                    f"instead of {' or '.join(states)}"
+                )
+            return fields
+
+        return check
+
+    def _wait_for(self, state: str, passing: tuple[str, ...], timeout_s: float) -> PumpStatus:
+        deadline = time.monotonic() + _seconds("the wait (--wait)", timeout_s, zero_ok=True)
         while True:
             status = self.status()
             if status.state == state:
                 return status
-            if time.monotonic() >= deadline:
-                reason = (
-                    f"the jig did not reach {state!r} within {timeout_s:g} s (state {status.state!r}, "
-                    f"{status.pressure_kpa:g} kPa)"
+            if status.state not in passing:
+                self.fail(
+                    f"the jig went to {status.state!r} ({status.pressure_kpa:g} kPa) on its way to "
+                    f"{state!r}: check the controller"
                 )
-                self._go_safe(reason)
-                raise PumpError(
-                    f"{reason}; the jig was sent to its safe state: check for a leak, the "
-                    "pump and the filters"
+            if time.monotonic() >= deadline:
+                self.fail(
+                    f"the jig did not reach {state!r} within {timeout_s:g} s (state {status.state!r}, "
+                    f"{status.pressure_kpa:g} kPa): check for a leak, the pump and the filters"
                 )
             time.sleep(self.poll_period_s)
 
+    # ---------------------------------------------------------------------------- context manager
     def close(self) -> None:
         with contextlib.suppress(Exception):
             self._serial.close()
@@ -307,8 +358,13 @@ class PumpController:
     def __enter__(self) -> PumpController:
         return self
 
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+    def __exit__(self, exc_type: object, exc: BaseException | None, tb: object) -> None:
+        try:
+            already = isinstance(exc, PumpError) and exc.stop_attempted
+            if exc is not None and not already:
+                self.go_safe(f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__)
+        finally:
+            self.close()
 
 
 # ------------------------------------------------------------------------------------------ the cycle
@@ -331,7 +387,8 @@ def run_cycle(
     pump : the controller.
     wait_for_part : blocks until a part is placed; returns ``False`` to end (no more parts).
     sense : returns the part's estimate (e.g. one live frame's); it is what the cycle reports.
-    work : the robot's work on the held part, given the estimate.
+    work : the robot's work on the held part, given the estimate. It must return within the controller's
+        watchdog (a few seconds), or the pump stops regulating and the part is held passively.
     cycles : how many parts.
 
     Returns
@@ -341,8 +398,8 @@ def run_cycle(
 
     Raises
     ------
-    PumpError, or whatever a callback raised
-        After the cycle went to ``FAULT`` and the jig to its safe state.
+    PumpError, or whatever a callback raised (KeyboardInterrupt included)
+        After the cycle went to ``FAULT`` and the jig to its safe state (``STOP``: the part stays held).
     """
     cycle = JigCycle()
     results: list[Any] = []
@@ -351,11 +408,10 @@ def run_cycle(
     try:
         while True:
             if command is Command.RELEASE:
+                pump.release(timeout_s=release_timeout_s)
                 if len(results) >= cycles:
-                    pump.release(timeout_s=release_timeout_s)
                     cycle.handle(CycleEvent.STOP)
                     return results
-                pump.release(timeout_s=release_timeout_s)
                 command = cycle.handle(CycleEvent.RELEASED)
             elif command is Command.WAIT_FOR_PART:
                 if not wait_for_part():
@@ -375,140 +431,8 @@ def run_cycle(
                 command = cycle.handle(CycleEvent.WORK_DONE)
             else:  # pragma: no cover - SAFE only follows FAULT/STOP, handled below
                 raise PumpError(f"unexpected command {command}")
-    except BaseException:
+    except BaseException as exc:
         cycle.handle(CycleEvent.FAULT)
-        with contextlib.suppress(Exception):
-            pump.safe()
+        if not (isinstance(exc, PumpError) and exc.stop_attempted):
+            pump.go_safe(f"{type(exc).__name__}: {exc}")
         raise
-
-
-# -------------------------------------------------------------------------------------- simulation
-
-
-class SimulatedPumpController:
-    """A pump controller answering the line protocol on a file descriptor (a pseudo-terminal's master).
-
-    Parameters
-    ----------
-    fd : the descriptor to serve (read requests, write replies).
-    fix_time_s, release_time_s : how long jamming and releasing take (s).
-    fixed_pressure_kpa : the pressure at set-point (kPa).
-
-    Attributes
-    ----------
-    silent : set to stop answering (a controller that hangs); requests are still logged.
-    requests : every request line received, in order.
-    state : the simulated state.
-
-    Examples
-    --------
-    >>> sim, port = SimulatedPumpController.on_pty()                   # doctest: +SKIP
-    >>> with sim, PumpController(port) as pump:
-    ...     pump.fix()
-    """
-
-    def __init__(
-        self,
-        fd: int,
-        *,
-        fix_time_s: float = 0.2,
-        release_time_s: float = 0.2,
-        fixed_pressure_kpa: float = -60.0,
-    ) -> None:
-        self.fd = fd
-        self.fix_time_s, self.release_time_s = fix_time_s, release_time_s
-        self.fixed_pressure_kpa = fixed_pressure_kpa
-        self.silent = False
-        self.requests: list[str] = []
-        self.state = "released"
-        self._since = time.monotonic()
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._serve, name="softjig-pump-sim", daemon=True)
-        self._owned_fds: list[int] = []
-
-    @classmethod
-    def on_pty(cls, **kwargs: Any) -> tuple[SimulatedPumpController, str]:
-        """A simulator on a new pseudo-terminal pair, and the path of the terminal to open as the port."""
-        import tty
-
-        master, slave = os.openpty()
-        tty.setraw(slave)
-        sim = cls(master, **kwargs)
-        sim._owned_fds = [master, slave]  # the slave stays open so the master never sees a hang-up
-        return sim, os.ttyname(slave)
-
-    def _pressure(self) -> float:
-        elapsed = time.monotonic() - self._since
-        if self.state == "fixing":
-            return self.fixed_pressure_kpa * min(1.0, elapsed / self.fix_time_s)
-        if self.state == "fixed":
-            return self.fixed_pressure_kpa
-        if self.state == "releasing":
-            return self.fixed_pressure_kpa * max(0.0, 1.0 - elapsed / self.release_time_s)
-        return 0.0
-
-    def _advance(self) -> None:
-        elapsed = time.monotonic() - self._since
-        if self.state == "fixing" and elapsed >= self.fix_time_s:
-            self.state, self._since = "fixed", time.monotonic()
-        elif self.state == "releasing" and elapsed >= self.release_time_s:
-            self.state, self._since = "released", time.monotonic()
-
-    def reply(self, request: str) -> str:
-        """The reply line (without ``\\n``) to a request (pure but for the simulated clock)."""
-        self._advance()
-        if request == "HELLO":
-            return f"OK {PROTOCOL_NAME} {PROTOCOL_VERSION}"
-        if request == "FIX":
-            if self.state not in ("fixing", "fixed"):
-                self.state, self._since = "fixing", time.monotonic()
-            return f"OK state={self.state}"
-        if request == "RELEASE":
-            if self.state not in ("releasing", "released"):
-                self.state, self._since = "releasing", time.monotonic()
-            return f"OK state={self.state}"
-        if request == "STOP":
-            self.state, self._since = "safe", time.monotonic()
-            return "OK state=safe"
-        if request == "STATUS":
-            return f"OK state={self.state} pressure_kpa={self._pressure():.2f} fault=none"
-        if request == "PRESSURE":
-            return f"OK pressure_kpa={self._pressure():.2f}"
-        return f"ERR unknown request {request!r}"
-
-    def _serve(self) -> None:
-        buffer = b""
-        while not self._stop.is_set():
-            ready, _, _ = select.select([self.fd], [], [], 0.05)
-            if not ready:
-                continue
-            try:
-                data = os.read(self.fd, 1024)
-            except OSError:
-                return
-            buffer += data
-            while b"\n" in buffer:
-                line, buffer = buffer.split(b"\n", 1)
-                request = line.decode("ascii", errors="replace").strip()
-                self.requests.append(request)
-                if not self.silent:
-                    os.write(self.fd, (self.reply(request) + "\n").encode("ascii"))
-
-    def start(self) -> SimulatedPumpController:
-        self._thread.start()
-        return self
-
-    def stop(self) -> None:
-        self._stop.set()
-        if self._thread.is_alive():
-            self._thread.join(timeout=2.0)
-        for fd in self._owned_fds:
-            with contextlib.suppress(OSError):
-                os.close(fd)
-        self._owned_fds = []
-
-    def __enter__(self) -> SimulatedPumpController:
-        return self.start() if not self._thread.is_alive() else self
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()

@@ -21,7 +21,12 @@ optionally ``time_s``, and where known ``alpha_deg``, ``theta_deg``, ``part`` (`
 **Crash safety.** :class:`DatasetWriter` writes each image and ``.npz`` atomically
 (:mod:`softjig.io.files`) and appends the frame's line to ``frames.jsonl`` (flush + fsync) only after
 its files exist, so a recorder killed at any moment leaves every completed frame readable. A kill in the
-middle of the append can leave a truncated last line; :meth:`Dataset.open` skips it with a warning.
+middle of the append can leave a truncated last line; :meth:`Dataset.open` skips it with a warning, as it
+does any line that is not JSON. Two frames with one index are refused.
+
+**Paths stay inside.** ``left``, ``right`` and ``truth.markers`` are relative to the folder: an absolute
+path or one climbing out with ``..`` is refused when the dataset is opened, and a path leading out through
+a symbolic link when its file is read.
 
 **Laziness.** :meth:`Dataset.open` reads ``rig.toml`` and checks every line of ``frames.jsonl`` in one
 streaming pass, but keeps only where each frame's line starts (16 bytes per frame): a frame is parsed
@@ -42,13 +47,14 @@ import io
 import json
 import math
 import os
+import re
 import shutil
 import warnings
 from array import array
 from collections.abc import Generator, Iterator, Mapping
 from dataclasses import dataclass, field
 from functools import lru_cache
-from pathlib import Path
+from pathlib import Path, PurePosixPath, PureWindowsPath
 from typing import TYPE_CHECKING, Any, overload
 
 import cv2
@@ -56,7 +62,7 @@ import numpy as np
 
 from softjig.config import JigConfig, Part, dumps_jig, load_jig, loads_jig, part_from_dict, save_jig
 from softjig.errors import ConfigError, InputError
-from softjig.io.files import write_bytes_atomic, write_text_atomic
+from softjig.io.files import fsync_folder, write_bytes_atomic, write_text_atomic
 
 if TYPE_CHECKING:
     from softjig.sim.asbuilt import AsBuiltJig
@@ -68,6 +74,7 @@ __all__ = [
     "RIG_NAME",
     "TRUTH_MARKER_FIELDS",
     "Dataset",
+    "DatasetLineWarning",
     "DatasetTruncationWarning",
     "DatasetWriter",
     "Frame",
@@ -82,6 +89,38 @@ AS_BUILT_NAME = "as_built.toml"
 AS_BUILT_MARKERS_NAME = "as_built_markers.npz"
 _SUBDIRS = ("left", "right", "truth")
 _DATASET_MEMBERS = (RIG_NAME, FRAMES_NAME, AS_BUILT_NAME, AS_BUILT_MARKERS_NAME, *_SUBDIRS)
+#: Files softjig itself writes into a dataset folder besides the dataset (``estimate``'s default results,
+#: the demo's simulated motion capture): an overwrite may replace them with the dataset.
+WRITTEN_BESIDE = ("estimates.jsonl", "estimates.csv", "mocap.csv")
+#: Where an overwrite writes the new dataset (beside the old one) until it is complete, and where the old
+#: one goes for the moment of the swap: ``<folder><suffix>``.
+STAGING_SUFFIX, RETIRED_SUFFIX = ".softjig-new", ".softjig-old"
+_MEMBER_FILE = {"left": re.compile(r"\d{6,}\.png"), "right": re.compile(r"\d{6,}\.png"),
+                "truth": re.compile(r"\d{6,}\.npz")}  # fmt: skip
+_TEMPORARY = re.compile(r"\..+\.tmp")
+
+
+def _foreign_entries(root: Path) -> list[str]:
+    """What a folder holds that :class:`DatasetWriter` (or softjig beside it) did not write: an overwrite
+    must not delete it. Relative paths, sorted."""
+    foreign = []
+    for entry in sorted(root.iterdir()):
+        name = entry.name
+        if _TEMPORARY.fullmatch(name) and entry.is_file():
+            continue
+        if name in _MEMBER_FILE and entry.is_dir() and not entry.is_symlink():
+            pattern = _MEMBER_FILE[name]
+            foreign += [
+                f"{name}/{sub.name}"
+                for sub in sorted(entry.iterdir())
+                if not (sub.is_file() and (pattern.fullmatch(sub.name) or _TEMPORARY.fullmatch(sub.name)))
+            ]
+        elif name not in (RIG_NAME, FRAMES_NAME, AS_BUILT_NAME, AS_BUILT_MARKERS_NAME, *WRITTEN_BESIDE) or (
+            not entry.is_file() or entry.is_symlink()
+        ):
+            foreign.append(name + ("/" if entry.is_dir() else ""))
+    return foreign
+
 
 #: The arrays of a frame's truth ``.npz`` (each with one row per marker).
 TRUTH_MARKER_FIELDS = (
@@ -99,8 +138,54 @@ PNG_COMPRESSION = 1  # zlib level: lossless either way; 1 is much faster to writ
 _RESERVED_KEYS = ("index", "left", "right")
 
 
-class DatasetTruncationWarning(UserWarning):
+class DatasetLineWarning(UserWarning):
+    """A line of a dataset's ``frames.jsonl`` is not JSON (garbage, a bad edit) and was skipped."""
+
+
+class DatasetTruncationWarning(DatasetLineWarning):
     """A dataset's last ``frames.jsonl`` line was cut short (a recorder killed mid-write) and skipped."""
+
+
+def _member_path(root: Path, relative: str, what: str) -> Path:
+    """``root / relative``, checked to stay inside the dataset folder ``root`` once every ``..`` and
+    symbolic link is resolved: a dataset names only its own files (a ``frames.jsonl`` naming
+    ``../../etc/passwd`` must not make softjig read, or a recorder copy, files from elsewhere).
+
+    Raises
+    ------
+    InputError
+        The path leaves the dataset folder (``what`` names the frame and the key).
+    """
+    path = root / relative
+    try:
+        inside = path.resolve().is_relative_to(root.resolve())
+    except (OSError, RuntimeError):  # a symlink loop
+        inside = False
+    if not inside:
+        raise InputError(
+            f"{what} {relative!r} is outside the dataset folder {root}: a dataset names only files inside "
+            "its folder; copy the file into the dataset and name it relative to the folder"
+        )
+    return path
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def _check_relative(relative: str, where: str, key: str) -> None:
+    """Refuse, when a dataset is opened, a path that cannot stay inside the folder whatever is on disk:
+    absolute, with a drive, or climbing out with ``..``."""
+    posix, windows = PurePosixPath(relative), PureWindowsPath(relative)
+    parts = windows.parts if "\\" in relative else posix.parts
+    if posix.is_absolute() or windows.drive or windows.root or ".." in parts:
+        raise InputError(
+            f"{where}: {key} {relative!r} is outside the dataset folder: a dataset names only files "
+            "inside its folder, relative to it (like left/000000.png)"
+        )
 
 
 # ------------------------------------------------------------------------------------------ images
@@ -236,16 +321,22 @@ class Frame:
 
     @property
     def left_path(self) -> Path:
-        """Absolute path of the left image."""
-        return self.root / self.left
+        """Path of the left image (checked to be inside the dataset folder, see :meth:`load_left`)."""
+        return _member_path(self.root, self.left, f"frame {self.index}: left image")
 
     @property
     def right_path(self) -> Path:
-        """Absolute path of the right image."""
-        return self.root / self.right
+        """Path of the right image (checked to be inside the dataset folder)."""
+        return _member_path(self.root, self.right, f"frame {self.index}: right image")
 
     def load_left(self) -> np.ndarray:
-        """The left image (see :func:`load_image`)."""
+        """The left image (see :func:`load_image`).
+
+        Raises
+        ------
+        InputError
+            The image is unreadable, or outside the dataset folder (a symbolic link or ``..`` leading out).
+        """
         return load_image(self.left_path)
 
     def load_right(self) -> np.ndarray:
@@ -265,7 +356,7 @@ class Frame:
             raise InputError(
                 f"frame {self.index} of {self.root} has no truth markers: only simulated datasets have them"
             )
-        path = self.root / self.truth.markers
+        path = _member_path(self.root, self.truth.markers, f"frame {self.index}: truth.markers")
         if not path.is_file():
             raise InputError(
                 f"truth file {path} of frame {self.index} does not exist: the dataset is "
@@ -295,6 +386,7 @@ def _frame_from_json(root: Path, obj: Any, where: str) -> Frame:
             raise InputError(
                 f"{where}: {side} must be an image path relative to the dataset, got {obj[side]!r}"
             )
+        _check_relative(obj[side], where, side)
 
     def number(key: str) -> float | None:
         value = obj.get(key)
@@ -365,6 +457,8 @@ def _truth_from_json(obj: Any, where: str) -> FrameTruth | None:
     markers = obj.get("markers")
     if markers is not None and not isinstance(markers, str):
         raise InputError(f"{where}: truth.markers must be a relative path, got {markers!r}")
+    if markers is not None:
+        _check_relative(markers, where, "truth.markers")
     return FrameTruth(
         normal=array("normal", (3,)),
         push_depth_mm=None if push is None else float(push),
@@ -423,9 +517,10 @@ class Dataset:
         Raises
         ------
         InputError
-            Missing folder, missing ``rig.toml`` or ``frames.jsonl``, a corrupt line (named by number).
-            A truncated *last* line (a recorder killed mid-write) is skipped with a
-            :class:`DatasetTruncationWarning` instead.
+            Missing folder, missing ``rig.toml`` or ``frames.jsonl``, a line that is not a valid frame, a
+            frame index used twice, a path outside the folder (each named by its line). A line that is
+            not JSON is skipped with a :class:`DatasetLineWarning` instead (a truncated *last* line, a
+            recorder killed mid-write: :class:`DatasetTruncationWarning`).
         ConfigError
             ``rig.toml`` is invalid (the message names the file and the field).
         """
@@ -504,7 +599,7 @@ class Dataset:
             pos, k = offsets[start], start
             for raw in fh:
                 line_start, pos = pos, pos + len(raw)
-                if not raw.strip():
+                if not raw.strip() or line_start < offsets[k]:  # blank, or a line skipped when opened
                     continue
                 if line_start != offsets[k]:
                     break
@@ -555,6 +650,28 @@ class Dataset:
             f"{self._index.line_numbers[k]} is no longer there): open the dataset again"
         )
 
+    def owns(self, path: str | os.PathLike[str]) -> bool:
+        """Whether ``path`` is one of this dataset's own files: ``rig.toml``, ``frames.jsonl``, the as-built
+        files, anything in ``left/``, ``right/`` or ``truth/``, or a file a frame names. An output must
+        never be written there (``estimate DATASET --out DATASET/frames.jsonl`` would destroy the index).
+        Links are followed: a path that is the same file as one of those is owned too."""
+        target = Path(path).resolve()
+        root = self.root.resolve()
+        if not target.is_relative_to(root):
+            return any(_same_file(target, self.root / name) for name in _DATASET_MEMBERS)
+        relative = target.relative_to(root)
+        if relative.parts and relative.parts[0] in _DATASET_MEMBERS:
+            return True
+        if not target.exists():
+            return False
+        for frame in self:
+            names = [frame.left, frame.right]
+            if frame.truth is not None and frame.truth.markers is not None:
+                names.append(frame.truth.markers)
+            if any(_same_file(target, self.root / name) for name in names):
+                return True
+        return False
+
     @property
     def has_as_built(self) -> bool:
         """Whether the dataset stores the as-built jig it was simulated from."""
@@ -594,11 +711,16 @@ class Dataset:
 def _index_frames(root: Path, frames_path: Path) -> tuple[_LineIndex, list[str]]:
     """Check every line of ``frames.jsonl`` in one streaming pass and keep where each frame starts.
 
-    A line that is not JSON is an error unless it is the last non-blank one (a recorder killed
-    mid-write): that one is skipped with a :class:`DatasetTruncationWarning`."""
+    A line that is not JSON (garbage, a bad edit, the last line of a recorder killed mid-write) is skipped
+    with a :class:`DatasetLineWarning` (:class:`DatasetTruncationWarning` for the last line), so one bad
+    line costs one frame, not the dataset. A JSON line that is not a valid frame, or a frame index seen
+    before, is an error naming the line: those are not accidents of a kill, and guessing which of two
+    frames with one index is meant would give a wrong answer."""
     offsets, line_numbers, size = array("q"), array("q"), 0
     notes: list[str] = []
-    unparsed: tuple[str, Exception] | None = None  # a line that is not JSON: fatal unless the last
+    skipped: list[tuple[str, Exception]] = []  # lines that are not JSON
+    last_skipped = False  # whether the last non-blank line is one of them
+    first_line: dict[int, int] = {}  # frame index -> the line it was first seen on
     pos = 0
     try:
         with open(frames_path, "rb") as fh:
@@ -606,29 +728,43 @@ def _index_frames(root: Path, frames_path: Path) -> tuple[_LineIndex, list[str]]
                 line_start, pos = pos, pos + len(raw)
                 if not raw.strip():
                     continue
-                if unparsed is not None:
-                    where, exc = unparsed
-                    raise InputError(f"{where}: not valid JSON ({exc}); fix or delete that line")
                 where = f"{frames_path}, line {n}"
                 try:
                     obj = json.loads(raw.decode("utf-8"))
                 except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-                    unparsed = (where, exc)
+                    skipped.append((where, exc))
+                    last_skipped = True
                     continue
-                _frame_from_json(root, obj, where)  # checked, then forgotten: parsed again when asked
+                last_skipped = False
+                frame = _frame_from_json(root, obj, where)  # checked, then forgotten: parsed again when asked
+                earlier = first_line.setdefault(frame.index, n)
+                if earlier != n:
+                    raise InputError(
+                        f"{where}: frame index {frame.index} was already used on line {earlier}: every "
+                        "frame needs its own index; fix or delete one of the two lines"
+                    )
                 offsets.append(line_start)
                 line_numbers.append(n)
                 size = pos
     except OSError as exc:
         raise InputError(f"cannot read {frames_path}: {exc}") from None
     index = _LineIndex(frames_path, offsets, line_numbers, size)
-    if unparsed is not None:
-        where, exc = unparsed
+    if last_skipped:
+        where, exc = skipped.pop()
         note = (
             f"{where}: the last line is cut short ({exc}), probably by a recorder killed "
             f"mid-write; skipped it and kept the {len(index)} complete frames"
         )
         warnings.warn(note, DatasetTruncationWarning, stacklevel=3)
+        notes.append(note)
+    if skipped:
+        where, exc = skipped[0]
+        more = f" and {len(skipped) - 1} more lines" if len(skipped) > 1 else ""
+        note = (
+            f"{where}{more}: not valid JSON ({exc}); skipped (fix or delete those lines to keep their "
+            f"frames), kept the {len(index)} valid frames"
+        )
+        warnings.warn(note, DatasetLineWarning, stacklevel=3)
         notes.append(note)
     return index, notes
 
@@ -672,9 +808,15 @@ class DatasetWriter:
     jig : the NOMINAL jig, written as ``rig.toml``.
     as_built : for simulations, the as-built jig the images come from (``as_built.toml`` and
         ``as_built_markers.npz``, for analysis only).
-    overwrite : replace an existing dataset in ``path``. Without it a non-empty folder is refused; even
-        with it, a non-empty folder that is not a dataset (no ``rig.toml`` nor ``frames.jsonl``) is
-        refused, so a mistyped path never deletes unrelated files.
+    overwrite : replace an existing dataset in ``path``. Without it a non-empty folder is refused. Even
+        with it, only a dataset softjig wrote is replaced: a folder without both ``rig.toml`` and
+        ``frames.jsonl``, or holding anything softjig does not write there (a calibration photo, a note:
+        see :data:`WRITTEN_BESIDE`), is refused, so a mistyped path never deletes unrelated files. The
+        replacement is atomic: the new dataset is written beside the old one (``path`` +
+        :data:`STAGING_SUFFIX`) and swapped in by :meth:`close`; until then, and if the writer is killed,
+        the old dataset stays whole (the new frames written so far stay readable in the staging folder).
+        Left by an exception, a simulation's (``durable=False``) staging folder is deleted, a recording's
+        kept.
     png_compression : zlib level of the PNGs (0-9; all lossless).
     durable : fsync every file and line (a recording survives a power cut); ``False`` keeps the writes
         atomic (a killed writer leaves only complete frames) without the disk waits, for data that can be
@@ -704,55 +846,109 @@ class DatasetWriter:
         self.png_compression = int(png_compression)
         self._next_index = 0
         self._frames_fh: io.BufferedWriter | None = None
+        self._dir = self.root  # where the files go: the staging folder while an overwrite is pending
+        self._replacing = False
 
     # -- lifecycle
     def open(self) -> DatasetWriter:
         """Prepare the folder and write ``rig.toml`` (called by ``with``)."""
         if self._frames_fh is not None:
             return self
-        root = self.root
-        if root.exists() and not root.is_dir():
-            raise InputError(f"{root} exists and is not a folder: choose another output folder")
-        if root.is_dir() and any(root.iterdir()):
-            is_dataset = (root / FRAMES_NAME).exists() or (root / RIG_NAME).exists()
-            if not is_dataset:
+        final = self.root
+        if final.exists() and not final.is_dir():
+            raise InputError(f"{final} exists and is not a folder: choose another output folder")
+        root = final
+        if final.is_dir() and any(final.iterdir()):
+            if not ((final / FRAMES_NAME).is_file() and (final / RIG_NAME).is_file()):
                 raise InputError(
-                    f"{root} is not empty and is not a softjig dataset: choose an empty or new output folder"
+                    f"{final} is not empty and is not a softjig dataset (it lacks {FRAMES_NAME} or "
+                    f"{RIG_NAME}): choose an empty or new output folder"
                 )
             if not self.overwrite:
                 raise InputError(
-                    f"{root} already holds a dataset: choose another output folder or "
+                    f"{final} already holds a dataset: choose another output folder or "
                     "overwrite it (--overwrite, or overwrite=True)"
                 )
-            for name in _DATASET_MEMBERS:
-                member = root / name
-                if member.is_dir():
-                    shutil.rmtree(member)
-                elif member.exists():
-                    member.unlink()
-        root.mkdir(parents=True, exist_ok=True)
-        save_jig(self.jig, root / RIG_NAME)
-        if self.as_built is not None:
-            write_text_atomic(root / AS_BUILT_NAME, dumps_jig(self.as_built.jig))
-            buf = io.BytesIO()
-            np.savez(buf, marker_xy_mm=np.asarray(self.as_built.marker_xy_mm, dtype=float))
-            write_bytes_atomic(root / AS_BUILT_MARKERS_NAME, buf.getvalue())
-        for sub in ("left", "right"):
-            (root / sub).mkdir(exist_ok=True)
-        self._frames_fh = open(root / FRAMES_NAME, "ab")  # noqa: SIM115 - closed in close()
+            foreign = _foreign_entries(final)
+            if foreign:
+                shown = ", ".join(foreign[:5]) + (f" and {len(foreign) - 5} more" if len(foreign) > 5 else "")
+                raise InputError(
+                    f"{final} holds files softjig did not write ({shown}): overwriting would delete them; "
+                    "move them out or choose another output folder"
+                )
+            root = final.with_name(final.name + STAGING_SUFFIX)
+            for other in (root, final.with_name(final.name + RETIRED_SUFFIX)):
+                if other.exists():
+                    raise InputError(
+                        f"{other} exists: an earlier overwrite of {final} did not finish (it may hold "
+                        f"frames recorded then); look at it, then rename or delete it"
+                    )
+            self._replacing = True
+        self._dir = root
+        try:
+            root.mkdir(parents=True, exist_ok=True)
+            save_jig(self.jig, root / RIG_NAME)
+            if self.as_built is not None:
+                write_text_atomic(root / AS_BUILT_NAME, dumps_jig(self.as_built.jig))
+                buf = io.BytesIO()
+                np.savez(buf, marker_xy_mm=np.asarray(self.as_built.marker_xy_mm, dtype=float))
+                write_bytes_atomic(root / AS_BUILT_MARKERS_NAME, buf.getvalue())
+            for sub in ("left", "right"):
+                (root / sub).mkdir(exist_ok=True)
+            self._frames_fh = open(root / FRAMES_NAME, "ab")  # noqa: SIM115 - closed in close()
+        except BaseException:
+            if self._replacing:  # nothing recorded yet: the staging folder goes
+                self._replacing = False
+                shutil.rmtree(root, ignore_errors=True)
+            raise
         return self
 
     def close(self) -> None:
-        """Close ``frames.jsonl`` (called by ``with``)."""
+        """Close ``frames.jsonl`` (called by ``with``); an overwrite is completed here: the new dataset
+        replaces the old one."""
         if self._frames_fh is not None:
             self._frames_fh.close()
             self._frames_fh = None
+        if self._replacing:
+            self._replacing = False
+            self._swap()
+
+    def _swap(self) -> None:
+        """Put the complete new dataset (the staging folder) in place of the old one: two renames, then the
+        old one is deleted. A kill between the renames leaves both, under their suffixed names."""
+        final, staging = self.root, self._dir
+        retired = final.with_name(final.name + RETIRED_SUFFIX)
+        try:
+            os.rename(final, retired)
+            os.rename(staging, final)
+        except OSError as exc:
+            raise InputError(
+                f"cannot replace {final} by the new dataset {staging}: {exc.strerror or exc}; the new "
+                "dataset is complete there"
+            ) from None
+        self._dir = final
+        fsync_folder(final.parent)
+        shutil.rmtree(retired, ignore_errors=True)
+
+    def _abandon(self) -> None:
+        """Left by an exception while overwriting: the old dataset stays; a simulation's staging folder is
+        deleted, a recording's kept (its frames are readable there)."""
+        if self._frames_fh is not None:
+            self._frames_fh.close()
+            self._frames_fh = None
+        if self._replacing:
+            self._replacing = False
+            if not self.durable:
+                shutil.rmtree(self._dir, ignore_errors=True)
 
     def __enter__(self) -> DatasetWriter:
         return self.open()
 
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+    def __exit__(self, exc_type: type[BaseException] | None, *exc: object) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self._abandon()
 
     @property
     def n_frames(self) -> int:
@@ -803,11 +999,11 @@ class DatasetWriter:
         # Files first, the line last: a frame is in frames.jsonl only once its files are complete.
         for side, image in (("left", left), ("right", right)):
             data = image if isinstance(image, bytes) else encode_png(image, compression=self.png_compression)
-            write_bytes_atomic(self.root / side / f"{name}.png", data, durable=self.durable)
+            write_bytes_atomic(self._dir / side / f"{name}.png", data, durable=self.durable)
         if arrays is not None:
             buf = io.BytesIO()
             np.savez(buf, **arrays)
-            write_bytes_atomic(self.root / "truth" / f"{name}.npz", buf.getvalue(), durable=self.durable)
+            write_bytes_atomic(self._dir / "truth" / f"{name}.npz", buf.getvalue(), durable=self.durable)
         self._frames_fh.write(line.encode("utf-8") + b"\n")
         self._frames_fh.flush()
         if self.durable:

@@ -1,9 +1,17 @@
-"""Atomic file writes: nothing a user recorded is ever left half-written."""
+"""Atomic file writes: nothing a user recorded is ever left half-written.
+
+Every file is first written to a temporary file beside its target, then renamed onto it. The temporary
+file is created with mode ``0o666`` and the kernel applies the process's umask, so outputs get the modes
+any other program's would (``0644`` under the usual umask ``022``, ``0600`` under ``077``); a
+:func:`tempfile.mkstemp` file would be ``0600`` whatever the umask, unreadable by a robot process of
+another user. The temporary file is removed on every exception (a full disk, Ctrl-C, a SIGTERM turned into
+an exception by :func:`softjig.io.processes.terminate_raises`).
+"""
 
 from __future__ import annotations
 
 import os
-import tempfile
+import secrets
 from pathlib import Path
 
 from softjig.errors import InputError
@@ -51,12 +59,19 @@ def temp_file_beside(path: Path) -> tuple[int, Path]:
     """
     if path.is_dir():
         raise InputError(f"cannot write {path}: it is a folder; give a file name inside it")
+    flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0) | getattr(os, "O_BINARY", 0)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+        for _ in range(100):
+            tmp = path.parent / f".{path.name}.{secrets.token_hex(4)}.tmp"
+            try:
+                # 0o666 & ~umask, applied by the kernel: no umask read, no race with other threads.
+                return os.open(tmp, flags, 0o666), tmp
+            except FileExistsError:
+                continue
+        raise FileExistsError(f"no free temporary name beside {path}")
     except OSError as exc:
         raise InputError(f"cannot write {path}: {exc.strerror or exc}; choose another path") from None
-    return fd, Path(tmp)
 
 
 def fsync_folder(folder: Path) -> None:

@@ -13,6 +13,12 @@ subscriber's queue is full, new messages *for that subscriber* are dropped (PUB 
 subscribers still get everything. A subscriber that joins late gets the messages from then on; health
 messages are periodic, so it learns the loop's state within one health period.
 
+A subscriber that acts on estimates must not read a backlog one message at a time: ZeroMQ queues what it
+has not read and, once the queue is full, drops the *newest* messages, so a slow reader acts on ever older
+estimates. :class:`Subscriber` with ``latest_only=True`` drains the queue on every receive and returns the
+newest message of each topic. (``ZMQ_CONFLATE`` is no way out: it keeps a single *frame*, and a softjig
+message has two.)
+
 The publisher binds to the loopback interface unless told otherwise (``allow_remote=True``): a jig's
 estimates are for the robot controller on the same machine or, deliberately, on a trusted cell network.
 """
@@ -228,16 +234,37 @@ class Subscriber:
     endpoint : the publisher's endpoint (``tcp://127.0.0.1:5555``).
     topics : the topics to receive (default: all).
     hwm : messages queued before ZeroMQ drops new ones (``RCVHWM``).
+    latest_only : each :meth:`receive` drains what is queued and returns only the newest message of each
+        topic (the older ones are counted in :attr:`skipped`): what a robot acting on estimates wants.
+        Keep ``hwm`` large then: a queue that overflows between two receives loses the newest messages.
+
+    Attributes
+    ----------
+    skipped : messages passed over because a newer one of their topic was queued (``latest_only``).
 
     Examples
     --------
-    >>> with Subscriber("tcp://127.0.0.1:5555") as sub:                  # doctest: +SKIP
+    >>> with Subscriber("tcp://127.0.0.1:5555", latest_only=True) as sub:   # doctest: +SKIP
     ...     topic, msg = sub.receive(timeout_s=1.0)
     """
 
-    def __init__(self, endpoint: str, *, topics: tuple[str, ...] = TOPICS, hwm: int = 1000) -> None:
+    #: The most messages one drain reads (a bound on a receive's work whatever the publisher's rate).
+    MAX_DRAIN = 100_000
+
+    def __init__(
+        self,
+        endpoint: str,
+        *,
+        topics: tuple[str, ...] = TOPICS,
+        hwm: int = 1000,
+        latest_only: bool = False,
+    ) -> None:
         import zmq
 
+        self.latest_only = bool(latest_only)
+        self.skipped = 0
+        self._pending: dict[str, tuple[int, dict[str, Any]]] = {}  # topic -> (arrival order, payload)
+        self._arrivals = 0
         self._ctx = zmq.Context()
         self._socket = self._ctx.socket(zmq.SUB)
         self._socket.setsockopt(zmq.RCVHWM, int(hwm))
@@ -247,10 +274,37 @@ class Subscriber:
         self._socket.connect(endpoint)
 
     def receive(self, timeout_s: float) -> tuple[str, dict[str, Any]] | None:
-        """The next ``(topic, payload)`` (:func:`decode_message`), or ``None`` after ``timeout_s``."""
-        if not self._socket.poll(int(max(timeout_s, 0.0) * 1000)):
-            return None
-        return decode_message(self._socket.recv_multipart())
+        """The next ``(topic, payload)`` (:func:`decode_message`), or ``None`` after ``timeout_s``.
+
+        With ``latest_only``: of the newest message of each topic queued now, the one that arrived first
+        (so the newest estimate and the newest health message both come out, and nothing older).
+        """
+        if not self.latest_only:
+            if not self._socket.poll(int(max(timeout_s, 0.0) * 1000)):
+                return None
+            return decode_message(self._socket.recv_multipart())
+        self._drain()
+        if not self._pending:
+            if not self._socket.poll(int(max(timeout_s, 0.0) * 1000)):
+                return None
+            self._drain()
+        topic = min(self._pending, key=lambda t: self._pending[t][0])
+        return topic, self._pending.pop(topic)[1]
+
+    def _drain(self) -> None:
+        """Read every message queued now without waiting; keep the newest of each topic."""
+        import zmq
+
+        for _ in range(self.MAX_DRAIN):
+            try:
+                frames = self._socket.recv_multipart(flags=zmq.NOBLOCK)
+            except zmq.Again:
+                return
+            topic, payload = decode_message(frames)
+            if topic in self._pending:
+                self.skipped += 1
+            self._arrivals += 1
+            self._pending[topic] = (self._arrivals, payload)
 
     def receive_until(self, predicate: Any, timeout_s: float) -> list[tuple[str, dict[str, Any]]]:
         """Every message received until ``predicate(topic, payload)`` is true or ``timeout_s`` passes."""

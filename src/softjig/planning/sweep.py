@@ -35,9 +35,14 @@ from softjig.config import JigConfig
 from softjig.errors import InputError
 from softjig.geometry import pose_from_rotation_translation
 
-__all__ = ["PHASES", "SweepPose", "sweep_plan", "sweep_plan_rows"]
+__all__ = ["MAX_CLEARANCE_MM", "MAX_POSES", "PHASES", "SweepPose", "sweep_plan", "sweep_plan_rows"]
 
 PHASES = ("approach", "press", "tilt", "retract")
+#: Most poses a plan may have (checked before any is made): the paper's sweep has 894; at a few seconds
+#: a pose, 100,000 is days of robot time, and a theta step of 1e-9 deg would be 10^12 poses.
+MAX_POSES = 100_000
+#: Highest approach above the membrane (mm): a metre above the jig is outside any robot cell around it.
+MAX_CLEARANCE_MM = 1000.0
 
 
 @dataclass(frozen=True)
@@ -105,6 +110,7 @@ def sweep_plan(
     push_depth_mm: float = 3.0,
     clearance_mm: float = 20.0,
     T_robot_jig: np.ndarray | None = None,
+    reach_mm: float | None = None,
 ) -> list[SweepPose]:
     """The poses of the paper's tilt sweep, in the order a robot should visit them (module docstring).
 
@@ -114,15 +120,23 @@ def sweep_plan(
     diameters_mm : the parts, in the order they are used.
     alphas_deg : tilt angles, each in (0, 60) degrees; visited in ascending order.
     theta_step_deg : step of the tilt direction in (0, 360] degrees; ``theta`` = 0, step, ... < 360.
-    push_depth_mm : how far the part is pushed in after contact (mm).
-    clearance_mm : height of the approach pose above the membrane's apex (mm).
-    T_robot_jig : (4, 4) the jig's pose in the robot base frame (:mod:`softjig.calibration.alignment`).
+    push_depth_mm : how far the part is pushed in after contact (mm), at most the membrane's dome height
+        (deeper, the part would reach the base plate).
+    clearance_mm : height of the approach pose above the membrane's apex (mm), at most
+        :data:`MAX_CLEARANCE_MM`.
+    T_robot_jig : (4, 4) the jig's pose in the robot base frame (:mod:`softjig.calibration.alignment`):
+        a rigid pose (:func:`~softjig.calibration.alignment.check_pose`).
+    reach_mm : the robot's reach (mm from the origin of its base frame); with ``T_robot_jig``, every pose
+        must lie within it.
 
     Raises
     ------
     InputError
-        An out-of-range value, or a part wider than the membrane.
+        An out-of-range or non-finite value; more than :data:`MAX_POSES` poses (before any is made); a
+        part wider than the membrane; a tilted part whose rim would reach the base plate; a pose out of
+        the robot's reach.
     """
+    from softjig.calibration.alignment import check_pose
     from softjig.config import CylinderPart, validate_part
     from softjig.jig_shape import rest_outer_height_mm
     from softjig.sim.parts import PartPose
@@ -130,16 +144,42 @@ def sweep_plan(
 
     diameters = _check(diameters_mm, "diameters", 0.0, math.inf)
     alphas = sorted(_check(alphas_deg, "alphas", 0.0, 60.0))
-    thetas = theta_values_deg(float(theta_step_deg))
-    for name, v in (("push depth", push_depth_mm), ("clearance", clearance_mm)):
-        if not (math.isfinite(v) and v >= 0):
-            raise InputError(f"the {name} must be zero or a positive number of mm, got {v}")
+    step = float(theta_step_deg)
+    if not (math.isfinite(step) and 0.0 < step <= 360.0):
+        raise InputError(f"the theta step must be in (0, 360] degrees, got {theta_step_deg}")
+    n_theta = math.ceil(360.0 / step - 1e-9)
+    n_poses = len(diameters) * (4 + len(alphas) * n_theta)
+    if n_poses > MAX_POSES:
+        raise InputError(
+            f"the plan would have {n_poses:.4g} poses ({n_theta:.4g} tilt directions per tilt at a theta "
+            f"step of {step:g} deg), more than {MAX_POSES:,}: use a coarser step (the paper's is 10 deg)"
+        )
+    thetas = theta_values_deg(step)
+    dome = jig.membrane.dome_height_mm
+    for name, v, hi, why in (
+        ("push depth", push_depth_mm, dome, "the membrane's dome height: deeper, the part reaches the plate"),
+        ("clearance", clearance_mm, MAX_CLEARANCE_MM, "a metre above the jig"),
+    ):
+        if not (math.isfinite(v) and 0 <= v <= hi):
+            raise InputError(f"the {name} must be between 0 and {hi:g} mm ({why}), got {v}")
     for d in diameters:
         validate_part(CylinderPart(d), jig)
-    T_rj = None if T_robot_jig is None else np.asarray(T_robot_jig, float)
-    if T_rj is not None and T_rj.shape != (4, 4):
-        raise InputError(f"T_robot_jig must be a 4x4 matrix, got shape {T_rj.shape}")
+    T_rj = None if T_robot_jig is None else check_pose(T_robot_jig, "T_robot_jig")
+    if reach_mm is not None:
+        if not (math.isfinite(reach_mm) and reach_mm > 0):
+            raise InputError(f"the robot's reach must be a positive number of mm, got {reach_mm}")
+        if T_rj is None:
+            raise InputError("a robot reach needs the jig's pose in the robot frame (T_robot_jig)")
     apex = float(rest_outer_height_mm(jig, np.array([0.0]), np.array([0.0]))[0])
+    floor = jig.membrane.thickness_mm  # the membrane stays between the part and the plate's top (z = 0)
+    for d in diameters:
+        lowest = apex - push_depth_mm - d / 2 * math.sin(math.radians(alphas[-1]))
+        if lowest <= floor:
+            raise InputError(
+                f"tilted by {alphas[-1]:g} deg after a push of {push_depth_mm:g} mm, the rim of the "
+                f"{d:g} mm part would be {lowest:.1f} mm above the base plate, less than the membrane's "
+                f"{floor:g} mm: push less or tilt less"
+            )
     upright = np.eye(3)
     plan: list[SweepPose] = []
 
@@ -158,6 +198,14 @@ def sweep_plan(
                 add("tilt", d, a, t, pose.T_J_part(jig))
         add("press", d, 0.0, 0.0, pressed)
         add("retract", d, 0.0, 0.0, above)
+    if reach_mm is not None:
+        far = max(plan, key=lambda p: float(np.linalg.norm(p.T_robot_part[:3, 3])))
+        distance = float(np.linalg.norm(far.T_robot_part[:3, 3]))
+        if distance > reach_mm:
+            raise InputError(
+                f"pose {far.index} ({far.phase}, D = {far.diameter_mm:g} mm) is {distance:.1f} mm from the "
+                f"robot's base, beyond its reach of {reach_mm:g} mm: move the jig closer or check T_robot_jig"
+            )
     return plan
 
 

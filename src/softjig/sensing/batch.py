@@ -40,7 +40,7 @@ import multiprocessing.context
 import os
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
-from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures import Future
 from dataclasses import dataclass
 from itertools import islice
 from pathlib import Path
@@ -52,6 +52,7 @@ from softjig.config import JigConfig
 from softjig.errors import EstimationError, InputError
 from softjig.io.dataset import Dataset, Frame
 from softjig.io.files import fsync_folder, temp_file_beside
+from softjig.io.workers import worker_pool
 from softjig.sensing.identities import ReferenceMarkers
 from softjig.sensing.pipeline import DEFAULT_METHOD, estimate_pair, reference_from_pair, sensing_setup
 
@@ -320,25 +321,29 @@ def _estimate_in_workers(
                 pending.append(pool.submit(_estimate_chunk, batch))
                 submitted += len(batch)
 
-    with _one_thread_per_worker():  # the first submission starts (forks) the workers
-        pool = ProcessPoolExecutor(
-            workers,
-            mp_context=_pool_context(),
-            initializer=_init_worker,
-            initargs=(settings, dataset if by_position else None),
-        )
-        submit()
-    try:
-        while pending:
-            for row in pending.popleft().result():
-                if on_row:
-                    on_row(row)
-                yield row
+    with contextlib.ExitStack() as stack:
+        # Workers die with this process, whatever kills it; an exception (Ctrl-C, SIGTERM, the caller
+        # closing this generator) ends them at once rather than after their chunks (io.workers).
+        with _one_thread_per_worker():  # the first submission starts (forks) the workers
+            pool = stack.enter_context(
+                worker_pool(
+                    workers,
+                    mp_context=_pool_context(),
+                    initializer=_init_worker,
+                    initargs=(settings, dataset if by_position else None),
+                )
+            )
             submit()
-    finally:
-        for future in pending:
-            future.cancel()
-        pool.shutdown(wait=True, cancel_futures=True)
+        try:
+            while pending:
+                for row in pending.popleft().result():
+                    if on_row:
+                        on_row(row)
+                    yield row
+                submit()
+        finally:
+            for future in pending:
+                future.cancel()
 
 
 # ------------------------------------------------------------------------------------------ output

@@ -20,8 +20,8 @@ is linearised in the centre only (``mu`` is linear in ``A`` and ``B``): about a 
 ``c0``, ``y ~ B + A f_0 + (A du) (-df/dx) + (A dv) (-df/dy)`` is linear in ``(B, A, A du, A dv)``, so
 each step is a fixed ``4 x n^2`` weight matrix ``W = (J^T C^{-1} J)^{-1} J^T C^{-1}`` applied to the
 window. The weights depend smoothly on the reference centre; they are computed once per model
-(:func:`fit_tables`, 0.3-1 s) for reference centres every 1/4 px within 1 px of the window's central
-pixel, with the covariance taken at the nominal amplitude, and fitted by a cubic polynomial in the
+(:func:`fit_tables`, 0.3-1 s; kept on disk) for reference centres every 1/4 px within 1 px of the window's
+central pixel, with the covariance taken at the nominal amplitude, and fitted by a cubic polynomial in the
 reference centre's offset. One product of each marker's window with the polynomial's coefficients
 (``n^2 x 30``) then gives ``(A, A du, A dv)`` about any reference centre as a cubic of its offset, so
 finding the reference centre where the estimated offset ``(A du, A dv)`` vanishes (the Gauss-Newton
@@ -49,9 +49,11 @@ from functools import lru_cache
 import cv2
 import numba
 import numpy as np
+import scipy
 import scipy.linalg
 
 from softjig.checks import finite_float
+from softjig.disk_cache import cached_array
 from softjig.errors import InputError
 
 __all__ = [
@@ -298,9 +300,30 @@ _TABLE_RANGE_PX = 1.0  # the weights are fitted for offsets within this of the w
 _FULL_SCALE = {np.dtype(np.uint8): 255.0, np.dtype(np.uint16): 65535.0}
 
 
+#: Version of :func:`fit_tables`'s algorithm and output layout: bump it whenever a change to this module
+#: changes the tables, so that tables cached on disk by an older version are not used.
+TABLES_FORMAT_VERSION = 1
+
+
+def _tables_key(model: MarkerModel) -> str:
+    """Everything :func:`fit_tables` depends on, as exact text (the key of its cache on disk)."""
+    fields = ", ".join(f"{name}={getattr(model, name)!r}" for name in model.__dataclass_fields__)
+    constants = (
+        f"supersample={_SUPERSAMPLE!r} derivative_step={_DERIVATIVE_STEP_PX!r} "
+        f"profile_degree={_PROFILE_DEGREE!r} weight_degree={_WEIGHT_DEGREE!r} range={_TABLE_RANGE_PX!r}"
+    )
+    libraries = f"numpy={np.__version__} scipy={scipy.__version__} opencv={cv2.__version__}"
+    return f"format={TABLES_FORMAT_VERSION}\nMarkerModel({fields})\n{constants}\n{libraries}"
+
+
 @lru_cache(maxsize=16)
 def fit_tables(model: MarkerModel) -> np.ndarray:
     """Gauss-Newton weights as a polynomial in the reference centre's offset (see the module docstring).
+
+    Built once per model and machine: the tables (0.3-1 s to build) are kept in the user's cache folder
+    (:func:`softjig.disk_cache.cached_array`, keyed by :func:`_tables_key`: the model, this module's
+    table constants, ``TABLES_FORMAT_VERSION`` and the numerical libraries' versions), so a command's
+    start-up reads them (about 1 ms) instead.
 
     Returns
     -------
@@ -317,6 +340,11 @@ def fit_tables(model: MarkerModel) -> np.ndarray:
     1/4 px in ``[-1, 1]^2``, are fitted by a cubic. The covariance is taken at the nominal amplitude
     and centred: it varies little with the sub-pixel offset.
     """
+    return cached_array("subpixel-tables", _tables_key(model), lambda: _build_tables(model))
+
+
+def _build_tables(model: MarkerModel) -> np.ndarray:
+    """:func:`fit_tables` computed (no cache)."""
     grid = np.arange(-1.25, 1.25 + 1e-9, 0.25)
     tu, tv = np.meshgrid(grid, grid)
     t_prof = np.column_stack([tu.ravel(), tv.ravel()])

@@ -12,7 +12,9 @@ is the standard deviation of a zero-mean normal error, drawn independently per a
   to one shared intrinsic matrix, so the stereo calibration's residual error is common to both views
   (the pair stays rectified; its depth scale and the image centre are off);
 - the plate's and the oil's refractive indices are off by ``refractive_index``;
-- each marker sits ``marker_placement_mm`` (per axis) away from its place on the mould's grid.
+- each marker sits ``marker_placement_mm`` (per axis) away from its nominal place
+  (:func:`softjig.jig_shape.marker_layout_xy`: the mould's grid, or an explicit or surveyed list); the
+  rest shape is the nominal dome profile, whatever its kind (:mod:`softjig.jig_shape`).
 
 The per-frame effects (membrane ripple, edge conformity) are applied by the renderer, from the same
 tolerances.

@@ -42,6 +42,7 @@ import numpy as np
 from softjig.config import CylinderPart, JigConfig, Part, cube, part_to_dict, validate_jig, validate_part
 from softjig.errors import InputError
 from softjig.io.dataset import DatasetWriter, encode_png
+from softjig.io.workers import worker_pool
 from softjig.jig_shape import rest_inner_height_mm
 from softjig.sim.asbuilt import AsBuiltJig, draw_as_built
 from softjig.sim.parts import PartPose, bottom_face_rim, bottom_plane_height_mm
@@ -318,6 +319,7 @@ def simulate_dataset(
     progress: bool = True,
     overwrite: bool = False,
     color: bool = False,
+    first_index: int = 0,
 ) -> Path:
     """Render every spec on an as-built jig drawn from ``seed`` and write a dataset with ground truth.
 
@@ -333,6 +335,9 @@ def simulate_dataset(
     progress : show a progress bar on stderr.
     overwrite : replace an existing dataset in ``out_dir``.
     color : render RGB images instead of gray.
+    first_index : the first spec's number in a longer run (frame ``k`` draws its noise from the seed and
+        ``first_index + k``): the run's frames written in parts (``softjig demo``'s chunks) are the
+        frames of the whole run at once. The dataset still numbers its frames from 0.
 
     Returns
     -------
@@ -369,16 +374,14 @@ def simulate_dataset(
         )
         pool = None
         if n_workers > 1:
-            pool = stack.enter_context(
-                ProcessPoolExecutor(max_workers=n_workers, initializer=_init_worker, initargs=(as_built,))
-            )
-            stack.callback(pool.shutdown, wait=True, cancel_futures=True)  # on error: drop the queue
+            # Workers die with this process; an exception (Ctrl-C, SIGTERM) ends them at once (io.workers).
+            pool = stack.enter_context(worker_pool(n_workers, initializer=_init_worker, initargs=(as_built,)))
             # Start every worker before the progress bar's thread exists (workers are forked).
             for f in [pool.submit(_warm_up) for _ in range(n_workers)]:
                 f.result()
         advance = stack.enter_context(_progress_bar(progress, len(specs)))
         for index, (left, right, truth_markers) in enumerate(
-            _rendered(as_built, specs, seed, pool, n_workers, color)
+            _rendered(as_built, specs, seed, pool, n_workers, color, int(first_index))
         ):
             spec = specs[index]
             meta = dict(spec.meta)
@@ -396,13 +399,14 @@ def _rendered(
     pool: ProcessPoolExecutor | None,
     n_workers: int,
     color: bool,
+    first_index: int = 0,
 ) -> Iterator[tuple[bytes, bytes, dict[str, np.ndarray]]]:
     """The rendered frames, in order; in a pool, a bounded window of frames is in flight."""
     if pool is None:
-        for index, spec in enumerate(specs):
+        for index, spec in enumerate(specs, start=first_index):
             yield _render_one(as_built, spec, seed, index, color)
         return
-    todo = iter(enumerate(specs))
+    todo = iter(enumerate(specs, start=first_index))
     pending: deque[Future[tuple[bytes, bytes, dict[str, np.ndarray]]]] = deque(
         pool.submit(_render_in_worker, spec, seed, index, color)
         for index, spec in itertools.islice(todo, 8 * n_workers)  # absorbs fsync stalls

@@ -1,0 +1,82 @@
+"""The overlay of `softjig estimate --overlay` and the report's stereo pair: a visible normal and a legend."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from softjig.cli import app
+from softjig.config import default_jig
+from softjig.io.dataset import Dataset
+from softjig.sensing import overlay
+from softjig.sensing.batch import dataset_reference
+from softjig.sensing.pipeline import estimate_pair
+from softjig.sim.scenarios import paper_sweep, simulate_dataset
+
+runner = CliRunner()
+MAGENTA = np.array(overlay.MAGENTA)
+
+
+@pytest.fixture(scope="module")
+def pair(tmp_path_factory):
+    """A reference frame and two loaded frames: D = 50 mm tilted 10 deg at theta 0 and 180 deg."""
+    out = tmp_path_factory.mktemp("overlay") / "sweep"
+    specs = list(paper_sweep(diameters_mm=(50,), alphas_deg=(10,), theta_step_deg=180))
+    simulate_dataset(out, specs, default_jig(), seed=5, workers=1, progress=False)
+    return Dataset.open(out)
+
+
+def _magenta_extent_px(image: np.ndarray, width: int) -> float:
+    """The diagonal of the bounding box of the magenta (normal) pixels in the left image (px)."""
+    left = image[:, :width].astype(int)
+    near = np.abs(left - MAGENTA).sum(axis=2) < 60
+    ys, xs = np.nonzero(near)
+    assert len(xs), "no normal drawn"
+    return float(np.hypot(xs.max() - xs.min(), ys.max() - ys.min()))
+
+
+@pytest.mark.parametrize("method", ["paper", "refractive"])
+def test_the_normal_is_an_arrow_long_enough_to_see(pair, method):
+    frame = pair[1]
+    left, right = frame.load_left(), frame.load_right()
+    extra = {"reference": dataset_reference(pair, pair.jig)} if method == "refractive" else {}
+    result = estimate_pair(left, right, pair.jig, part_diameter_mm=50.0, method=method, **extra)
+    image = overlay.draw_overlay(left, right, result, pair.jig)
+    assert image.shape == (left.shape[0], 2 * left.shape[1], 3)
+    # The old 20 mm along the normal, seen by cameras looking along it, was 3-6 px; the magenta of the
+    # legend's own arrow lies in the right image, not counted here.
+    assert _magenta_extent_px(image, left.shape[1]) >= overlay.MIN_ARROW_PX
+    base, tip = overlay.normal_arrow_px(result, pair.jig)
+    # A 10 deg tilt (the paper's method reads about 6) exaggerated 5 times, 30 mm long: 15-25 mm sideways.
+    assert np.hypot(*(tip - base)) > 1.3 * overlay.MIN_ARROW_PX
+
+
+def test_the_arrow_points_where_the_part_tilts(pair):
+    """theta 0 and 180 deg tilt the part opposite ways: the drawn arrows point opposite ways."""
+    reference = dataset_reference(pair, pair.jig)
+    directions = []
+    for k in (1, 2):
+        frame = pair[k]
+        result = estimate_pair(
+            frame.load_left(), frame.load_right(), pair.jig, part_diameter_mm=50.0, reference=reference
+        )
+        base, tip = overlay.normal_arrow_px(result, pair.jig)
+        directions.append((tip - base) / np.hypot(*(tip - base)))
+    assert float(np.dot(*directions)) < -0.9
+
+
+def test_the_legend_is_drawn_on_the_image(pair, tmp_path):
+    """`estimate --overlay`: the right image's top right corner holds the legend (dark box, every colour)."""
+    import cv2
+
+    frame = pair[1]
+    out = tmp_path / "o.png"
+    args = [str(frame.left_path), str(frame.right_path), "--config", str(pair.root / "rig.toml")]
+    result = runner.invoke(app, ["estimate", *args, "--part-diameter", "50", "--overlay", str(out)])
+    assert result.exit_code == 0, result.output
+    image = cv2.imread(str(out))[:, :, ::-1].astype(int)
+    corner = image[:320, -460:]
+    for colour in (overlay.RED, overlay.GREEN, overlay.YELLOW, overlay.CYAN, overlay.MAGENTA):
+        assert (np.abs(corner - np.array(colour)).sum(axis=2) < 60).any(), colour
+    assert (np.abs(corner - np.array(overlay.WHITE)).sum(axis=2) < 30).sum() > 200  # the labels' text

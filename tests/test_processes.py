@@ -1,0 +1,174 @@
+"""Processes that clean up: real `softjig` processes with workers, killed and interrupted from outside.
+
+The workers are found through ``/proc`` (psutil is not a dependency): a parent killed by any signal,
+SIGKILL included, leaves no worker behind; SIGTERM and SIGINT end the command within seconds with exit
+143 / 130, no traceback and no temporary file.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from softjig.config import default_jig
+from softjig.io.workers import Terminated, terminate_raises
+from softjig.sim.scenarios import paper_sweep, simulate_dataset
+
+pytestmark = pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs Linux /proc")
+
+_CLI = "import sys; sys.argv[0] = 'softjig'; from softjig.cli import main; main()"
+#: How long, at most, a command may take to end after a signal (s); generous on a loaded 2-core machine.
+END_WITHIN_S = 6.0
+
+
+def _children(pid: int) -> set[int]:
+    """The pids whose parent is ``pid`` (every thread's children, as the kernel lists them)."""
+    found: set[int] = set()
+    for task in Path(f"/proc/{pid}/task").glob("*/children"):
+        with contextlib.suppress(OSError):
+            found.update(int(p) for p in task.read_text().split())
+    return found
+
+
+def _alive(pid: int) -> bool:
+    """Whether ``pid`` runs (a zombie waiting for its reaper does not)."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return False
+    return stat.rsplit(")", 1)[1].split()[0] != "Z"
+
+
+def _wait_for(predicate, timeout_s: float) -> bool:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(0.05)
+    return predicate()
+
+
+@pytest.fixture(scope="module")
+def long_dataset(tmp_path_factory):
+    """A reference frame and three loaded frames, listed 60 times (240 frames): a run of many seconds."""
+    root = tmp_path_factory.mktemp("proc") / "ds"
+    specs = list(paper_sweep(diameters_mm=(50,), alphas_deg=(10,), theta_step_deg=120))
+    simulate_dataset(root, specs, default_jig(), seed=2, workers=1, progress=False)
+    frames = [json.loads(line) for line in (root / "frames.jsonl").read_text().splitlines()]
+    with open(root / "frames.jsonl", "w") as fh:
+        for k in range(60 * len(frames)):
+            fh.write(json.dumps({**frames[k % len(frames)], "index": k}) + "\n")
+    return root
+
+
+def _start(args: list[str], cwd: Path) -> subprocess.Popen:
+    return subprocess.Popen(
+        [sys.executable, "-c", _CLI, *args],
+        cwd=cwd,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+
+
+def _start_with_workers(args: list[str], cwd: Path, n: int = 2) -> tuple[subprocess.Popen, set[int]]:
+    proc = _start(args, cwd)
+    assert _wait_for(lambda: len(_children(proc.pid)) >= n or proc.poll() is not None, 120), "no workers"
+    workers = _children(proc.pid)
+    assert proc.poll() is None and len(workers) >= n, proc.stderr.read() if proc.poll() is not None else ""
+    time.sleep(0.3)  # the workers are at work
+    return proc, workers
+
+
+def _gone(workers: set[int], timeout_s: float) -> bool:
+    """Whether every worker ended within ``timeout_s``; survivors are killed (no orphan outlives a failing
+    test, and none keeps the test's stderr pipe open)."""
+    if _wait_for(lambda: not any(_alive(pid) for pid in workers), timeout_s):
+        return True
+    for pid in workers:
+        with contextlib.suppress(OSError):
+            os.kill(pid, signal.SIGKILL)
+    return False
+
+
+def _estimate_args(root: Path, out: Path) -> list[str]:
+    return ["estimate", str(root), "--workers", "2", "--no-progress", "--out", str(out)]
+
+
+def _temporary_files(root: Path) -> list[Path]:
+    return sorted(root.rglob("*.tmp"))
+
+
+def test_sigkill_of_estimate_kills_its_workers(long_dataset, tmp_path):
+    proc, workers = _start_with_workers(_estimate_args(long_dataset, tmp_path / "est.jsonl"), tmp_path)
+    proc.kill()
+    proc.wait(10)
+    assert _gone(workers, 2.0), "workers outlived their parent"
+
+
+@pytest.mark.parametrize(("signum", "code"), [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
+def test_sigterm_and_sigint_end_estimate_at_once_and_cleanly(long_dataset, tmp_path, signum, code):
+    out = tmp_path / "est.jsonl"
+    out.write_text("the old results\n")
+    proc, workers = _start_with_workers(_estimate_args(long_dataset, out), tmp_path)
+    t0 = time.monotonic()
+    proc.send_signal(signum)  # the parent alone, as `kill` does
+    try:
+        returncode = proc.wait(END_WITHIN_S)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        pytest.fail(f"still running {END_WITHIN_S} s after {signal.Signals(signum).name}")
+    elapsed = time.monotonic() - t0
+    assert _gone(workers, 1.0), "workers outlived their parent"
+    stderr = proc.stderr.read()
+    assert returncode == code, stderr
+    assert "Traceback" not in stderr and "error:" in stderr
+    assert _temporary_files(tmp_path) == []
+    assert out.read_text() == "the old results\n"  # the results file is replaced only when complete
+    print(f"{signal.Signals(signum).name}: ended in {elapsed:.2f} s")
+
+
+def test_sigkill_of_simulate_kills_its_workers(tmp_path):
+    args = ["simulate", "--scenario", "paper-sweep", "--diameters", "50,60", "--alphas", "10", "--theta-step",
+            "30", "--workers", "2", "--no-progress", "--out", str(tmp_path / "sim")]  # fmt: skip
+    proc, workers = _start_with_workers(args, tmp_path)
+    proc.kill()
+    proc.wait(10)
+    assert _gone(workers, 2.0), "workers outlived their parent"
+
+
+def test_sigterm_of_simulate_exits_143_without_temporary_files(tmp_path):
+    args = ["simulate", "--scenario", "paper-sweep", "--diameters", "50,60", "--alphas", "10", "--theta-step",
+            "30", "--workers", "2", "--no-progress", "--out", str(tmp_path / "sim")]  # fmt: skip
+    proc, workers = _start_with_workers(args, tmp_path)
+    proc.terminate()
+    try:
+        returncode = proc.wait(END_WITHIN_S)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        pytest.fail(f"still running {END_WITHIN_S} s after SIGTERM")
+    assert _gone(workers, 1.0), "workers outlived their parent"
+    stderr = proc.stderr.read()
+    assert returncode == 143 and "Traceback" not in stderr, stderr
+    assert _temporary_files(tmp_path) == []
+
+
+def test_terminate_raises_turns_sigterm_into_an_exception_and_restores_the_handler():
+    before = signal.getsignal(signal.SIGTERM)
+    cleaned = False
+    with pytest.raises(Terminated) as info, terminate_raises():
+        try:
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(5)
+        finally:
+            cleaned = True
+    assert cleaned and info.value.exit_code == 143
+    assert signal.getsignal(signal.SIGTERM) is before
