@@ -162,11 +162,13 @@ def test_colour_pair_source_kept_and_names_missing_cameras():
         RealSenseStereoSource().open()
 
 
-def test_without_pyrealsense2_the_ir_source_says_how_to_install(monkeypatch):
+def test_without_pyrealsense2_both_sources_say_how_to_install(monkeypatch):
     import sys
 
-    from softjig.io.cameras import CameraError
+    from softjig.io.cameras import CameraError, RealSenseStereoSource
 
     monkeypatch.setitem(sys.modules, "pyrealsense2", None)  # as if not installed
     with pytest.raises(CameraError, match=r"softjig\[realsense\]"):
         RealSenseIRSource().open()
+    with pytest.raises(CameraError, match=r"softjig\[realsense\]"):
+        RealSenseStereoSource("1", "2").open()
