@@ -117,7 +117,7 @@ def test_corners_found_where_they_project_whole_and_partial(legacy):
         # 0.14 px, worst 0.3 px at the distorted edge); a corner given a wrong id, the failure this
         # guards against, is a square (>= 25 px) away
         assert np.median(err) < 0.3 and err.max() < 1.0, err
-        # and unbiased (OpenCV 4.8's detector alone is 0.5 px off in u and v)
+        # and unbiased (OpenCV 4.8-4.10's detector alone is 0.5 px off in u and v)
         assert np.all(np.abs(np.mean(view.corners_px - truth[view.ids], axis=0)) < 0.1)
         inside = (truth[:, 0] > 3) & (truth[:, 0] < LEFT_CAM.width_px - 4)
         if partial:

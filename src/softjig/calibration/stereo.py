@@ -209,7 +209,7 @@ def detect_board(image: np.ndarray, board: Board, *, name: str = "image") -> Boa
         if ids is None or len(ids) < 6:
             return None
         # Refine again with cornerSubPix in a window that stays within the white between a corner and
-        # the nearest marker (80 % of it): OpenCV 4.8's detector returns corners 0.5 px off in u and v
+        # the nearest marker (80 % of it): OpenCV 4.8-4.10's detector returns corners 0.5 px off in u and v
         # (rendered truth), 5.0's are unbiased; refined, both agree (RMS 0.14 px on rendered boards).
         pts = corners.reshape(-1, 2).astype(np.float32)
         gaps = np.linalg.norm(pts[:, None] - pts[None], axis=2)
