@@ -148,7 +148,7 @@ def test_config_from_realsense_without_a_device_exits_2_naming_what_is_connected
     out = tmp_path / "rig.toml"
     res = CliRunner().invoke(app, ["config", "--from-realsense", "any", "--out", str(out)])
     assert res.exit_code == 2, res.output
-    assert "found 0 RealSense cameras" in res.output and not out.exists()
+    assert "no RealSense camera is connected" in res.output and not out.exists()
     res = CliRunner().invoke(app, ["config", "--from-realsense", "0123", "--out", str(out)])
     assert res.exit_code == 2 and "0123 not found" in res.output and not out.exists()
 
@@ -172,3 +172,14 @@ def test_without_pyrealsense2_both_sources_say_how_to_install(monkeypatch):
         RealSenseIRSource().open()
     with pytest.raises(CameraError, match=r"softjig\[realsense\]"):
         RealSenseStereoSource("1", "2").open()
+
+
+def test_live_on_realsense_ir_without_a_device_exits_2():
+    from typer.testing import CliRunner
+
+    from softjig.cli import app
+
+    args = ["live", "--source", "realsense-ir:0123", "--method", "refractive", "--max-frames", "1"]
+    res = CliRunner().invoke(app, args)
+    assert res.exit_code == 2, res.output
+    assert "RealSense camera 0123 not found" in res.output

@@ -150,7 +150,11 @@ def find_device(serial: str | None = None) -> Any:
     rs = rs_module()
     devices = {d.get_info(rs.camera_info.serial_number): d for d in rs.context().query_devices()}
     if serial is None:
-        if len(devices) != 1:
+        if not devices:
+            raise CameraError(
+                "no RealSense camera is connected (check the USB 3 cable; rs-enumerate-devices lists them)"
+            )
+        if len(devices) > 1:  # pragma: no cover - needs two real D4xx
             raise CameraError(
                 f"found {len(devices)} RealSense cameras ({', '.join(sorted(devices)) or 'none'}); "
                 "name the one to use: realsense-ir:SERIAL"
