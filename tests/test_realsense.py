@@ -183,3 +183,23 @@ def test_live_on_realsense_ir_without_a_device_exits_2():
     res = CliRunner().invoke(app, args)
     assert res.exit_code == 2, res.output
     assert "RealSense camera 0123 not found" in res.output
+
+
+def test_ir_source_options_out_of_range_are_named_and_open_is_idempotent():
+    dev, sensor, _ = _software_d4xx()
+    # pyrealsense2 2.59 reads option_range's arguments as (min, max, default, step) (observed)
+    sensor.add_option(rs.option.gain, rs.option_range(16, 248, 16, 1), True)
+    src = RealSenseIRSource(width_px=W, height_px=H, fps=FPS, auto_exposure=False, gain=64, device=dev)
+    with src:
+        src.open()  # a second open changes nothing
+        assert sensor.get_option(rs.option.gain) == 64
+        assert sensor.get_option(rs.option.enable_auto_exposure) == 0
+    bad = RealSenseIRSource(width_px=W, height_px=H, fps=FPS, exposure_us=1e9, device=_software_d4xx()[0])
+    with pytest.raises(InputError, match="cannot set"):
+        bad.open()
+
+
+def test_rig_of_a_mode_the_device_lacks_names_its_modes():
+    dev, _, _ = _software_d4xx()
+    with pytest.raises(InputError, match=r"848x480@90"):
+        read_realsense_rig(default_jig(), dev, 1280, 720)

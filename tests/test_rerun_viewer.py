@@ -125,3 +125,30 @@ def test_bad_targets_are_refused(tmp_path):
     folder.mkdir()
     with pytest.raises(InputError, match="folder"):
         RerunViewer(save_path=folder, overwrite=True)
+
+
+def test_without_a_contact_the_outline_is_cleared(sweep, tmp_path):
+    """The paper's method finds no contact footprint: the outline is cleared, the normal still drawn."""
+    path = tmp_path / "paper.rrd"
+    outcomes = []
+    LiveLoop(
+        ReplaySource(sweep.root, rate="fast"),
+        LiveSettings(jig=sweep.jig, method="paper"),
+        sinks=[RerunViewer(save_path=path, images=False)],
+        on_outcome=lambda o, m: outcomes.append(o),
+    ).run()
+    ok = [o for o in outcomes if o.result is not None]
+    assert ok and all(o.result.contact is None for o in ok)
+    data = _read(path)
+    assert "/cameras/left/image" not in data
+    assert len(data["/jig/contact"]["frame"]) == len(ok)
+    assert all(not v for v in data["/jig/contact"].get("LineStrips3D:strips", [None]))
+    assert len(data["/jig/normal"]["frame"]) == len(ok)
+
+
+def test_without_the_sdk_says_how_to_install(monkeypatch, tmp_path):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "rerun", None)
+    with pytest.raises(InputError, match=r"softjig\[rerun\]"):
+        RerunViewer(save_path=tmp_path / "x.rrd")
