@@ -1,6 +1,8 @@
 """The RealSense infrared pair through librealsense itself: a software device with two Y8 infrared
 streams (a D4xx's stereo module as pyrealsense2 models it) runs RealSenseIRSource and the rig read-out."""
 
+import time
+
 import numpy as np
 import pytest
 
@@ -76,6 +78,17 @@ def test_ir_source_streams_pairs_of_one_exposure():
                 got.append((n, frame))
             else:
                 assert src.read(0.05) is None
+        assert (src.incomplete, src.overwritten) == (1, 0)
+        for n in range(5, 11):  # six pairs while nobody reads: the four newest are kept
+            _inject(sensor, profiles[1], n, sent[0][0], 1000.0 + n * 1000.0 / FPS)
+            _inject(sensor, profiles[2], n, sent[0][1], 1000.0 + n * 1000.0 / FPS)
+        deadline = time.monotonic() + 2.0
+        while src.overwritten < 2 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert src.overwritten == 2
+        assert [src.read(1.0).t_left_s for _ in range(4)] == pytest.approx(
+            [(1000.0 + n * 1000.0 / FPS) / 1000.0 for n in range(7, 11)]
+        )
     for k, (n, frame) in enumerate(got):
         assert frame.seq == k
         assert frame.left.shape == (H, W) and frame.left.dtype == np.uint8

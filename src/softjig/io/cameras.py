@@ -555,6 +555,11 @@ class RealSenseIRSource(StereoSource):
     exposure_us, gain : manual exposure (µs) and gain, applied when given.
     device : a ``pyrealsense2`` device to use instead of looking one up (a ``software_device`` in tests).
 
+    Attributes
+    ----------
+    incomplete : exposures of which one image never came (dropped by the device or the USB link).
+    overwritten : complete pairs dropped because the reader fell 4 pairs behind.
+
     Notes
     -----
     Streams through the sensor directly (``sensor.open`` / ``start`` with a callback), not a pipeline,
@@ -588,6 +593,8 @@ class RealSenseIRSource(StereoSource):
         self._pending: dict[int, dict[int, tuple[float, np.ndarray]]] = {}
         self._ready: deque = deque(maxlen=4)  # newest pairs; a slow reader drops
         self._seq = 0
+        self.incomplete = 0
+        self.overwritten = 0
 
     def _on_frame(self, frame: Any) -> None:
         """librealsense's callback (its thread): file each infrared image under its frame number."""
@@ -599,9 +606,12 @@ class RealSenseIRSource(StereoSource):
                 entry = self._pending.setdefault(number, {})
                 entry[index] = (f.get_timestamp() / 1000.0, np.array(f.get_data(), dtype=np.uint8, copy=True))
                 if 1 in entry and 2 in entry:
+                    if len(self._ready) == self._ready.maxlen:
+                        self.overwritten += 1
                     self._ready.append(self._pending.pop(number))
                     for old in [n for n in self._pending if n < number]:
                         del self._pending[old]  # its partner will never come
+                        self.incomplete += 1
 
     def _set(self, rs: Any, option: Any, value: float) -> None:
         if self._sensor.supports(option):
