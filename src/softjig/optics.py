@@ -476,8 +476,15 @@ def undistort_normalized(xy_distorted: ArrayLike, dist: ArrayLike | None) -> Flo
     if not np.any(d) or qd.shape[0] == 0:
         return qd.copy().reshape(*lead, 2)
     crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12)
+    # OpenCV < 5 names the overload with termination criteria undistortPointsIter; 5 folds it in.
+    undistort = getattr(cv2, "undistortPointsIter", None)
+    pts = qd.reshape(-1, 1, 2)
     q = (
-        cv2.undistortPoints(qd.reshape(-1, 1, 2), np.eye(3), d, None, None, None, crit)
+        (
+            undistort(pts, np.eye(3), d, None, None, crit)
+            if undistort
+            else cv2.undistortPoints(pts, np.eye(3), d, None, None, None, crit)
+        )
         .reshape(-1, 2)
         .astype(float)
     )

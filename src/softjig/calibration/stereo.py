@@ -74,6 +74,9 @@ class Board:
     kind : ``"chessboard"`` or ``"charuco"``.
     marker_mm : ChArUco only: side of the ArUco marker inside a white square (mm); default 0.75 square.
     dictionary : ChArUco only: the ArUco dictionary's OpenCV name.
+    legacy : ChArUco only: the board has the pattern OpenCV drew before 4.6 (``setLegacyPattern``); it
+        differs from the current one only for an even number of rows, and the two cannot be told apart
+        from a partial view, so it is the user's to say.
     """
 
     cols: int
@@ -82,6 +85,7 @@ class Board:
     kind: Literal["chessboard", "charuco"] = "chessboard"
     marker_mm: float | None = None
     dictionary: str = "DICT_4X4_50"
+    legacy: bool = False
 
     def __post_init__(self) -> None:
         if self.kind not in ("chessboard", "charuco"):
@@ -150,6 +154,7 @@ def _charuco_board(board: Board) -> cv2.aruco.CharucoBoard:
             board.marker_side_mm,
             aruco_dictionary(board.dictionary),
         )
+        _CHARUCO_CACHE[board].setLegacyPattern(board.legacy)
     return _CHARUCO_CACHE[board]
 
 
@@ -203,7 +208,18 @@ def detect_board(image: np.ndarray, board: Board, *, name: str = "image") -> Boa
         corners, ids, _, _ = cv2.aruco.CharucoDetector(_charuco_board(board)).detectBoard(gray)
         if ids is None or len(ids) < 6:
             return None
-        return BoardView(corners.reshape(-1, 2).astype(float), ids.ravel().astype(int))
+        # Refine again with cornerSubPix in a window that stays within the white between a corner and
+        # the nearest marker (80 % of it): OpenCV 4.8-4.10's detector returns corners 0.5 px off in u and v
+        # (rendered truth), 5.0's are unbiased; refined, both agree (RMS 0.14 px on rendered boards).
+        pts = corners.reshape(-1, 2).astype(np.float32)
+        gaps = np.linalg.norm(pts[:, None] - pts[None], axis=2)
+        np.fill_diagonal(gaps, np.inf)
+        step = float(np.median(gaps.min(axis=1)))  # one square (px), neighbouring corners' distance
+        inset = (board.square_mm - board.marker_side_mm) / 2.0 / board.square_mm
+        half = int(np.clip(round(0.8 * inset * step), 2, 11))
+        crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-4)
+        pts = cv2.cornerSubPix(gray, pts.reshape(-1, 1, 2), (half, half), (-1, -1), crit)
+        return BoardView(pts.reshape(-1, 2).astype(float), ids.ravel().astype(int))
     size = (board.cols, board.rows)
     ok, corners = cv2.findChessboardCornersSB(gray, size, flags=0)
     if not ok:
@@ -449,6 +465,12 @@ def calibrate_stereo(
             f"the board ({what}) was found in both images of only {len(used)} of {len(names)} pairs; "
             f"calibration needs at least {MIN_VIEWS} (10-20 advisable). Check --board (inner corners as "
             "OpenCV counts them, i.e. squares minus one each way) and that the whole board is in view"
+            + (
+                f"; a ChArUco board with an even number of rows printed by OpenCV < 4.6 has the legacy "
+                f"pattern: try {'without' if board.legacy else 'with'} --legacy-pattern"
+                if board.kind == "charuco" and board.rows % 2 == 0
+                else ""
+            )
         )
     cal = _calibrate(obj, img_l, img_r, (w, h), used, fix_k3)
     if drop_outliers and cal.outliers and len(used) - len(cal.outliers) >= MIN_VIEWS:

@@ -52,6 +52,9 @@ def calibrate_stereo(
         typer.Option(help="ChArUco: side of the ArUco markers (mm).", show_default="0.75 square"),
     ] = None,
     dictionary: Annotated[str, typer.Option(help="ChArUco: the ArUco dictionary.")] = "DICT_4X4_50",
+    legacy_pattern: Annotated[
+        bool, typer.Option(help="ChArUco: the board has OpenCV's pre-4.6 pattern (even rows only).")
+    ] = False,
     fix_k3: Annotated[bool, typer.Option(help="Hold k3 = 0 (few views, narrow lens).")] = False,
     drop_outliers: Annotated[bool, typer.Option(help="Calibrate again without the outlier views.")] = False,
     report: Annotated[
@@ -85,6 +88,7 @@ def calibrate_stereo(
         kind="charuco" if charuco else "chessboard",
         marker_mm=marker_mm,
         dictionary=dictionary,
+        legacy=legacy_pattern,
     )
     base = load_config(config)
     lefts, rights = _expand(left_glob, "LEFT_GLOB"), _expand(right_glob, "RIGHT_GLOB")

@@ -27,6 +27,14 @@ def config_cmd(
             "markers.pitch_mm becomes their median nearest-neighbour distance."
         ),
     ] = None,
+    from_realsense: Annotated[
+        str | None,
+        typer.Option(
+            metavar="SERIAL|any",
+            help="Take the cameras from a RealSense D4xx's infrared pair (its serial, or 'any' for the "
+            "only one connected): intrinsics and baseline, 848x480.",
+        ),
+    ] = None,
 ) -> None:
     """Write the default (nominal) jig config, to edit for your own jig.
 
@@ -45,5 +53,10 @@ def config_cmd(
         centers, z = load_marker_csv(markers_csv)
         jig = with_explicit_markers(jig, centers, z)
         what += f" with the {len(centers)} markers of {markers_csv}"
+    if from_realsense is not None:
+        from softjig.io.realsense import config_from_realsense
+
+        jig = config_from_realsense(jig, None if from_realsense.lower() == "any" else from_realsense)
+        what += f" with the infrared pair of RealSense {from_realsense}"
     save_jig(jig, out)
     typer.echo(f"wrote {what} to {out}")

@@ -116,6 +116,11 @@ def live(
         typer.Option(help="Allow --publish and --view on a non-loopback address (trusted networks only)."),
     ] = False,
     health_period: Annotated[float, typer.Option(min=0.05, help="Seconds between health messages.")] = 1.0,
+    rerun: Annotated[bool, typer.Option("--rerun", help="Spawn a Rerun viewer and stream to it.")] = False,
+    rerun_save: Annotated[
+        Path | None,
+        typer.Option(help="Log images, markers, contact, normal and estimates to this Rerun .rrd file."),
+    ] = None,
     jsonl: Annotated[bool, typer.Option("--jsonl", help="Print each estimate message on stdout.")] = False,
 ) -> None:
     """Capture, estimate and publish at camera rate until the replay ends, --max-frames, or Ctrl-C."""
@@ -172,6 +177,10 @@ def live(
     sinks: list = []
     recorder = None
     try:
+        if rerun or rerun_save is not None:
+            from softjig.live.rerun_viewer import RerunViewer
+
+            sinks.append(RerunViewer(save_path=rerun_save, spawn=rerun, overwrite=overwrite))
         if publish is not None:
             from softjig.io.stream import Publisher
 

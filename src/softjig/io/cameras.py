@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import abc
 import contextlib
+import threading
 import time
 from collections import deque
 from collections.abc import Mapping
@@ -48,6 +49,7 @@ __all__ = [
     "CameraError",
     "FramePairer",
     "OpenCVStereoSource",
+    "RealSenseIRSource",
     "RealSenseStereoSource",
     "ReplaySource",
     "SourceExhausted",
@@ -546,12 +548,147 @@ class RealSenseStereoSource(StereoSource):
         self._pipes = []
 
 
+class RealSenseIRSource(StereoSource):
+    """One RealSense D4xx's infrared 1 and 2 (Y8) as the stereo pair: hardware-synchronised (one sensor,
+    one exposure: the two images of a pair share the device's frame number) and rectified on the chip.
+
+    Parameters
+    ----------
+    serial : the device's serial number; ``None`` takes the only one connected.
+    width_px, height_px, fps : 848 x 480 (up to 90 Hz) or 1280 x 720 (up to 30 Hz).
+    emitter : leave the dot projector on (off by default: its dots would be taken for markers).
+    auto_exposure : the sensor's auto exposure; ``False`` with ``exposure_us`` / ``gain`` to fix them.
+    exposure_us, gain : manual exposure (µs) and gain, applied when given.
+    device : a ``pyrealsense2`` device to use instead of looking one up (a ``software_device`` in tests).
+
+    Attributes
+    ----------
+    incomplete : exposures of which one image never came (dropped by the device or the USB link).
+    overwritten : complete pairs dropped because the reader fell 4 pairs behind.
+
+    Notes
+    -----
+    Streams through the sensor directly (``sensor.open`` / ``start`` with a callback), not a pipeline,
+    so that a software device runs the same code. Needs ``pip install 'softjig[realsense]'``.
+    """
+
+    def __init__(
+        self,
+        serial: str | None = None,
+        *,
+        width_px: int = 848,
+        height_px: int = 480,
+        fps: int = 30,
+        emitter: bool = False,
+        auto_exposure: bool = True,
+        exposure_us: float | None = None,
+        gain: float | None = None,
+        device: Any = None,
+    ) -> None:
+        from softjig.io.realsense import check_ir_mode
+
+        check_ir_mode(int(width_px), int(height_px), int(fps))
+        self.serial, self.device = serial, device
+        self.width_px, self.height_px, self.fps = int(width_px), int(height_px), int(fps)
+        self.emitter, self.auto_exposure = bool(emitter), bool(auto_exposure)
+        self.exposure_us, self.gain = exposure_us, gain
+        self.name = f"realsense-ir:{serial}" if serial else "realsense-ir"
+        self.realtime = True
+        self._sensor: Any = None
+        self._lock = threading.Lock()
+        self._pending: dict[int, dict[int, tuple[float, np.ndarray]]] = {}
+        self._ready: deque = deque(maxlen=4)  # newest pairs; a slow reader drops
+        self._seq = 0
+        self.incomplete = 0
+        self.overwritten = 0
+
+    def _on_frame(self, frame: Any) -> None:
+        """librealsense's callback (its thread): file each infrared image under its frame number."""
+        frames = list(frame.as_frameset()) if frame.is_frameset() else [frame]
+        with self._lock:
+            for f in frames:
+                index = f.get_profile().stream_index()
+                number = int(f.get_frame_number())
+                entry = self._pending.setdefault(number, {})
+                entry[index] = (f.get_timestamp() / 1000.0, np.array(f.get_data(), dtype=np.uint8, copy=True))
+                if 1 in entry and 2 in entry:
+                    if len(self._ready) == self._ready.maxlen:
+                        self.overwritten += 1
+                    self._ready.append(self._pending.pop(number))
+                    for old in [n for n in self._pending if n < number]:
+                        del self._pending[old]  # its partner will never come
+                        self.incomplete += 1
+
+    def _set(self, rs: Any, option: Any, value: float) -> None:
+        if self._sensor.supports(option):
+            try:
+                self._sensor.set_option(option, float(value))
+            except RuntimeError as exc:
+                raise CameraError(f"{self.name}: cannot set {option} to {value}: {exc}") from None
+
+    def open(self) -> None:
+        if self._sensor is not None:
+            return
+        from softjig.io.realsense import find_device, infrared_profiles, rs_module
+
+        rs = rs_module()
+        device = self.device if self.device is not None else find_device(self.serial)
+        sensor, ir1, ir2 = infrared_profiles(device, self.width_px, self.height_px, self.fps)
+        self._sensor = sensor
+        self._set(rs, rs.option.emitter_enabled, 1.0 if self.emitter else 0.0)
+        self._set(rs, rs.option.enable_auto_exposure, 1.0 if self.auto_exposure else 0.0)
+        if self.exposure_us is not None:
+            self._set(rs, rs.option.exposure, self.exposure_us)
+        if self.gain is not None:
+            self._set(rs, rs.option.gain, self.gain)
+        try:
+            sensor.open([ir1, ir2])
+            sensor.start(self._on_frame)
+        except RuntimeError as exc:  # pragma: no cover - needs a real D4xx (busy or unplugged)
+            self._sensor = None
+            raise CameraError(f"cannot start {self.name}: {exc}") from None
+
+    def read(self, timeout_s: float) -> StereoFrame | None:
+        if self._sensor is None:
+            raise CameraError(f"{self.name} is not open")
+        deadline = time.monotonic() + timeout_s
+        while True:
+            with self._lock:
+                pair = self._ready.popleft() if self._ready else None
+            if pair is not None:
+                (tl, left), (tr, right) = pair[1], pair[2]
+                seq, self._seq = self._seq, self._seq + 1
+                return StereoFrame(
+                    left=left.reshape(self.height_px, self.width_px),
+                    right=right.reshape(self.height_px, self.width_px),
+                    t_left_s=tl,
+                    t_right_s=tr,
+                    seq=seq,
+                    received_s=time.monotonic(),
+                    wall_time_s=time.time(),
+                )
+            if time.monotonic() >= deadline:
+                return None
+            time.sleep(0.001)
+
+    def close(self) -> None:
+        sensor, self._sensor = self._sensor, None
+        if sensor is not None:
+            for step in (sensor.stop, sensor.close):
+                with contextlib.suppress(RuntimeError):  # already stopped or unplugged
+                    step()
+        with self._lock:
+            self._pending.clear()
+            self._ready.clear()
+
+
 # ---------------------------------------------------------------------------------------- choosing
 
 
 @dataclass(frozen=True)
 class SourceSpec:
-    """A parsed ``--source`` value: ``kind`` (``"opencv"`` or ``"realsense"``) and the two devices."""
+    """A parsed ``--source`` value: ``kind`` (``"opencv"``, ``"realsense"`` or ``"realsense-ir"``) and the
+    two devices (``realsense-ir``: ``left`` the one device's serial, or ``None``)."""
 
     kind: str
     left: int | str | None = None
@@ -569,10 +706,14 @@ def parse_source_spec(text: str) -> SourceSpec:
     """
     usage = (
         "--source must be opencv:LEFT,RIGHT (e.g. opencv:0,1 or opencv:/dev/video0,/dev/video2), "
-        f"realsense, or realsense:LEFT_SERIAL,RIGHT_SERIAL; got {text!r}"
+        f"realsense, realsense:LEFT_SERIAL,RIGHT_SERIAL or realsense-ir[:SERIAL]; got {text!r}"
     )
     kind, _, rest = text.strip().partition(":")
     kind = kind.lower()
+    if kind == "realsense-ir":
+        if "," in rest:
+            raise InputError(f"--source realsense-ir[:SERIAL] names one device; got {text!r}")
+        return SourceSpec("realsense-ir", rest.strip() or None)
     if kind == "realsense" and not rest:
         return SourceSpec("realsense")
     if kind not in ("opencv", "realsense"):
@@ -595,6 +736,11 @@ def open_source(
 ) -> StereoSource:
     """A (not yet opened) source for a ``--source`` value (:func:`parse_source_spec`)."""
     spec = parse_source_spec(spec) if isinstance(spec, str) else spec
+    if spec.kind == "realsense-ir":
+        kw = {k: v for k, v in (("width_px", width_px), ("height_px", height_px)) if v is not None}
+        return RealSenseIRSource(
+            None if spec.left is None else str(spec.left), **kw, fps=round(fps) if fps else 30
+        )
     if spec.kind == "realsense":
         kwargs = {k: v for k, v in (("width_px", width_px), ("height_px", height_px)) if v is not None}
         if fps is not None:
