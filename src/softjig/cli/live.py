@@ -37,8 +37,9 @@ def live(
     source: Annotated[
         str | None,
         typer.Option(
-            help="Cameras: realsense, realsense:LEFT_SERIAL,RIGHT_SERIAL, or opencv:LEFT,RIGHT "
-            "(device numbers, /dev paths or video files).",
+            help="Cameras: realsense-ir[:SERIAL] (one D4xx's infrared pair), realsense, "
+            "realsense:LEFT_SERIAL,RIGHT_SERIAL, or opencv:LEFT,RIGHT (device numbers, /dev paths or "
+            "video files).",
             show_default=False,
         ),
     ] = None,

@@ -23,7 +23,8 @@ def serve(
     source: Annotated[
         str | None,
         typer.Option(
-            help="Cameras: realsense, realsense:LEFT_SERIAL,RIGHT_SERIAL, or opencv:LEFT,RIGHT.",
+            help="Cameras: realsense-ir[:SERIAL], realsense, realsense:LEFT_SERIAL,RIGHT_SERIAL, or "
+            "opencv:LEFT,RIGHT.",
             show_default=False,
         ),
     ] = None,
