@@ -95,7 +95,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     ),
     "simulate": (
         "softjig.cli.simulate",
-        "Render a simulated dataset: the paper's tilt sweep, the cube experiment, a single frame or a jig zoo.",
+        "Render a simulated dataset: the paper's sweep, the cube experiment, a single frame or a jig zoo.",
     ),
     "survey": (
         "softjig.cli.survey",

@@ -68,7 +68,7 @@ def simulate(
     overwrite: Annotated[bool, typer.Option(help="Replace an existing dataset in --out.")] = False,
     progress: Annotated[bool, typer.Option(help="Show a progress bar on stderr.")] = True,
 ) -> None:
-    """Render a simulated dataset: the paper's tilt sweep, the cube experiment, a single frame or a jig zoo.
+    """Render a simulated dataset: the paper's sweep, the cube experiment, a single frame or a jig zoo.
 
     The zoo draws random jig designs into DIR/000, DIR/001, ...: each a dataset with its own rig, its
     reference frame first."""
