@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import importlib.util
 import time
 
 import cv2
@@ -15,7 +14,6 @@ from softjig.io.cameras import (
     CameraError,
     FramePairer,
     OpenCVStereoSource,
-    RealSenseStereoSource,
     ReplaySource,
     SourceExhausted,
     open_source,
@@ -186,11 +184,3 @@ def test_opencv_source_names_a_camera_it_cannot_open(tmp_path):
     source = OpenCVStereoSource(str(tmp_path / "nope.avi"), str(tmp_path / "nope2.avi"))
     with pytest.raises(CameraError, match="cannot open"):
         source.open()
-
-
-@pytest.mark.skipif(importlib.util.find_spec("pyrealsense2") is not None, reason="pyrealsense2 installed")
-def test_realsense_without_its_package_says_how_to_install():
-    with pytest.raises(CameraError, match=r"softjig\[realsense\]"):
-        RealSenseStereoSource("1", "2").open()
-    with pytest.raises(InputError, match="both"):
-        RealSenseStereoSource("1", None)

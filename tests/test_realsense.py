@@ -185,6 +185,8 @@ def test_without_pyrealsense2_both_sources_say_how_to_install(monkeypatch):
         RealSenseIRSource().open()
     with pytest.raises(CameraError, match=r"softjig\[realsense\]"):
         RealSenseStereoSource("1", "2").open()
+    with pytest.raises(InputError, match="both"):  # two colour cameras: both serials or neither
+        RealSenseStereoSource("1", None)
 
 
 def test_live_on_realsense_ir_without_a_device_exits_2():
