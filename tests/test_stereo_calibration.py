@@ -2,6 +2,7 @@
 
 import glob
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,7 +17,7 @@ from softjig.geometry import invert_pose
 from softjig.io.dataset import load_image
 from softjig.sim.chessboard import board_corners_px, render_chessboard_view
 
-REAL = "/work/shared/data/stereo-chessboard"
+REAL = str(Path(__file__).resolve().parents[2] / "shared" / "data" / "stereo-chessboard")  # ../shared
 LEFTS = sorted(glob.glob(f"{REAL}/left*.jpg"))
 RIGHTS = sorted(glob.glob(f"{REAL}/right*.jpg"))
 needs_real = pytest.mark.skipif(len(LEFTS) != 12, reason="the real stereo set is not available")
