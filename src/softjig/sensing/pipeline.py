@@ -689,6 +689,7 @@ def _refractive_estimate(
         unknown = points_J[~known]
         reference_z[~known] = rest_inner_height_mm(jig, unknown[:, 0], unknown[:, 1])
     dent = indentation(points_J, reference_z, pitch_mm=jig.markers.pitch_mm)
+    noise = _noise_scales(points_J, dent, reference, jig)
     candidates = contact_candidates(dent)
     minimum = jig.sensing.min_points
     if candidates.sum() < minimum:
@@ -700,7 +701,7 @@ def _refractive_estimate(
     # Contact: under the known face (when the part's size is given), or grown from the deepest pushed-in
     # markers over the neighbours on their plane; planes are fitted robustly, with an inlier distance set
     # by the markers' own depth noise.
-    threshold = CONTACT_INLIER_SIGMAS * max(dent.noise_mm, UNCERTAINTY_FLOOR_MM)
+    threshold = CONTACT_INLIER_SIGMAS * noise.plane_sigma_mm
 
     def fit(points: np.ndarray) -> tuple[np.ndarray, PlaneFit]:
         try:
@@ -738,7 +739,7 @@ def _refractive_estimate(
     if part_diameter_mm is None:  # under a known face, the plane is already the SVD fit of points_J[used]
         plane = _fit_or_fail(points_J[used], minimum)
     grown = used
-    clearance = LIFT_OFF_SIGMAS * dent.noise_mm
+    clearance = LIFT_OFF_SIGMAS * noise.face_depth_sigma_mm
     used, plane = drop_lifted_off(
         points_J,
         dent,
@@ -757,7 +758,7 @@ def _refractive_estimate(
         grown & ~used,
         plane,
         clearance_mm=clearance,
-        margin_mm=dent.noise_mm,
+        margin_mm=noise.face_depth_sigma_mm,
         face_depth=plane_depth,
     )
     if narrow.sum() >= minimum and not np.array_equal(narrow, wide):
@@ -823,6 +824,54 @@ def _refractive_estimate(
         contact,
         uncertainty,
     )
+
+
+@dataclass(frozen=True)
+class NoiseScales:
+    """The noise of each quantity the refractive method thresholds, measured in the frame itself (mm).
+
+    A threshold is set from the noise of the quantity it thresholds (issue 13): the three differ when the
+    bead pack's speckle is the same in the reference and the loaded frame (as in a real jig, whose beads
+    do not move). A marker's image then carries the same speckle bias in both frames while it stays put,
+    which the reference-differenced indentation cancels, but not its absolute position, nor its position
+    once the part has moved it onto other beads.
+
+    Attributes
+    ----------
+    indentation_sigma_mm : the reference-differenced indentation's noise (:attr:`Indentation.noise_mm`):
+        which markers are pushed in at all.
+    plane_sigma_mm : the absolute 3-D scatter of this frame's markers about a smooth surface (their
+        neighbour-differenced heights above the nominal rest shape), at least the indentation's noise and
+        :data:`UNCERTAINTY_FLOOR_MM`: the inlier band of the contact plane.
+    face_depth_sigma_mm : the noise of a face depth (:func:`~softjig.sensing.contact.face_depth_mm`,
+        ``reference_z - zero - plane_z``, in which the loaded marker's own height cancels): the reference's
+        own scatter about the rest shape (a reference frame's; the indentation noise for the rest shape),
+        at least the indentation's noise: the lift-off clearance and its margin.
+    """
+
+    indentation_sigma_mm: float
+    plane_sigma_mm: float
+    face_depth_sigma_mm: float
+
+
+def _noise_scales(
+    points_J: np.ndarray, dent: Indentation, reference: ReferenceMarkers, jig: JigConfig
+) -> NoiseScales:
+    """Measure :class:`NoiseScales` for one frame (a reference frame's own scatter is kept with it)."""
+    pitch = jig.markers.pitch_mm
+    sigma = float(dent.noise_mm) if np.isfinite(dent.noise_mm) else UNCERTAINTY_FLOOR_MM
+    if reference.source == "rest shape":  # the indentation is already the absolute height's
+        return NoiseScales(sigma, max(sigma, UNCERTAINTY_FLOOR_MM), sigma)
+    rest_z = rest_inner_height_mm(jig, points_J[:, 0], points_J[:, 1])
+    scatter = indentation(points_J, rest_z, pitch_mm=pitch).noise_mm
+    key = ("scatter", pitch)
+    if key not in reference._cache:
+        xyz = reference.xyz_mm
+        own = indentation(xyz, rest_inner_height_mm(jig, xyz[:, 0], xyz[:, 1]), pitch_mm=pitch).noise_mm
+        reference._cache[key] = float(own) if np.isfinite(own) else 0.0
+    face = reference._cache[key]
+    scatter = float(scatter) if np.isfinite(scatter) else sigma
+    return NoiseScales(sigma, max(scatter, sigma, UNCERTAINTY_FLOOR_MM), max(face, sigma))
 
 
 def _canonical_order(ids: np.ndarray, points_J: np.ndarray) -> np.ndarray:
