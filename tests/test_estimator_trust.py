@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from estimator_cases import fine_grid_jig, static_speckle
-from softjig.config import CylinderPart
+from softjig.config import CylinderPart, default_jig
 from softjig.geometry import angle_between, normal_from_tilt
 from softjig.sensing.pipeline import estimate_pair, reference_from_pair
 from softjig.sim.asbuilt import draw_as_built
@@ -38,3 +38,22 @@ def test_static_speckle_size_free_contact_is_the_face_not_the_wall(fine_grid):
     result = estimate_pair(pair.left, pair.right, jig, reference=reference)
     assert _error_deg(result.estimate, 11.4, 89.0) < 1.0
     assert result.estimate.n_points > 50  # the face's ~90 markers, not a strip of wall
+
+
+@pytest.fixture(scope="module")
+def default_with_reference():
+    jig = default_jig()
+    as_built = draw_as_built(jig, rng=0)
+    unloaded = render_pair(as_built, None, None, rng=99)
+    return jig, as_built, reference_from_pair(unloaded.left, unloaded.right, jig)
+
+
+def test_known_size_footprint_is_placed_where_the_part_stands(default_with_reference):
+    """Issue 13: with the part's size, the footprint was centred on the jig axis wherever the part stood:
+    a 40 mm part 22 mm off the axis came out 12 deg off (sigma 1.4)."""
+    jig, as_built, reference = default_with_reference
+    pose = PartPose(np.radians(15.0), np.radians(30.0), 4.0, center_xy_mm=(18.0, -12.0))
+    pair = render_pair(as_built, CylinderPart(40.0), pose, rng=1)
+    estimate = estimate_pair(pair.left, pair.right, jig, part_diameter_mm=40.0, reference=reference).estimate
+    assert _error_deg(estimate, 15.0, 30.0) < 1.5
+    assert np.hypot(estimate.part_centre_xy_mm[0] - 18.0, estimate.part_centre_xy_mm[1] + 12.0) < 4.0

@@ -470,31 +470,44 @@ def _face_depth(points: np.ndarray, depth: np.ndarray, normal: np.ndarray, offse
     return out
 
 
-def under_face(points_J: np.ndarray, plane: PlaneFit, radius_mm: float) -> np.ndarray:
+def under_face(
+    points_J: np.ndarray, plane: PlaneFit, radius_mm: float, centre_xy_mm: tuple[float, float] = (0.0, 0.0)
+) -> np.ndarray:
     """Which markers' vertical projections onto ``plane`` lie within ``radius_mm`` of the plane's point
-    above the jig axis (under a face of that radius centred on the axis), as booleans.
+    above ``centre_xy_mm`` (under a face of that radius centred there; the jig axis by default), as
+    booleans.
 
     Compiled, the same arithmetic as :meth:`~softjig.geometry.PlaneFit.heights_mm` and a 3-D norm (six
     NumPy calls took 40 us, measured).
     """
+    cx, cy = (float(v) for v in centre_xy_mm)
     return _under_face(
         np.ascontiguousarray(points_J, dtype=float),
         np.ascontiguousarray(plane.normal, dtype=float),
         float(plane.offset_mm),
-        plane.z_at(0.0, 0.0),
+        cx,
+        cy,
+        plane.z_at(cx, cy),
         float(radius_mm),
     )
 
 
 @numba.njit(cache=True)
 def _under_face(
-    points: np.ndarray, normal: np.ndarray, offset: float, centre_z: float, radius: float
+    points: np.ndarray,
+    normal: np.ndarray,
+    offset: float,
+    cx: float,
+    cy: float,
+    centre_z: float,
+    radius: float,
 ) -> np.ndarray:
     out = np.empty(points.shape[0], dtype=np.bool_)
     for i in range(points.shape[0]):
         x, y = points[i, 0], points[i, 1]
         dz = -(offset + normal[0] * x + normal[1] * y) / normal[2] - centre_z
-        out[i] = np.sqrt(x * x + y * y + dz * dz) < radius
+        dx, dy = x - cx, y - cy
+        out[i] = np.sqrt(dx * dx + dy * dy + dz * dz) < radius
     return out
 
 

@@ -112,6 +112,11 @@ CONTACT_INLIER_SIGMAS = 2.5  # a marker within this many depth-noise sigmas of t
 MODEL_ERROR_FACTOR = 1.35
 # The face must lie this many depth-noise sigmas below the unloaded membrane at a marker to touch it.
 LIFT_OFF_SIGMAS = 1.5
+# With the part's size known, the face's centre is searched where the contact is: at most this many
+# rounds of (fit under the face, move its centre to where that contact puts it), ...
+FACE_CENTRE_ROUNDS = 4
+# ... ending when the centre moves by less than this many marker pitches (a quarter of a grid cell).
+FACE_CENTRE_TOLERANCE_PITCHES = 0.25
 
 
 @dataclass(frozen=True)
@@ -633,32 +638,73 @@ def _reference_height_at_axis(reference: ReferenceMarkers, pitch_mm: float) -> f
 
 
 def _contact_under_known_face(
-    points_J: np.ndarray, dent: Indentation, radius_mm: float, fit, minimum: int
+    points_J: np.ndarray,
+    dent: Indentation,
+    candidates: np.ndarray,
+    radius_mm: float,
+    fit,
+    minimum: int,
+    jig: JigConfig,
+    noise_mm: float,
 ) -> tuple[np.ndarray, PlaneFit]:
-    """The contact when the part's base radius is known and the part is centred (the paper's setting).
+    """The contact when the part's base radius is known, wherever the part stands on the jig.
 
-    The face is a tilted disc, so its footprint on the membrane is an ellipse, not the paper's circle: the
-    markers within ``radius_mm`` of the jig axis are fitted robustly once (their plane gives the tilt),
-    then only the markers under the face (within ``radius_mm`` of the axis *measured in the face's
-    plane*) that are pushed in at all are fitted robustly again. The membrane's wall beside the lowered
-    edge lies outside the ellipse; where the part lifts off, the one-sided robust fit rejects the markers
-    below the face.
+    The face is a tilted disc (a polygon's inscribed disc), so its footprint on the membrane is an
+    ellipse, not the paper's circle, and it is centred where the part stands, not on the jig axis. The
+    face's centre is first taken as the centroid of the clearly pushed-in markers (``candidates``); the
+    pushed-in markers within ``radius_mm`` of it are fitted robustly once (their plane gives the tilt),
+    then only those under the face (within ``radius_mm`` of its centre *measured in the face's plane*,
+    :func:`~softjig.sensing.contact.under_face`) are fitted again. The centre is then moved to where the
+    contact found puts the face (:func:`~softjig.sensing.contact.face_centre_xy`: the footprint's
+    centroid in full contact, one radius uphill of the lowered rim in partial contact), and the whole
+    repeated until it moves by less than :data:`FACE_CENTRE_TOLERANCE_PITCHES` pitches (at most
+    :data:`FACE_CENTRE_ROUNDS` times). The membrane's wall beside the lowered edge lies outside the
+    ellipse; where the part lifts off, the one-sided robust fit rejects the markers below the face.
     """
     pushed = dent.depth_mm > dent.noise_mm  # False where NaN (unknown)
-    selection = pushed & (np.hypot(points_J[:, 0], points_J[:, 1]) < radius_mm)
-    if selection.sum() < minimum:
-        raise EstimationError(
-            f"only {int(selection.sum())} pushed-in markers lie within {radius_mm:g} mm of the jig axis; at "
-            f"least {minimum} are needed (sensing.min_points): is the part centred, its size right?"
+    centre = points_J[candidates, :2].mean(axis=0) if candidates.any() else np.zeros(2)
+    tolerance = FACE_CENTRE_TOLERANCE_PITCHES * jig.markers.pitch_mm
+    used, plane = None, None
+    for _ in range(FACE_CENTRE_ROUNDS):
+        found = _fit_under_face(points_J, pushed, centre, radius_mm, fit, minimum)
+        if found is None:
+            break
+        used, plane = found
+        region = describe_contact(
+            points_J[used, :2], plane, jig, noise_mm=noise_mm, part_diameter_mm=2 * radius_mm
         )
+        moved_to = np.array(
+            face_centre_xy(points_J[used, :2], region, plane, radius_mm, pitch_mm=jig.markers.pitch_mm)
+        )
+        if np.hypot(*(moved_to - centre)) < tolerance:
+            break
+        centre = moved_to
+    if used is None:
+        raise EstimationError(
+            f"only {int((pushed & _within(points_J, centre, radius_mm)).sum())} pushed-in markers lie "
+            f"within {radius_mm:g} mm of the contact's centre ({centre[0]:+.1f}, {centre[1]:+.1f}) mm; at "
+            f"least {minimum} are needed (sensing.min_points): is the part's size right?"
+        )
+    return used, plane
+
+
+def _within(points_J: np.ndarray, centre_xy: np.ndarray, radius_mm: float) -> np.ndarray:
+    return np.hypot(points_J[:, 0] - centre_xy[0], points_J[:, 1] - centre_xy[1]) < radius_mm
+
+
+def _fit_under_face(
+    points_J: np.ndarray, pushed: np.ndarray, centre_xy: np.ndarray, radius_mm: float, fit, minimum: int
+) -> tuple[np.ndarray, PlaneFit] | None:
+    """The robust contact under a face of ``radius_mm`` centred above ``centre_xy`` (``None``: too few)."""
+    selection = pushed & _within(points_J, centre_xy, radius_mm)
+    if selection.sum() < minimum:
+        return None
     plane = None
     for _ in range(3):
         inliers, plane = fit(points_J[selection])
         used = np.zeros(len(points_J), dtype=bool)
         used[np.flatnonzero(selection)[inliers]] = True
-        # Under the face: the marker's vertical projection onto the face's plane lies within the radius
-        # of the face's centre (the plane's point above the jig axis).
-        new_selection = pushed & under_face(points_J, plane, radius_mm)
+        new_selection = pushed & under_face(points_J, plane, radius_mm, tuple(centre_xy))
         if np.array_equal(new_selection, selection) or new_selection.sum() < minimum:
             break
         selection = new_selection
@@ -717,7 +763,14 @@ def _refractive_estimate(
     in_order = Indentation(dent.depth_mm[order], dent.zero_mm, dent.noise_mm)
     if part_diameter_mm is not None:
         used_in_order, plane = _contact_under_known_face(
-            points_J[order], in_order, part_diameter_mm / 2.0, fit, minimum
+            points_J[order],
+            in_order,
+            candidates[order],
+            part_diameter_mm / 2.0,
+            fit,
+            minimum,
+            jig,
+            noise.indentation_sigma_mm,
         )
     else:
         used_in_order, plane = grow_contact(
