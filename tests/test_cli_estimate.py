@@ -276,3 +276,37 @@ def test_a_calibration_applies_to_its_own_method_only(sweep, tmp_path):
         ],
     )
     assert accepted.exit_code == 0 and json.loads(accepted.stdout)["calibrated"]
+
+
+@pytest.mark.parametrize("method", [[], ["--method", "paper"]])
+def test_swapped_images_are_named(sweep, method):
+    """Issue 14: RIGHT LEFT gave exit 3 "no contact" (default method) or exit 0 with a 22 mm push (paper)."""
+    left, right, *rest = _pair_args(sweep)
+    result = runner.invoke(app, ["estimate", right, left, *rest, "--part-diameter", "50", *method])
+    assert result.exit_code == 2, result.output
+    assert "swapped" in result.output and "Traceback" not in result.output
+
+
+@pytest.mark.parametrize("diameter", ["1e9", "190", "inf"])
+def test_part_wider_than_the_membrane_is_refused(sweep, diameter):
+    """Issue 14: --part-diameter 1e9 gave exit 0 and a wrong tilt."""
+    result = runner.invoke(app, ["estimate", *_pair_args(sweep), "--part-diameter", diameter])
+    assert result.exit_code == 2, result.output
+    assert "part diameter" in result.output
+
+
+def test_12_bit_counts_in_a_16_bit_png(sweep, tmp_path):
+    """Issue 14: a 12-bit camera's counts in a 16-bit PNG gave 0 markers and "noise (nan mm)", exit 3."""
+    paths = []
+    for name, source in (("left", sweep[1].left_path), ("right", sweep[1].right_path)):
+        image = cv2.imread(str(source), cv2.IMREAD_UNCHANGED).astype(np.uint16) * 16  # 12-bit counts
+        paths.append(str(tmp_path / f"{name}.png"))
+        cv2.imwrite(paths[-1], image)
+    plain = runner.invoke(app, ["estimate", *_pair_args(sweep), "--json"])
+    result = runner.invoke(app, ["estimate", *paths, "--config", str(sweep.root / "rig.toml"), "--json"])
+    assert result.exit_code == 0, result.output
+    assert "nan" not in result.output.lower()
+    packed, unpacked = json.loads(result.stdout), json.loads(plain.stdout)
+    assert any("low 12 bits" in w for w in packed["warnings"])
+    assert abs(packed["tilt_x_deg"] - unpacked["tilt_x_deg"]) < 0.3
+    assert abs(packed["tilt_y_deg"] - unpacked["tilt_y_deg"]) < 0.3

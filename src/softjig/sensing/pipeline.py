@@ -80,6 +80,8 @@ from softjig.sensing.detect import (
     detect_markers,
     gray_image,
     log_sigma_px,
+    packed_bit_depth,
+    unpack_bit_depth,
 )
 from softjig.sensing.identities import (
     MarkerIdentities,
@@ -112,6 +114,11 @@ CONTACT_INLIER_SIGMAS = 2.5  # a marker within this many depth-noise sigmas of t
 MODEL_ERROR_FACTOR = 1.35
 # The face must lie this many depth-noise sigmas below the unloaded membrane at a marker to touch it.
 LIFT_OFF_SIGMAS = 1.5
+# Swapped images: refused when the markers matched with the images exchanged are at least this share
+# of the markers of the image with fewer ...
+SWAPPED_MATCH_SHARE = 0.5
+# ... and this many times the markers matched as given (a rectified pair's disparities are all positive).
+SWAPPED_MATCH_FACTOR = 2.0
 # With the part's size known, the face's centre is searched where the contact is: at most this many
 # rounds of (fit under the face, move its centre to where that contact puts it), ...
 FACE_CENTRE_ROUNDS = 4
@@ -323,11 +330,16 @@ def _triangulate(left_xy: np.ndarray, right_xy: np.ndarray, jig: JigConfig) -> n
     )
 
 
-def _checked_pair(left: np.ndarray, right: np.ndarray, jig: JigConfig) -> tuple[np.ndarray, np.ndarray]:
-    """The pair's gray images in their own dtype (``uint8``/``uint16``, or float32 in [0, 1]), checked.
+def _checked_pair(
+    left: np.ndarray, right: np.ndarray, jig: JigConfig
+) -> tuple[np.ndarray, np.ndarray, tuple[str, ...]]:
+    """The pair's gray images in their own dtype (``uint8``/``uint16``, or float32 in [0, 1]), checked,
+    and warnings.
 
     Nothing is converted to float: the content checks read a 1-in-64 subsample, and the same-image test
-    compares a 1-in-64 subsample first (different images almost always differ there).
+    compares a 1-in-64 subsample first (different images almost always differ there). ``uint16`` images
+    of a 10-, 12- or 14-bit camera (only the low bits used, :func:`~softjig.sensing.detect.packed_bit_depth`)
+    are scaled to the 16-bit range, with a warning that names it.
     """
     grays = []
     for name, image in (("left", left), ("right", right)):
@@ -336,6 +348,15 @@ def _checked_pair(left: np.ndarray, right: np.ndarray, jig: JigConfig) -> tuple[
         except InputError as exc:
             raise InputError(f"{name} image: {exc}") from None
         grays.append(gray)
+    warnings: tuple[str, ...] = ()
+    bits = packed_bit_depth(*grays) if grays[0].shape == grays[1].shape else None
+    if bits is not None:
+        grays = [unpack_bit_depth(g, bits) for g in grays]
+        warnings = (
+            f"the 16-bit images use only their low {bits} bits (brightest value below {2**bits}): read as "
+            f"{bits}-bit counts and scaled by {2 ** (16 - bits)} to the 16-bit range; save the camera's "
+            "frames scaled to full range to silence this",
+        )
     if grays[0].shape != grays[1].shape:
         raise InputError(
             f"the left image is {grays[0].shape[1]}x{grays[0].shape[0]} px but the right one is "
@@ -352,7 +373,7 @@ def _checked_pair(left: np.ndarray, right: np.ndarray, jig: JigConfig) -> tuple[
     same_sample = grays[0].dtype == grays[1].dtype and np.array_equal(grays[0][::8, ::8], grays[1][::8, ::8])
     if same_sample and np.array_equal(grays[0], grays[1]):
         raise InputError("the left and right images are the same image: pass the two views of a stereo pair")
-    return grays[0], grays[1]
+    return grays[0], grays[1], warnings
 
 
 @dataclass(frozen=True)
@@ -410,11 +431,12 @@ def observe_pair(
             "the config's cameras are not a rectified pair (cameras.rectified = false): rectify the images "
             "first, with the stereo calibration of the cameras"
         )
-    gray_left, gray_right = _checked_pair(left, right, jig)
+    gray_left, gray_right, image_warnings = _checked_pair(left, right, jig)
     u8_left, u8_right = _as_u8(left, gray_left), _as_u8(right, gray_right)
     setup = sensing_setup(jig)
     clock.lap("checks")
     frame, warnings = resolve_jig_frame(u8_left, u8_right, jig, fast=fast)
+    warnings = [*image_warnings, *warnings]
     clock.lap("frame")
     candidates = setup.candidates if fast else "full"
     kwargs = {"sigma_px": setup.sigma_px, "candidates": candidates, "refine": setup.refine}
@@ -434,6 +456,7 @@ def observe_pair(
         reference=not fast,
     )
     if len(matches) < 0.5 * min(len(markers_left), len(markers_right)):
+        _refuse_swapped(markers_left, markers_right, matches, setup, jig)
         warnings = [
             *warnings,
             f"only {len(matches)} of {min(len(markers_left), len(markers_right))} markers were matched "
@@ -441,6 +464,31 @@ def observe_pair(
         ]
     clock.lap("match")
     return Observation(markers_left, markers_right, matches, frame, tuple(warnings))
+
+
+def _refuse_swapped(
+    left: Markers, right: Markers, matches: StereoMatches, setup: SensingSetup, jig: JigConfig
+) -> None:
+    """Raise :class:`InputError` when the pair's markers match far better with the images swapped.
+
+    In a rectified pair a point's disparity ``u_left - u_right`` is positive (the right camera sits at
+    ``+x``): swapped images give every marker a negative one, outside the jig's disparity window, so
+    few markers match, and the fiducials' poses disagree. Called only when few markers matched.
+    """
+    swapped = match_rectified(
+        right.xy_px,
+        left.xy_px,
+        row_tolerance_px=jig.sensing.row_tolerance_px,
+        min_disparity_px=setup.min_disparity_px,
+        max_disparity_px=setup.max_disparity_px,
+    )
+    fewest = min(len(left), len(right))
+    if len(swapped) >= SWAPPED_MATCH_SHARE * fewest and len(swapped) > SWAPPED_MATCH_FACTOR * len(matches):
+        raise InputError(
+            f"the left and right images look swapped: {len(swapped)} of {fewest} markers match with a "
+            f"positive disparity when the first image is taken as the right camera's, {len(matches)} as "
+            "given; pass LEFT RIGHT in that order (the left camera's image first)"
+        )
 
 
 def reference_from_pair(left: np.ndarray, right: np.ndarray, jig: JigConfig) -> ReferenceMarkers:
@@ -506,8 +554,7 @@ def estimate_pair(
     """
     if method not in METHODS:
         raise InputError(f"unknown method {method!r}; valid: {', '.join(METHODS)}")
-    if part_diameter_mm is not None and not (np.isfinite(part_diameter_mm) and part_diameter_mm > 0):
-        raise InputError(f"the part diameter must be a positive number of mm, got {part_diameter_mm}")
+    _check_part_diameter(part_diameter_mm, jig)
     if calibration is not None and calibration.method not in (None, method):
         raise InputError(
             f"the tilt calibration was fitted to the {calibration.method} method's estimates and does not "
@@ -528,6 +575,26 @@ def estimate_pair(
         )
     clock.lap("fit")
     return result
+
+
+def _check_part_diameter(part_diameter_mm: float | None, jig: JigConfig) -> None:
+    """A part's base diameter must be a positive, finite number of mm smaller than the membrane."""
+    if part_diameter_mm is None:
+        return
+    if not (np.isfinite(part_diameter_mm) and part_diameter_mm > 0):
+        raise InputError(f"the part diameter must be a positive number of mm, got {part_diameter_mm}")
+    membrane = 2.0 * jig.membrane.footprint_radius_mm
+    if part_diameter_mm >= membrane:
+        raise InputError(
+            f"the part diameter ({part_diameter_mm:g} mm) must be smaller than the membrane "
+            f"(2 x membrane.footprint_radius_mm = {membrane:g} mm): give the diameter of the part's base "
+            "in mm"
+        )
+
+
+def _mm(value: float) -> str:
+    """A length for a message: ``"0.07 mm"``, or ``"unknown"`` (never ``nan mm``)."""
+    return f"{value:.2f} mm" if np.isfinite(value) else "unknown"
 
 
 def _calibrated(
@@ -740,9 +807,9 @@ def _refractive_estimate(
     minimum = jig.sensing.min_points
     if candidates.sum() < minimum:
         raise EstimationError(
-            f"no contact: only {int(candidates.sum())} markers are pushed in beyond the noise "
-            f"({dent.noise_mm:.2f} mm); at least {minimum} are needed (sensing.min_points). Is a part "
-            "pressed onto the jig?"
+            f"no contact: only {int(candidates.sum())} of {len(points_J)} matched markers are pushed in "
+            f"beyond the noise ({_mm(dent.noise_mm)}); at least {minimum} are needed (sensing.min_points). "
+            "Is a part pressed onto the jig?"
         )
     # Contact: under the known face (when the part's size is given), or grown from the deepest pushed-in
     # markers over the neighbours on their plane; planes are fitted robustly, with an inlier distance set
