@@ -389,6 +389,23 @@ def grow_contact(
     return best[1], best[2]
 
 
+def contact_violations(
+    points_J: np.ndarray,
+    contact: np.ndarray,
+    plane: PlaneFit,
+    *,
+    threshold_mm: float,
+    pitch_mm: float,
+    max_tilt_rad: float = np.radians(45.0),
+) -> int:
+    """How many markers contradict ``plane`` being the face of ``contact`` beyond the few that noise
+    explains: penetrating it inside the contact's core, or holes far below it inside its hull
+    (:func:`grow_contact`'s check, step 3); a plane steeper than ``max_tilt_rad`` counts as the worst."""
+    if contact.sum() < 3:
+        return 0
+    return _violations(points_J, contact, plane, threshold_mm, max_tilt_rad, pitch_mm)
+
+
 def _violations(
     points_J: np.ndarray,
     contact: np.ndarray,

@@ -1,0 +1,132 @@
+"""Self-checks of a contact plane: evidence, from the frame alone, that an estimate may be wrong.
+
+A robot acts on a wrong normal as readily as on a right one, so every estimate of the refractive method
+says whether it passed these checks (``quality``: ``"ok"`` or ``"suspect"``, with the reasons among its
+warnings), and its ``tilt_sigma_deg`` grows with what the checks see beyond the noise.
+
+**Split halves.** The contact markers are split in two along each principal axis of their footprint
+(``(x, y)`` about the centroid), and a plane is fitted to each half. A flat face leaves two halves whose
+normals differ only by their noise, ``sigma_d^2 = sigma_a^2 + sigma_b^2`` (:func:`~softjig.sensing.
+uncertainty.normal_uncertainty` of each half); a plane fitted to a curved surface (the membrane's wall
+beside the part, or the drape around it) leaves halves tilted apart by the curvature across the
+footprint. The halves' noise comes from the markers' noise measured elsewhere (their own residuals
+would count that curvature as noise). The excess of the difference over its noise is an error the
+residuals do not show: it is added to the normal's uncertainty (half of it, as for two equally
+plausible normals), and a difference beyond :data:`SPLIT_SUSPECT_SIGMAS` of its noise *and*
+:data:`SPLIT_SUSPECT_MIN_DEG` makes the estimate suspect. Splitting along both axes sees a curvature
+in any direction.
+
+The other checks (the contact's consistency with its plane, its area against the part's, a plane too
+steep for a part on a soft jig) are made where their quantities are (:mod:`softjig.sensing.contact`,
+:mod:`softjig.sensing.pipeline`); this module is pure math on points.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from softjig.errors import InputError
+from softjig.geometry import PlaneFit, angle_between, fit_plane_svd
+from softjig.sensing.uncertainty import normal_uncertainty
+
+__all__ = ["SplitCheck", "split_halves"]
+
+#: The halves' normals differing by more than this many sigmas of their difference's noise (a 2-D
+#: Gaussian difference of RMS ``noise`` exceeds ``k noise`` with probability ``exp(-k^2)``: 1e-4 for 3) ...
+SPLIT_SUSPECT_SIGMAS = 3.0
+#: ... and by more than this (deg), makes an estimate suspect: below it, a difference is too small to
+#: matter to a robot even when the noise model is too optimistic.
+SPLIT_SUSPECT_MIN_DEG = 1.5
+#: The fewest markers a half may have to be fitted (a plane and a residual scale need 4; a few more keep
+#: one stray marker from tilting it).
+MIN_HALF_POINTS = 6
+
+
+@dataclass(frozen=True)
+class SplitCheck:
+    """The agreement of the planes of the contact's two halves (:func:`split_halves`).
+
+    Attributes
+    ----------
+    angle_rad : the angle between the two halves' normals (rad), along the axis where it is largest
+        relative to its noise.
+    noise_rad : the RMS angle the noise alone would give them, ``sqrt(sigma_a^2 + sigma_b^2)`` (rad).
+    normal_a, normal_b : (3,) the two halves' unit normals (``n_z > 0``).
+    """
+
+    angle_rad: float
+    noise_rad: float
+    normal_a: np.ndarray
+    normal_b: np.ndarray
+
+    @property
+    def sigmas(self) -> float:
+        """The angle in units of its noise."""
+        return self.angle_rad / self.noise_rad if self.noise_rad > 0 else math.inf
+
+    @property
+    def excess_rad(self) -> float:
+        """The part of the angle the noise does not explain, ``sqrt(max(0, angle^2 - noise^2))`` (rad)."""
+        return math.sqrt(max(0.0, self.angle_rad**2 - self.noise_rad**2))
+
+    @property
+    def suspect(self) -> bool:
+        """Whether the halves disagree beyond both :data:`SPLIT_SUSPECT_SIGMAS` and
+        :data:`SPLIT_SUSPECT_MIN_DEG`."""
+        return self.sigmas > SPLIT_SUSPECT_SIGMAS and self.angle_rad > math.radians(SPLIT_SUSPECT_MIN_DEG)
+
+
+def split_halves(
+    points_mm: np.ndarray, *, point_sigma_mm: float, noise_factor: float = 1.0
+) -> SplitCheck | None:
+    """Fit the two halves of the contact markers along each principal axis of their ``(x, y)``.
+
+    Parameters
+    ----------
+    points_mm : (N, 3) the contact markers in J (mm).
+    point_sigma_mm : the markers' noise (mm), measured elsewhere (e.g. the frame's markers at rest): the
+        halves' own residuals would count the curvature being tested as noise.
+    noise_factor : the factor on the first-order sigmas for the errors the model leaves out (the one the
+        estimate's own uncertainty is inflated by), so that ``noise_rad`` is calibrated.
+
+    Returns
+    -------
+    SplitCheck or None
+        The split along the axis whose halves disagree most relative to their noise; ``None`` when no
+        split leaves :data:`MIN_HALF_POINTS` markers (not on a line) on each side.
+    """
+    pts = np.asarray(points_mm, dtype=float)
+    if len(pts) < 2 * MIN_HALF_POINTS:
+        return None
+    xy = pts[:, :2] - pts[:, :2].mean(axis=0)
+    _, axes = np.linalg.eigh(xy.T @ xy)  # columns: minor, major
+    worst: SplitCheck | None = None
+    for axis in axes.T:
+        along = xy @ axis
+        side = along > np.median(along)
+        halves = [_half_plane(pts[side], point_sigma_mm), _half_plane(pts[~side], point_sigma_mm)]
+        if halves[0] is None or halves[1] is None:
+            continue
+        (plane_a, sigma_a), (plane_b, sigma_b) = halves
+        check = SplitCheck(
+            angle_rad=float(angle_between(plane_a.normal, plane_b.normal)),
+            noise_rad=noise_factor * math.hypot(sigma_a, sigma_b),
+            normal_a=plane_a.normal,
+            normal_b=plane_b.normal,
+        )
+        if worst is None or check.sigmas > worst.sigmas:
+            worst = check
+    return worst
+
+
+def _half_plane(points: np.ndarray, point_sigma_mm: float) -> tuple[PlaneFit, float] | None:
+    if len(points) < MIN_HALF_POINTS:
+        return None
+    try:
+        plane = fit_plane_svd(points)
+        return plane, normal_uncertainty(points, plane, point_sigma_mm=point_sigma_mm).tilt_sigma_rad
+    except InputError:  # the half's markers lie on a line
+        return None
