@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from estimator_cases import fine_grid_jig, static_speckle
+from estimator_cases import coarse_jig, fine_grid_jig, static_speckle
 from softjig.config import CylinderPart, default_jig
 from softjig.geometry import angle_between, normal_from_tilt
 from softjig.sensing.pipeline import estimate_pair, reference_from_pair
@@ -57,3 +57,29 @@ def test_known_size_footprint_is_placed_where_the_part_stands(default_with_refer
     estimate = estimate_pair(pair.left, pair.right, jig, part_diameter_mm=40.0, reference=reference).estimate
     assert _error_deg(estimate, 15.0, 30.0) < 1.5
     assert np.hypot(estimate.part_centre_xy_mm[0] - 18.0, estimate.part_centre_xy_mm[1] + 12.0) < 4.0
+
+
+def test_wall_fitted_on_a_coarse_grid_is_suspect():
+    """A 30 mm part at 19 deg on a 10 mm grid touches a dozen markers: size-free, against the rest shape,
+    13 markers of the wall fitted a plane 24 deg off with a sigma of 0.74 deg and nothing said."""
+    jig = coarse_jig()
+    as_built = draw_as_built(jig, rng=23)
+    pose = PartPose(np.radians(19.06), np.radians(64.65), 5.22, center_xy_mm=(-2.44, 3.25))
+    with static_speckle(23):
+        render_pair(as_built, None, None, rng=23 + 999)  # the reference frame's draw, kept in sequence
+        pair = render_pair(as_built, CylinderPart(30.0), pose, rng=23001)
+    estimate = estimate_pair(pair.left, pair.right, jig).estimate
+    assert _error_deg(estimate, 19.06, 64.65) > 3.0  # still the wall: the check must say so
+    assert estimate.quality == "suspect"
+    assert any(w.startswith("suspect: ") for w in estimate.warnings)
+
+
+def test_good_frames_are_ok(fine_grid):
+    jig, reference, pair = fine_grid
+    for size in (None, 60.0):
+        estimate = estimate_pair(
+            pair.left, pair.right, jig, part_diameter_mm=size, reference=reference
+        ).estimate
+        assert estimate.quality == "ok", estimate.warnings
+        assert not any(w.startswith("suspect") for w in estimate.warnings)
+        assert _error_deg(estimate, 11.4, 89.0) < 2.5 * estimate.tilt_sigma_deg + 0.2
