@@ -280,17 +280,31 @@ def _estimate_dataset(
     out = out or Path(path) / "estimates.jsonl"
     t0 = time.perf_counter()
     # Rows stream to a temporary file as they complete, in frame order; it replaces `out` only at the end.
+    suspect: list[int] = []  # frame indices of the suspect estimates
+
     with Progress(console=stderr_console(), disable=not progress, transient=True) as bar:
         task = bar.add_task("estimating", total=len(dataset))
-        summary = estimate_dataset_to_file(
-            dataset, settings, out, workers=workers, on_row=lambda _row: bar.advance(task)
-        )
+
+        def on_row(row: dict) -> None:
+            bar.advance(task)
+            if row.get("quality") == "suspect":
+                suspect.append(row["index"])
+
+        summary = estimate_dataset_to_file(dataset, settings, out, workers=workers, on_row=on_row)
     typer.echo(
         f"estimated {summary.n_loaded - summary.n_failed} of {summary.n_loaded} loaded frames in "
         f"{time.perf_counter() - t0:.1f} s ({method}"
         + (", indentations against the reference frame" if reference is not None else "")
         + f"); wrote {out}"
     )
+    if suspect:
+        Console(stderr=True).print(
+            f'SUSPECT: {len(suspect)} estimates failed their self-check (quality "suspect", the reasons '
+            f"among their warnings in {out}): frames {', '.join(map(str, suspect[:10]))}"
+            + (" ..." if len(suspect) > 10 else ""),
+            style="bold red",
+            markup=False,
+        )
     if summary.first_failure is not None:
         first = summary.first_failure
         warn(

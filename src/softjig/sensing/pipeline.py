@@ -50,6 +50,7 @@ from softjig.config import JigConfig
 from softjig.errors import EstimationError, InputError
 from softjig.geometry import (
     PlaneFit,
+    angle_between,
     fit_plane_svd,
     normal_from_tilt_angles,
     tilt_angles,
@@ -94,7 +95,7 @@ from softjig.sensing.jigframe import JigFrame, inside_fiducials, resolve_jig_fra
 from softjig.sensing.rectify import rectify_pair
 from softjig.sensing.refractive import triangulate_refracted
 from softjig.sensing.robust import fit_plane_robust
-from softjig.sensing.selfcheck import SplitCheck, split_halves
+from softjig.sensing.selfcheck import SPLIT_SUSPECT_MIN_DEG, SplitCheck, split_halves
 from softjig.sensing.stereo import StereoMatches, match_rectified, triangulate_rectified
 from softjig.sensing.subpixel import MIN_MODEL_BLUR_PX, MarkerModel
 from softjig.sensing.uncertainty import (
@@ -147,6 +148,17 @@ SWAPPED_MATCH_FACTOR = 2.0
 FACE_CENTRE_ROUNDS = 4
 # ... ending when the centre moves by less than this many marker pitches (a quarter of a grid cell).
 FACE_CENTRE_TOLERANCE_PITCHES = 0.25
+# With the part's size, the two ways of finding the contact (the face searched, the size-free contact
+# cut to it) disagreeing by more than this many sigmas of the normal (and SPLIT_SUSPECT_MIN_DEG) make the
+# estimate suspect.
+WAYS_SUSPECT_SIGMAS = 3.0
+# With the part's size, a dent whose centroid lies this many part radii or more from the jig axis is
+# searched from there too (a centred face covers its own dent's centroid: a small part steeply tilted
+# drags the membrane down mostly beside its lowered edge, 0.5-1 radius off).
+OFF_AXIS_DENT_RADII = 1.0
+# The search starts on the jig axis and stays there when the contact found puts the face's centre within
+# this share of the part's radius of it.
+CENTRED_SHARE = 0.5
 
 
 @dataclass(frozen=True)
@@ -753,59 +765,119 @@ def _contact_under_known_face(
     minimum: int,
     jig: JigConfig,
     noise_mm: float,
+    threshold_mm: float,
     size_free: tuple[np.ndarray, PlaneFit] | None = None,
-) -> tuple[np.ndarray, PlaneFit]:
-    """The contact when the part's base radius is known, wherever the part stands on the jig.
+) -> tuple[tuple[np.ndarray, PlaneFit], PlaneFit | None]:
+    """The contact when the part's base radius is known, wherever the part stands on the jig, and the
+    plane of the other way of finding it (``None`` when only one found a contact), for the self-check.
 
-    With the size-free contact (``size_free``: :func:`~softjig.sensing.contact.grow_contact`'s markers
-    and plane), the face is placed where that contact puts it, and the contact is that contact's markers
-    under the face. Without it (no size-free contact was found), the face is searched from the
-    indentation alone:
+    - **The face searched from the indentation** (:func:`_search_face`), taken when it finds one: on the
+      paper's sweep (centred parts) it is right where the size-free growth takes the wall beside a small,
+      steeply tilted part (30 mm at 15-20 deg).
+    - **The size-free contact cut to the face** (``size_free``: :func:`~softjig.sensing.contact.
+      grow_contact`'s markers and plane): the face placed where that contact puts it
+      (:func:`~softjig.sensing.contact.face_centre_xy`), and that contact's markers under it. On varied
+      designs it held where the search took the wall beside an off-centre part.
 
-    The face is a tilted disc (a polygon's inscribed disc), so its footprint on the membrane is an
-    ellipse, not the paper's circle, and it is centred where the part stands, not on the jig axis. The
-    face's centre is first taken as the centroid of the clearly pushed-in markers (``candidates``); the
-    pushed-in markers within ``radius_mm`` of it are fitted robustly once (their plane gives the tilt),
-    then only those under the face (within ``radius_mm`` of its centre *measured in the face's plane*,
-    :func:`~softjig.sensing.contact.under_face`) are fitted again. The centre is then moved to where the
-    contact found puts the face (:func:`~softjig.sensing.contact.face_centre_xy`: the footprint's
-    centroid in full contact, one radius uphill of the lowered rim in partial contact), and the whole
-    repeated until it moves by less than :data:`FACE_CENTRE_TOLERANCE_PITCHES` pitches (at most
-    :data:`FACE_CENTRE_ROUNDS` times). The membrane's wall beside the lowered edge lies outside the
-    ellipse; where the part lifts off, the one-sided robust fit rejects the markers below the face.
+    When both find a contact and their planes disagree, the estimate is suspect (:func:`_suspicions`).
     """
-    pushed = dent.depth_mm > dent.noise_mm  # False where NaN (unknown)
     pitch = jig.markers.pitch_mm
+    ways = []
+    searches = []
+    dent_centre = points_J[candidates, :2].mean(axis=0) if candidates.any() else np.zeros(2)
+    starts = [None] if np.hypot(*dent_centre) < OFF_AXIS_DENT_RADII * radius_mm else [None, dent_centre]
+    for start in starts:  # from the jig axis and, for a dent off the axis, from the dent's centroid
+        try:
+            searches.append(
+                _search_face(points_J, dent, candidates, radius_mm, fit, minimum, jig, noise_mm, start)
+            )
+        except EstimationError:
+            continue
+    if len(searches) > 1:  # the one whose plane fewer markers contradict, then the larger contact
+        scores = [
+            (
+                contact_violations(points_J, used, plane, threshold_mm=threshold_mm, pitch_mm=pitch),
+                -used.sum(),
+            )
+            for used, plane in searches
+        ]
+        searches = [searches[min(range(len(scores)), key=scores.__getitem__)]]
+    ways.extend(searches)
+    if not ways and size_free is None:
+        raise EstimationError(
+            f"no pushed-in markers under a {2 * radius_mm:g} mm face: at least {minimum} are needed "
+            "(sensing.min_points): is the part's size right?"
+        )
     if size_free is not None and size_free[0].sum() >= minimum:
-        # The size-free contact, cut to the face placed where it puts the part (half a pitch of slack:
-        # the footprint's markers stand for grid cells), then fitted robustly.
         grown, grown_plane = size_free
         region = describe_contact(
             points_J[grown, :2], grown_plane, jig, noise_mm=noise_mm, part_diameter_mm=2 * radius_mm
         )
         centre = face_centre_xy(points_J[grown, :2], region, grown_plane, radius_mm, pitch_mm=pitch)
+        # Half a pitch of slack (the footprint's markers stand for grid cells); the markers are already
+        # the inliers of a robust fit: a least-squares refit suffices.
         selection = grown & under_face(points_J, grown_plane, radius_mm + pitch / 2.0, centre)
         if selection.sum() >= minimum:
-            inliers, plane = fit(points_J[selection])
-            used = np.zeros(len(points_J), dtype=bool)
-            used[np.flatnonzero(selection)[inliers]] = True
-            return used, plane
-    centre = points_J[candidates, :2].mean(axis=0) if candidates.any() else np.zeros(2)
+            ways.append((selection, _fit_or_fail(points_J[selection], minimum)))
+    if not ways:
+        raise EstimationError(
+            f"no {2 * radius_mm:g} mm face was found in the contact: fewer than {minimum} pushed-in markers "
+            "lie under it (sensing.min_points); is the part's size right?"
+        )
+    return ways[0], (ways[1][1] if len(ways) > 1 else None)
+
+
+def _search_face(
+    points_J: np.ndarray,
+    dent: Indentation,
+    candidates: np.ndarray,
+    radius_mm: float,
+    fit,
+    minimum: int,
+    jig: JigConfig,
+    noise_mm: float,
+    start_xy: np.ndarray | None = None,
+) -> tuple[np.ndarray, PlaneFit]:
+    """The contact under a face of ``radius_mm``, searched from the indentation (from ``start_xy``, when
+    given, instead of the jig axis).
+
+    The face is a tilted disc (a polygon's inscribed disc), so its footprint on the membrane is an
+    ellipse, not the paper's circle, and it is centred where the part stands, not on the jig axis. The
+    face's centre is first taken on the jig axis (the paper's setting; the centroid of the clearly
+    pushed-in markers, ``candidates``, when none lies under a face there); the pushed-in markers within
+    ``radius_mm`` of it are fitted robustly once (their plane gives the tilt),
+    then only those under the face (within ``radius_mm`` of its centre *measured in the face's plane*,
+    :func:`~softjig.sensing.contact.under_face`) are fitted again. The centre is then moved to where the
+    contact found puts the face (:func:`~softjig.sensing.contact.face_centre_xy`: the footprint's
+    centroid in full contact, one radius uphill of the lowered rim in partial contact), and the whole
+    repeated until it moves by less than :data:`FACE_CENTRE_TOLERANCE_PITCHES` pitches (at most
+    :data:`FACE_CENTRE_ROUNDS` times); a face found on the axis stays there when the contact puts its
+    centre within :data:`CENTRED_SHARE` radii of it (a small contact's centre is uncertain: from the
+    indentation's centroid, the search of a 30 mm part at 20 deg drifted onto the wall). The membrane's
+    wall beside the lowered edge lies outside the ellipse; where the part lifts off, the one-sided robust
+    fit rejects the markers below the face.
+    """
+    pushed = dent.depth_mm > dent.noise_mm  # False where NaN (unknown)
+    pitch = jig.markers.pitch_mm
     tolerance = FACE_CENTRE_TOLERANCE_PITCHES * pitch
+    centre = np.zeros(2) if start_xy is None else np.asarray(start_xy, dtype=float)
     used, plane = None, None
-    for _ in range(FACE_CENTRE_ROUNDS):
+    for round_ in range(FACE_CENTRE_ROUNDS):
         found = _fit_under_face(points_J, pushed, centre, radius_mm, fit, minimum)
         if found is None:
+            if round_ == 0 and candidates.any():  # nothing under a centred face: start where the dent is
+                centre = points_J[candidates, :2].mean(axis=0)
+                continue
             break
         used, plane = found
         region = describe_contact(
             points_J[used, :2], plane, jig, noise_mm=noise_mm, part_diameter_mm=2 * radius_mm
         )
-        moved_to = np.array(
-            face_centre_xy(points_J[used, :2], region, plane, radius_mm, pitch_mm=jig.markers.pitch_mm)
-        )
+        moved_to = np.array(face_centre_xy(points_J[used, :2], region, plane, radius_mm, pitch_mm=pitch))
         if np.hypot(*(moved_to - centre)) < tolerance:
             break
+        if not centre.any() and np.hypot(*moved_to) < CENTRED_SHARE * radius_mm:
+            break  # about centred: kept on the axis (a small contact's centre is uncertain by a pitch)
         centre = moved_to
     if used is None:
         raise EstimationError(
@@ -906,7 +978,7 @@ def _refractive_estimate(
             size_free = size_free_contact()
         except EstimationError:  # the face is then searched from the indentation alone
             size_free = None
-        used_in_order, plane = _contact_under_known_face(
+        (used_in_order, plane), other_plane = _contact_under_known_face(
             points_J[order],
             in_order,
             candidates[order],
@@ -915,10 +987,12 @@ def _refractive_estimate(
             minimum,
             jig,
             noise.indentation_sigma_mm,
+            threshold,
             size_free,
         )
     else:
         used_in_order, plane = size_free_contact()
+        other_plane = None
     used = np.empty_like(used_in_order)
     used[order] = used_in_order
     if used.sum() < minimum:
@@ -1002,6 +1076,13 @@ def _refractive_estimate(
         n_used,
         minimum,
     )
+    if other_plane is not None:  # the size-free contact cut to the face: the same face?
+        apart = float(angle_between(plane.normal, other_plane.normal))
+        if apart > max(WAYS_SUSPECT_SIGMAS * uncertainty.tilt_sigma_rad, np.radians(SPLIT_SUSPECT_MIN_DEG)):
+            suspect.append(
+                f"suspect: the face found with the part's size and the contact found without it are "
+                f"tilted {np.degrees(apart):.1f} deg apart: one of them is not the part's face"
+            )
     warnings.extend(suspect)
     push = _reference_height_at_axis(reference, jig.markers.pitch_mm) - dent.zero_mm - plane.z_at(0.0, 0.0)
     estimate = Estimate(

@@ -26,11 +26,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
-from softjig.errors import InputError
-from softjig.geometry import PlaneFit, angle_between, fit_plane_svd
-from softjig.sensing.uncertainty import normal_uncertainty
+from softjig.geometry import angle_between
 
 __all__ = ["SplitCheck", "split_halves"]
 
@@ -98,7 +97,7 @@ def split_halves(
         The split along the axis whose halves disagree most relative to their noise; ``None`` when no
         split leaves :data:`MIN_HALF_POINTS` markers (not on a line) on each side.
     """
-    pts = np.asarray(points_mm, dtype=float)
+    pts = np.ascontiguousarray(points_mm, dtype=float)
     if len(pts) < 2 * MIN_HALF_POINTS:
         return None
     xy = pts[:, :2] - pts[:, :2].mean(axis=0)
@@ -107,26 +106,70 @@ def split_halves(
     for axis in axes.T:
         along = xy @ axis
         side = along > np.median(along)
-        halves = [_half_plane(pts[side], point_sigma_mm), _half_plane(pts[~side], point_sigma_mm)]
-        if halves[0] is None or halves[1] is None:
+        ok, normals, sigmas = _half_fits(pts, side, float(point_sigma_mm), MIN_HALF_POINTS)
+        if not ok:
             continue
-        (plane_a, sigma_a), (plane_b, sigma_b) = halves
         check = SplitCheck(
-            angle_rad=float(angle_between(plane_a.normal, plane_b.normal)),
-            noise_rad=noise_factor * math.hypot(sigma_a, sigma_b),
-            normal_a=plane_a.normal,
-            normal_b=plane_b.normal,
+            angle_rad=float(angle_between(normals[0], normals[1])),
+            noise_rad=noise_factor * math.hypot(sigmas[0], sigmas[1]),
+            normal_a=normals[0].copy(),
+            normal_b=normals[1].copy(),
         )
         if worst is None or check.sigmas > worst.sigmas:
             worst = check
     return worst
 
 
-def _half_plane(points: np.ndarray, point_sigma_mm: float) -> tuple[PlaneFit, float] | None:
-    if len(points) < MIN_HALF_POINTS:
-        return None
-    try:
-        plane = fit_plane_svd(points)
-        return plane, normal_uncertainty(points, plane, point_sigma_mm=point_sigma_mm).tilt_sigma_rad
-    except InputError:  # the half's markers lie on a line
-        return None
+@numba.njit(cache=True)
+def _half_fits(
+    points: np.ndarray, side: np.ndarray, sigma: float, min_points: int
+) -> tuple[bool, np.ndarray, np.ndarray]:
+    """The least-squares planes of ``points[side]`` and ``points[~side]``: ``(ok, normals (2, 3),
+    sigmas (2,))``, each normal with ``n_z > 0`` and the RMS angle of its error for a depth noise
+    ``sigma`` (mm), as :func:`~softjig.sensing.uncertainty.normal_uncertainty` with ``point_sigma_mm``
+    (``ok`` false when a half has fewer than ``min_points`` or its ``(x, y)`` lie on a line).
+
+    One compiled pass (two SVD fits and two uncertainties in NumPy took 0.2 ms, measured).
+    """
+    normals = np.zeros((2, 3))
+    sigmas = np.zeros(2)
+    for h in range(2):
+        want = h == 0
+        m = 0
+        c = np.zeros(3)
+        for i in range(points.shape[0]):
+            if side[i] == want:
+                m += 1
+                for k in range(3):
+                    c[k] += points[i, k]
+        if m < min_points:
+            return False, normals, sigmas
+        c /= m
+        scatter = np.zeros((3, 3))
+        for i in range(points.shape[0]):
+            if side[i] == want:
+                for j in range(3):
+                    for k in range(3):
+                        scatter[j, k] += (points[i, j] - c[j]) * (points[i, k] - c[k])
+        _, vectors = np.linalg.eigh(scatter)
+        n = vectors[:, 0]
+        if n[2] < 0:
+            n = -n
+        if n[2] <= 1e-9:
+            return False, normals, sigmas
+        sxx, sxy, syy = scatter[0, 0], scatter[0, 1], scatter[1, 1]
+        det = sxx * syy - sxy * sxy
+        if det <= 1e-12 * (sxx + syy) ** 2:
+            return False, normals, sigmas
+        # cov(a, b) = sigma^2 (X^T X)^-1 of the slopes, propagated to the unit normal (normal_from_slopes)
+        scale = sigma * sigma / det
+        caa, cab, cbb = scale * syy, -scale * sxy, scale * sxx
+        a, b = -n[0] / n[2], -n[1] / n[2]
+        w3 = (1.0 + a * a + b * b) ** 1.5
+        j = np.array([[-(1.0 + b * b), a * b], [a * b, -(1.0 + a * a)], [-a, -b]]) / w3
+        trace = 0.0
+        for r in range(3):
+            trace += j[r, 0] * j[r, 0] * caa + 2.0 * j[r, 0] * j[r, 1] * cab + j[r, 1] * j[r, 1] * cbb
+        normals[h] = n
+        sigmas[h] = np.sqrt(trace)
+    return True, normals, sigmas
