@@ -100,24 +100,50 @@ def split_halves(
     pts = np.ascontiguousarray(points_mm, dtype=float)
     if len(pts) < 2 * MIN_HALF_POINTS:
         return None
-    xy = pts[:, :2] - pts[:, :2].mean(axis=0)
-    _, axes = np.linalg.eigh(xy.T @ xy)  # columns: minor, major
+    ok, normals, sigmas = _split_kernel(pts, float(point_sigma_mm), MIN_HALF_POINTS)
     worst: SplitCheck | None = None
-    for axis in axes.T:
-        along = xy @ axis
-        side = along > np.median(along)
-        ok, normals, sigmas = _half_fits(pts, side, float(point_sigma_mm), MIN_HALF_POINTS)
-        if not ok:
+    for k in range(2):  # the split across the minor and across the major axis
+        if not ok[k]:
             continue
         check = SplitCheck(
-            angle_rad=float(angle_between(normals[0], normals[1])),
-            noise_rad=noise_factor * math.hypot(sigmas[0], sigmas[1]),
-            normal_a=normals[0].copy(),
-            normal_b=normals[1].copy(),
+            angle_rad=float(angle_between(normals[k, 0], normals[k, 1])),
+            noise_rad=noise_factor * math.hypot(sigmas[k, 0], sigmas[k, 1]),
+            normal_a=normals[k, 0].copy(),
+            normal_b=normals[k, 1].copy(),
         )
         if worst is None or check.sigmas > worst.sigmas:
             worst = check
     return worst
+
+
+@numba.njit(cache=True)
+def _split_kernel(
+    points: np.ndarray, sigma: float, min_points: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`split_halves`' splits in one compiled pass (in NumPy, 0.3 ms per estimate, measured):
+    ``(ok (2,), normals (2, 2, 3), sigmas (2, 2))`` for the splits at the median along each principal
+    axis of the points' centred ``(x, y)`` (:func:`_half_fits`)."""
+    n = points.shape[0]
+    mx, my = points[:, 0].mean(), points[:, 1].mean()
+    sxx, sxy, syy = 0.0, 0.0, 0.0
+    for i in range(n):
+        dx, dy = points[i, 0] - mx, points[i, 1] - my
+        sxx += dx * dx
+        sxy += dx * dy
+        syy += dy * dy
+    # The 2x2 scatter's eigenvectors in closed form: the major axis at angle phi, the minor across it.
+    phi = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
+    ok = np.zeros(2, dtype=np.bool_)
+    normals = np.zeros((2, 2, 3))
+    sigmas = np.zeros((2, 2))
+    along = np.empty(n)
+    for k in range(2):
+        ux, uy = np.cos(phi + 0.5 * np.pi * k), np.sin(phi + 0.5 * np.pi * k)
+        for i in range(n):
+            along[i] = (points[i, 0] - mx) * ux + (points[i, 1] - my) * uy
+        side = along > np.median(along)
+        ok[k], normals[k], sigmas[k] = _half_fits(points, side, sigma, min_points)
+    return ok, normals, sigmas
 
 
 @numba.njit(cache=True)
