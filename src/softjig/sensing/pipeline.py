@@ -50,7 +50,6 @@ from softjig.config import JigConfig
 from softjig.errors import EstimationError, InputError
 from softjig.geometry import (
     PlaneFit,
-    angle_between,
     fit_plane_svd,
     normal_from_tilt_angles,
     tilt_angles,
@@ -95,7 +94,7 @@ from softjig.sensing.jigframe import JigFrame, inside_fiducials, resolve_jig_fra
 from softjig.sensing.rectify import rectify_pair
 from softjig.sensing.refractive import triangulate_refracted
 from softjig.sensing.robust import fit_plane_robust
-from softjig.sensing.selfcheck import SPLIT_SUSPECT_MIN_DEG, SplitCheck, split_halves
+from softjig.sensing.selfcheck import SplitCheck, split_halves
 from softjig.sensing.stereo import StereoMatches, match_rectified, triangulate_rectified
 from softjig.sensing.subpixel import MIN_MODEL_BLUR_PX, MarkerModel
 from softjig.sensing.uncertainty import (
@@ -148,10 +147,6 @@ SWAPPED_MATCH_FACTOR = 2.0
 FACE_CENTRE_ROUNDS = 4
 # ... ending when the centre moves by less than this many marker pitches (a quarter of a grid cell).
 FACE_CENTRE_TOLERANCE_PITCHES = 0.25
-# With the part's size, the two ways of finding the contact (the face searched, the size-free contact
-# cut to it) disagreeing by more than this many sigmas of the normal (and SPLIT_SUSPECT_MIN_DEG) make the
-# estimate suspect.
-WAYS_SUSPECT_SIGMAS = 3.0
 # With the part's size, a dent whose centroid lies this many part radii or more from the jig axis is
 # searched from there too (a centred face covers its own dent's centroid: a small part steeply tilted
 # drags the membrane down mostly beside its lowered edge, 0.5-1 radius off).
@@ -766,20 +761,20 @@ def _contact_under_known_face(
     jig: JigConfig,
     noise_mm: float,
     threshold_mm: float,
-    size_free: tuple[np.ndarray, PlaneFit] | None = None,
-) -> tuple[tuple[np.ndarray, PlaneFit], PlaneFit | None]:
-    """The contact when the part's base radius is known, wherever the part stands on the jig, and the
-    plane of the other way of finding it (``None`` when only one found a contact), for the self-check.
+    size_free: Callable[[], tuple[np.ndarray, PlaneFit]] | None = None,
+) -> tuple[np.ndarray, PlaneFit]:
+    """The contact when the part's base radius is known, wherever the part stands on the jig.
 
-    - **The face searched from the indentation** (:func:`_search_face`), taken when it finds one: on the
-      paper's sweep (centred parts) it is right where the size-free growth takes the wall beside a small,
-      steeply tilted part (30 mm at 15-20 deg).
-    - **The size-free contact cut to the face** (``size_free``: :func:`~softjig.sensing.contact.
-      grow_contact`'s markers and plane): the face placed where that contact puts it
-      (:func:`~softjig.sensing.contact.face_centre_xy`), and that contact's markers under it. On varied
-      designs it held where the search took the wall beside an off-centre part.
-
-    When both find a contact and their planes disagree, the estimate is suspect (:func:`_suspicions`).
+    - **The face searched from the indentation** (:func:`_search_face`): from the jig axis (the paper's
+      setting) and, when the dent's centroid lies :data:`OFF_AXIS_DENT_RADII` radii or more off the
+      axis, from there too, keeping the one whose plane fewer markers contradict
+      (:func:`~softjig.sensing.contact.contact_violations`), then the larger contact. On the paper's
+      sweep it is right where the size-free growth takes the wall beside a small, steeply tilted part
+      (30 mm at 15-20 deg).
+    - When no search finds a face, **the size-free contact cut to the face** (``size_free()``:
+      :func:`~softjig.sensing.contact.grow_contact`'s markers and plane, made only then): the face placed
+      where that contact puts it (:func:`~softjig.sensing.contact.face_centre_xy`), and that contact's
+      markers under it.
     """
     pitch = jig.markers.pitch_mm
     ways = []
@@ -803,13 +798,13 @@ def _contact_under_known_face(
         ]
         searches = [searches[min(range(len(scores)), key=scores.__getitem__)]]
     ways.extend(searches)
-    if not ways and size_free is None:
-        raise EstimationError(
-            f"no pushed-in markers under a {2 * radius_mm:g} mm face: at least {minimum} are needed "
-            "(sensing.min_points): is the part's size right?"
-        )
-    if size_free is not None and size_free[0].sum() >= minimum:
-        grown, grown_plane = size_free
+    grown = None
+    if not ways and size_free is not None:  # computed only then: it costs 0.7 ms (measured)
+        try:
+            grown, grown_plane = size_free()
+        except EstimationError:
+            grown = None
+    if grown is not None and grown.sum() >= minimum:
         region = describe_contact(
             points_J[grown, :2], grown_plane, jig, noise_mm=noise_mm, part_diameter_mm=2 * radius_mm
         )
@@ -824,7 +819,7 @@ def _contact_under_known_face(
             f"no {2 * radius_mm:g} mm face was found in the contact: fewer than {minimum} pushed-in markers "
             "lie under it (sensing.min_points); is the part's size right?"
         )
-    return ways[0], (ways[1][1] if len(ways) > 1 else None)
+    return ways[0]
 
 
 def _search_face(
@@ -974,11 +969,7 @@ def _refractive_estimate(
         )
 
     if part_diameter_mm is not None:
-        try:
-            size_free = size_free_contact()
-        except EstimationError:  # the face is then searched from the indentation alone
-            size_free = None
-        (used_in_order, plane), other_plane = _contact_under_known_face(
+        used_in_order, plane = _contact_under_known_face(
             points_J[order],
             in_order,
             candidates[order],
@@ -988,11 +979,10 @@ def _refractive_estimate(
             jig,
             noise.indentation_sigma_mm,
             threshold,
-            size_free,
+            size_free_contact,
         )
     else:
         used_in_order, plane = size_free_contact()
-        other_plane = None
     used = np.empty_like(used_in_order)
     used[order] = used_in_order
     if used.sum() < minimum:
@@ -1076,13 +1066,6 @@ def _refractive_estimate(
         n_used,
         minimum,
     )
-    if other_plane is not None:  # the size-free contact cut to the face: the same face?
-        apart = float(angle_between(plane.normal, other_plane.normal))
-        if apart > max(WAYS_SUSPECT_SIGMAS * uncertainty.tilt_sigma_rad, np.radians(SPLIT_SUSPECT_MIN_DEG)):
-            suspect.append(
-                f"suspect: the face found with the part's size and the contact found without it are "
-                f"tilted {np.degrees(apart):.1f} deg apart: one of them is not the part's face"
-            )
     warnings.extend(suspect)
     push = _reference_height_at_axis(reference, jig.markers.pitch_mm) - dent.zero_mm - plane.z_at(0.0, 0.0)
     estimate = Estimate(
