@@ -771,10 +771,12 @@ def _contact_under_known_face(
       (:func:`~softjig.sensing.contact.contact_violations`), then the larger contact. On the paper's
       sweep it is right where the size-free growth takes the wall beside a small, steeply tilted part
       (30 mm at 15-20 deg).
-    - When no search finds a face, **the size-free contact cut to the face** (``size_free()``:
+    - When no search finds a face, or only one of fewer than :data:`SELF_CHECK_MIN_POINTS` markers (too
+      few to check), **the size-free contact cut to the face** (``size_free()``:
       :func:`~softjig.sensing.contact.grow_contact`'s markers and plane, made only then): the face placed
       where that contact puts it (:func:`~softjig.sensing.contact.face_centre_xy`), and that contact's
-      markers under it.
+      markers under it; taken over a small search's contact only when it has enough markers to check and
+      passes the checks (no violations, halves that agree).
     """
     pitch = jig.markers.pitch_mm
     ways = []
@@ -799,7 +801,8 @@ def _contact_under_known_face(
         searches = [searches[min(range(len(scores)), key=scores.__getitem__)]]
     ways.extend(searches)
     grown = None
-    if not ways and size_free is not None:  # computed only then: it costs 0.7 ms (measured)
+    few = not ways or ways[0][0].sum() < SELF_CHECK_MIN_POINTS
+    if few and size_free is not None:  # computed only then: it costs 0.7 ms (measured)
         try:
             grown, grown_plane = size_free()
         except EstimationError:
@@ -812,8 +815,18 @@ def _contact_under_known_face(
         # Half a pitch of slack (the footprint's markers stand for grid cells); the markers are already
         # the inliers of a robust fit: a least-squares refit suffices.
         selection = grown & under_face(points_J, grown_plane, radius_mm + pitch / 2.0, centre)
-        if selection.sum() >= minimum:
+        if not ways and selection.sum() >= minimum:
             ways.append((selection, _fit_or_fail(points_J[selection], minimum)))
+        elif selection.sum() >= SELF_CHECK_MIN_POINTS:  # the search's contact is too small to check
+            cut = (selection, _fit_or_fail(points_J[selection], minimum))
+            check = split_halves(
+                points_J[selection],
+                point_sigma_mm=threshold_mm / CONTACT_INLIER_SIGMAS,
+                noise_factor=MODEL_ERROR_FACTOR,
+            )
+            violations = contact_violations(points_J, *cut, threshold_mm=threshold_mm, pitch_mm=pitch)
+            if check is not None and not check.suspect and violations == 0:
+                ways.insert(0, cut)  # a larger contact that passes the self-check
     if not ways:
         raise EstimationError(
             f"no {2 * radius_mm:g} mm face was found in the contact: fewer than {minimum} pushed-in markers "
