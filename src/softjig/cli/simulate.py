@@ -17,6 +17,7 @@ class Scenario(StrEnum):
     paper_sweep = "paper-sweep"
     cube = "cube"
     single = "single"
+    zoo = "zoo"
 
 
 @app.command()
@@ -40,7 +41,10 @@ def simulate(
     theta_step: Annotated[
         float | None, typer.Option(help="paper-sweep: azimuth step in degrees.", show_default="10")
     ] = None,
-    push_depth: Annotated[float, typer.Option(help="Push depth of the part in mm.")] = 3.0,
+    push_depth: Annotated[
+        float | None,
+        typer.Option(help="Push depth of the part in mm (not zoo: it draws 2-8 mm).", show_default="3"),
+    ] = None,
     part_diameter: Annotated[
         float | None, typer.Option(help="single: the cylinder's diameter in mm.")
     ] = None,
@@ -49,7 +53,13 @@ def simulate(
         float | None, typer.Option(help="single: tilt azimuth in degrees.", show_default="0")
     ] = None,
     frames: Annotated[
-        int | None, typer.Option(help="cube: number of loaded frames.", show_default="60")
+        int | None,
+        typer.Option(
+            help="cube: number of loaded frames; zoo: loaded frames per design.", show_default="60, 20"
+        ),
+    ] = None,
+    designs: Annotated[
+        int | None, typer.Option(help="zoo: number of random jig designs.", show_default="10")
     ] = None,
     workers: Annotated[
         int | None, typer.Option(min=1, help="Rendering processes.", show_default="all CPUs")
@@ -58,7 +68,8 @@ def simulate(
     overwrite: Annotated[bool, typer.Option(help="Replace an existing dataset in --out.")] = False,
     progress: Annotated[bool, typer.Option(help="Show a progress bar on stderr.")] = True,
 ) -> None:
-    """Render a simulated dataset: the paper's tilt sweep, the cube experiment or a single frame."""
+    """Render a simulated dataset: the paper's tilt sweep, the cube experiment, a single frame, or a zoo of
+    random jig designs (DIR/000, DIR/001, ...: each a dataset with its own rig, reference frame first)."""
     from softjig.config import CylinderPart
     from softjig.sim import scenarios
 
@@ -70,11 +81,14 @@ def simulate(
         "--alpha": alpha,
         "--theta": theta,
         "--frames": frames,
+        "--designs": designs,
+        "--push-depth": push_depth,
     }
     allowed = {
-        Scenario.paper_sweep: {"--diameters", "--alphas", "--theta-step"},
-        Scenario.cube: {"--frames"},
-        Scenario.single: {"--part-diameter", "--alpha", "--theta"},
+        Scenario.paper_sweep: {"--diameters", "--alphas", "--theta-step", "--push-depth"},
+        Scenario.cube: {"--frames", "--push-depth"},
+        Scenario.single: {"--part-diameter", "--alpha", "--theta", "--push-depth"},
+        Scenario.zoo: {"--frames", "--designs"},
     }[scenario]
     stray = [name for name, value in given.items() if value is not None and name not in allowed]
     if stray:
@@ -82,7 +96,22 @@ def simulate(
             f"{', '.join(stray)} do(es) not apply to --scenario {scenario.value} "
             f"(it takes {', '.join(sorted(allowed))})"
         )
+    if scenario is Scenario.zoo:
+        if config is not None:
+            raise InputError("--config does not apply to --scenario zoo (each design draws its own jig)")
+        _simulate_zoo(
+            out or Path("out") / "sim-zoo",
+            designs=10 if designs is None else designs,
+            frames=20 if frames is None else frames,
+            seed=seed,
+            workers=workers,
+            progress=progress,
+            overwrite=overwrite,
+            color=color,
+        )
+        return
     jig = load_config(config)
+    push_depth = 3.0 if push_depth is None else push_depth
     if scenario is Scenario.paper_sweep:
         specs = list(
             scenarios.paper_sweep(
@@ -110,3 +139,53 @@ def simulate(
         out, specs, jig, seed=seed, workers=workers, progress=progress, overwrite=overwrite, color=color
     )
     typer.echo(f"wrote {len(specs)} frames to {out} in {time.perf_counter() - t0:.1f} s")
+
+
+def _simulate_zoo(
+    out: Path,
+    *,
+    designs: int,
+    frames: int,
+    seed: int,
+    workers: int | None,
+    progress: bool,
+    overwrite: bool,
+    color: bool,
+) -> None:
+    """Draw the zoo's designs and write each as a dataset ``out/NNN`` (see :mod:`softjig.sim.zoo`)."""
+    import json
+
+    from softjig.io.files import write_text_atomic
+    from softjig.sim import scenarios
+    from softjig.sim.zoo import ZooRanges, draw_designs
+
+    t0 = time.perf_counter()
+    ranges = ZooRanges()
+    manifest = []
+    for design in draw_designs(designs, seed=seed, frames=frames, ranges=ranges):
+        target = out / f"{design.index:03d}"
+        scenarios.simulate_dataset(
+            target,
+            design.specs,
+            design.jig,
+            seed=design.seed,
+            workers=workers,
+            progress=progress,
+            overwrite=overwrite,
+            color=color,
+        )
+        manifest.append(
+            {
+                "design": design.index,
+                "dir": target.name,
+                "seed": design.seed,
+                "family": design.family,
+                **design.labels,
+            }
+        )
+        write_text_atomic(
+            out / "zoo.json", json.dumps({"seed": seed, "frames": frames, "designs": manifest}, indent=1)
+        )
+    typer.echo(
+        f"wrote {len(manifest)} designs x {frames + 1} frames to {out} in {time.perf_counter() - t0:.1f} s"
+    )

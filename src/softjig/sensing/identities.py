@@ -17,7 +17,7 @@ import numpy as np
 
 from softjig.caching import cached_by_identity
 from softjig.config import JigConfig
-from softjig.jig_shape import marker_layout_xy, rest_inner_height_mm
+from softjig.jig_shape import rest_marker_points_mm
 
 
 @dataclass(frozen=True)
@@ -59,9 +59,7 @@ def rest_shape_reference(jig: JigConfig) -> ReferenceMarkers:
 
 @cached_by_identity()
 def _rest_shape_reference(jig: JigConfig) -> ReferenceMarkers:
-    xy = marker_layout_xy(jig)
-    z = rest_inner_height_mm(jig, xy[:, 0], xy[:, 1])
-    xyz = np.column_stack([xy, z])
+    xyz = rest_marker_points_mm(jig)  # a surveyed layout's measured heights, else the rest profile's
     xyz.setflags(write=False)
     return ReferenceMarkers(xyz, "rest shape")
 

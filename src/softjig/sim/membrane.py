@@ -3,16 +3,18 @@ r"""The membrane: its rest shape, its markers, and how it deforms under a part's
 Model
 -----
 **Rest shape.** The membrane's inner face (the one carrying the markers, seen by the cameras) is a dome
-clamped to the plate at the footprint radius ``R``:
+clamped to the plate at the footprint radius ``R``, by default
 
 .. math:: h(r) = H \left(1 - (r / R)^k\right), \qquad r < R,
 
 with ``H`` = ``membrane.dome_height_mm`` (height over the plate on the axis) and ``k`` =
 ``membrane.dome_exponent`` (2 is a paraboloid; the default 4 gives the flatter top of a bag of jammed
-beads). The outer face lies one membrane thickness ``t`` above it along the normal, i.e.
-``t * sqrt(1 + |grad h|^2)`` above it vertically.
+beads); ``membrane.dome_profile`` also offers ``H (1 - (r/R)^2)^p`` and a measured table, all read
+through :mod:`softjig.jig_shape`. The outer face lies one membrane thickness ``t`` above it along the
+normal, i.e. ``t * sqrt(1 + |grad h|^2)`` above it vertically.
 
-**Contact.** The part's bottom face is a plane (finite: a disc or a rectangle). Where that plane lies
+**Contact.** The part's bottom face is a plane (finite: a disc or a convex polygon, anywhere on the
+jig and spun about the part's axis). Where that plane lies
 below the outer rest surface (penetration ``g = h_outer - z_face > 0``) the membrane is pushed down and
 conforms to the face: the inner face then lies on the face's plane shifted down by ``t / n_z``. Where the
 face lies above the rest surface there is no contact and nothing pushes: a large part tilted far lifts
@@ -47,12 +49,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from softjig.config import BoxPart, CylinderPart, JigConfig, Part
+from softjig.config import JigConfig, Part
 from softjig.jig_shape import rest_inner_height_mm, rest_outer_height_mm
 from softjig.sim.parts import (
     bottom_face_rim,
     bottom_face_samples,
     bottom_plane_height_mm,
+    inside_face_mm,
     under_bottom_face,
 )
 
@@ -138,10 +141,7 @@ class _Surface:
 def _distance_inside_face_mm(part: Part, T_J_part: np.ndarray, xyz: np.ndarray) -> np.ndarray:
     """Distance (mm) from each point, projected into the face's plane, to the face's edge."""
     local = (xyz - T_J_part[:3, 3]) @ T_J_part[:3, :3]
-    if isinstance(part, CylinderPart):
-        return part.diameter_mm / 2.0 - np.hypot(local[:, 0], local[:, 1])
-    assert isinstance(part, BoxPart)
-    return np.minimum(part.size_x_mm / 2.0 - np.abs(local[:, 0]), part.size_y_mm / 2.0 - np.abs(local[:, 1]))
+    return inside_face_mm(part, local[:, 0], local[:, 1])
 
 
 def deform(

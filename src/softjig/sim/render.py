@@ -38,7 +38,13 @@ Radiance is computed in float32 on ``[0, 1]`` (fraction of full scale), in this 
    half-side ``ceil(radius_px)`` around each marker's rounded centre (``radius_px``: the largest
    singular value of ``J B`` times ``r``, the largest over the markers; no pixel farther out is
    touched), for all markers at once in cache-sized chunks; the ``S x S`` sub-samples of each pixel
-   (at the centres of its ``S x S`` cells) are averaged.
+   (at the centres of its ``S x S`` cells) are averaged. With ``imaging.marker_appearance = "disc"``
+   the marker is instead a flat painted disc of radius ``r`` in the membrane's plane at ``P`` (normal
+   ``a``): the ray meets that plane at ``X - P = q + s d`` with ``s = (q.a) / cos_axis``, inside the
+   disc iff ``|q|^2 + s^2 <= r^2``, lit uniformly at ``I = b + (m - b) cos_axis`` (Lambertian, light and
+   view both along ``d``; ``cos_axis = -d.a``). A disc has no hemisphere bias (below). Each marker's
+   excess over the membrane is scaled by its fixed brightness factor (:func:`marker_brightness`,
+   ``imaging.marker_brightness_spread``: cast or painted markers differ in reflectance).
 3. **Blur** growing with the path through the bead pack: ``L`` = length of the refracted ray in the oil
    from ``z = 0`` to ``P``; ``sigma_mm = medium.blur_coefficient * L ** 1.5`` perpendicular to the ray,
    converted to pixels by the local scale ``sqrt(|det(J B)|)`` (px/mm). Each marker's patch, padded by
@@ -47,12 +53,21 @@ Radiance is computed in float32 on ``[0, 1]`` (fraction of full scale), in this 
    separable product ``G P G^T``; the excess over the membrane is then added into the image.
 4. **Bead speckle**: the light from the membrane crosses the bead pack, whose imperfect beads transmit
    it unevenly, so the speckle *multiplies* the image: ``I <- I (1 + s)`` with ``s`` a zero-mean,
-   spatially correlated Gaussian texture of relative standard deviation ``medium.speckle_std``, new each
-   frame: white noise on a grid coarser by ``f = round(c / 2)`` (``c`` = one bead diameter projected,
-   ~5.5 px), smoothed there by a Gaussian of ``c / (2 f)`` coarse pixels, renormalised to the standard
+   spatially correlated Gaussian texture of relative standard deviation ``medium.speckle_std``: white
+   noise on a grid coarser by ``f = round(c / 2)`` (``c`` = one bead diameter projected, ~5.5 px),
+   smoothed there by a Gaussian of ``c / (2 f)`` coarse pixels, renormalised to the standard
    deviation, and resized up bilinearly (the smoothing keeps the interpolation from modulating the
-   variance on the coarse grid). It is applied *before* the fiducials, which lie below the plate and
-   are opaque: there is no speckle on the fiducials.
+   variance on the coarse grid). The beads of a real jig stay where they are between frames, so with
+   ``medium.speckle_static`` (the default) the texture is the bead pack's: drawn from
+   ``medium.speckle_seed`` and the camera, with ``c`` taken on the rest membrane above the camera
+   (:func:`speckle_correlation_px`), the same in every frame and process. Only where the part has
+   pushed the membrane by more than ``medium.speckle_redraw_displacement_mm`` (about half a bead: the
+   beads next to it are pushed out of their pockets and re-pack) is a fraction
+   ``medium.speckle_redraw_fraction`` of its variance new (only the layer of beads next to the
+   membrane moves, not the whole column; :func:`_bead_speckle`). With ``speckle_static = False`` the
+   texture is drawn anew from ``rng`` every frame, with ``c`` from the frame's markers (the idealised
+   model the simulator used before). It is applied *before* the fiducials, which lie below the plate
+   and are opaque: there is no speckle on the fiducials.
 5. **Fiducials**: each ArUco marker (``cv2.aruco.generateImageMarker`` of ``fiducials.dictionary`` and
    ``fiducials.ids``, its own 1-cell black border included in ``fiducials.size_mm``) with a white quiet
    zone one cell wide, white 0.85 and black 0.05, is warped (``cv2.warpPerspective``, bilinear, with an
@@ -62,11 +77,15 @@ Radiance is computed in float32 on ``[0, 1]`` (fraction of full scale), in this 
    A membrane marker whose image disc (radius ``radius_px``) meets a fiducial's quiet zone is not
    visible (the quad is grown by the radius along its edges' normals: conservative at its corners).
    A marker is also not visible unless its whole disc lies inside the image.
-6. **Illumination fall-off**: times ``1 - imaging.illumination_falloff * (rho / rho_corner)^2``,
-   ``rho`` the distance from the image centre ``((W-1)/2, (H-1)/2)``.
-7. **Sensor noise**: Gaussian of variance ``I / full_well + read_noise^2`` (shot plus read noise,
-   independent, so one draw), on the radiance clipped at 0; the result is clipped to ``[0, 1]`` and
-   rounded to the nearest ``uint8`` or ``uint16`` level (``imaging.bit_depth``). The standard-normal
+6. **Illumination fall-off and exposure**: times ``e * max(1 - imaging.illumination_falloff * (rho /
+   rho_corner)^2, 0.02)``, ``rho`` the distance from the illumination's centre, offset from the image
+   centre ``((W-1)/2, (H-1)/2)`` by ``imaging.illumination_center`` (fractions of the half-width and
+   half-height; mirrored in ``u`` for the right camera), ``rho_corner`` the image centre's distance to a
+   corner, ``e`` the camera's ``imaging.exposure`` (left, right).
+7. **Sensor noise and gain**: Gaussian of variance ``I / full_well + read_noise^2`` (shot plus read
+   noise, independent, so one draw), on the radiance clipped at 0; then times the camera's
+   ``imaging.gain`` (left, right); the result is clipped to ``[0, 1]`` and rounded to the nearest
+   ``uint8`` or ``uint16`` level (``imaging.bit_depth``). The standard-normal
    deviates come from two random bytes each (:func:`_standard_normal`: the inverse CDF piecewise
    linear between the 1/256 quantiles, unit variance, bounded by 3.3; ~5x faster than
    ``rng.standard_normal``).
@@ -74,8 +93,10 @@ Radiance is computed in float32 on ``[0, 1]`` (fraction of full scale), in this 
 9. ``color=True`` returns ``(H, W, 3)`` RGB with three equal channels (the membrane and markers are
    grey; the pipeline converts to grey at its edge).
 
-Every random draw comes from ``rng = np.random.default_rng(rng)`` (the membrane's ripple, then the left
-camera's speckle and noise, then the right camera's): a seed reproduces a pair bit for bit. Full-image
+Every per-frame random draw comes from ``rng = np.random.default_rng(rng)`` (the membrane's ripple, then
+the left camera's redrawn or per-frame speckle and noise, then the right camera's): a seed reproduces a
+pair bit for bit. The jig's fixed textures (static speckle, marker brightness) come from their own seeds
+in the config. Full-image
 float32 temporaries are kept per thread between frames (page faults on fresh buffers would cost more
 than the arithmetic); rendering from several threads at once is safe.
 
@@ -104,6 +125,7 @@ import numpy as np
 from scipy.special import ndtri
 
 from softjig.config import CameraConfig, ImagingConfig, JigConfig, MediumConfig, Part, PlateConfig
+from softjig.jig_shape import rest_inner_height_mm
 from softjig.optics import backproject_pixels, project_points, projection_jacobian
 from softjig.rig import AIR_REFRACTIVE_INDEX, distortion_of, flat_layers
 from softjig.sensing.fiducials import aruco_dictionary, fiducial_corners_J
@@ -111,12 +133,15 @@ from softjig.sim.asbuilt import AsBuiltJig
 from softjig.sim.membrane import MembraneState, deform
 from softjig.sim.parts import PartPose
 
-__all__ = ["MarkerTruth", "RenderedPair", "idealised", "render_pair", "render_view"]
+__all__ = ["MarkerTruth", "RenderedPair", "idealised", "marker_brightness", "render_pair", "render_view"]
 
 _FIDUCIAL_WHITE = 0.85
 _FIDUCIAL_BLACK = 0.05
 _BLUR_TRUNCATE_SIGMAS = 3.0
 _CHUNK_SAMPLES = 100_000  # sub-samples per ray-casting chunk: its float32 temporaries stay in cache
+_MIN_MARKER_BRIGHTNESS = 0.05  # a marker's brightness factor is clipped here (a normal draw has tails)
+_MIN_ILLUMINATION = 0.02  # the fall-off map is clipped here (an off-centre spot, a steep fall-off)
+_CAMERA_INDEX = {"left": 0, "right": 1}
 
 
 # ------------------------------------------------------------------------------------------- results
@@ -229,11 +254,13 @@ def render_view(
     jig : JigConfig
         The jig as built (plate, medium, markers, fiducials, imaging).
     camera : CameraConfig
-        The camera: intrinsics, distortion and pose in J.
+        The camera: intrinsics, distortion and pose in J. If it equals ``jig.cameras.right`` (and not
+        the left one) it is rendered as the right camera (its exposure, gain, mirrored illumination
+        centre and bead-pack texture), otherwise as the left.
     state : MembraneState
         Marker base centres and axes in J (mm).
     rng : numpy.random.Generator, int or None
-        Source of every random draw (speckle, sensor noise).
+        Source of every per-frame random draw (redrawn or per-frame speckle, sensor noise).
     color : bool
         Return ``(H, W, 3)`` RGB (equal channels) instead of ``(H, W)``.
 
@@ -247,7 +274,8 @@ def render_view(
         Whether each marker's whole image disc is inside the image and clear of the fiducials.
     """
     rng = np.random.default_rng(rng)
-    image, px, visible, _ = _render_view(jig, camera, state, rng, color, _Timer(None))
+    side = "right" if camera == jig.cameras.right and camera != jig.cameras.left else "left"
+    image, px, visible, _ = _render_view(jig, camera, side, state, rng, color, _Timer(None))
     return image, px, visible
 
 
@@ -332,8 +360,10 @@ def _render_pair(
         rng=rng,
     )
     timer.lap("deform")
-    left, left_px, vis_left, fid_left = _render_view(jig, jig.cameras.left, state, rng, color, timer)
-    right, right_px, vis_right, fid_right = _render_view(jig, jig.cameras.right, state, rng, color, timer)
+    left, left_px, vis_left, fid_left = _render_view(jig, jig.cameras.left, "left", state, rng, color, timer)
+    right, right_px, vis_right, fid_right = _render_view(
+        jig, jig.cameras.right, "right", state, rng, color, timer
+    )
     truth = MarkerTruth(
         xyz_mm=state.marker_xyz_mm,
         axis=state.marker_axis,
@@ -411,10 +441,11 @@ def _marker_optics(
 
 
 def _cast_marker_patches(
-    optics: _MarkerOptics, idx: np.ndarray, origin: np.ndarray, size: int, ss: int
+    optics: _MarkerOptics, idx: np.ndarray, origin: np.ndarray, size: int, ss: int, disc: bool = False
 ) -> np.ndarray:
     """Average shading factor ``1 + cos(beta)`` (0 off the marker) of each pixel of a ``size x size``
-    patch whose top-left pixel is at ``origin`` (integer px), for the markers ``idx``.
+    patch whose top-left pixel is at ``origin`` (integer px), for the markers ``idx``; with ``disc``,
+    of a flat disc of the marker's radius in the membrane's plane, ``2 cos_axis`` where it is hit.
 
     Returns ``(len(idx), size, size)`` float32. The ``ss x ss`` sub-samples of a pixel sit at the
     centres of its ``ss x ss`` cells. The per-sample quadratic and linear forms are rank-3 and rank-2
@@ -446,12 +477,22 @@ def _cast_marker_patches(
         np.maximum(s, 0.0, out=s)
         np.sqrt(s, out=s)  # cos(beta), rows dv, columns du
         w = np.matmul(side_rows[sl], side_cols[sl], out=_WORKSPACE.get("rays_w", (n, q, q)))
-        np.maximum(w, 0.0, out=w)  # so that the strict test also drops s == 0 (off the sphere)
+        if disc:
+            # The ray meets the base plane at (X - P) = q + s d, s / r = -w: inside the disc iff
+            # |q|^2 / r^2 + w^2 <= 1, i.e. cos(beta) >= |w|.
+            np.abs(w, out=w)
+        else:
+            np.maximum(w, 0.0, out=w)  # so that the strict test also drops s == 0 (off the sphere)
         hit = np.greater(s, w, out=_WORKSPACE.get("rays_hit", (n, q, q), np.bool_))
-        s += 1.0
-        s *= hit
+        if disc:
+            np.copyto(s, hit)
+        else:
+            s += 1.0
+            s *= hit
         flat = cv2.resize(s.reshape(n * q, q), (size, n * size), interpolation=cv2.INTER_AREA)
         out[sl] = flat.reshape(n, size, size)
+    if disc:  # Lambertian: the light from beside the camera and the view both at angle acos(cos_axis)
+        out *= (2.0 * cos_axis).astype(np.float32)[:, None, None]
     return out
 
 
@@ -559,13 +600,18 @@ def _hidden_by_quads(px: np.ndarray, radius_px: np.ndarray, quads: list[np.ndarr
 
 
 @lru_cache(maxsize=8)
-def _falloff_map(width: int, height: int, falloff: float) -> np.ndarray:
-    """``1 - falloff (rho / rho_corner)^2``, float32 ``(H, W)``, rho from the image centre."""
-    x = np.arange(width, dtype=np.float32) - (width - 1) / 2.0
-    y = np.arange(height, dtype=np.float32) - (height - 1) / 2.0
-    r2_corner = ((width - 1) / 2.0) ** 2 + ((height - 1) / 2.0) ** 2
+def _falloff_map(
+    width: int, height: int, falloff: float, center: tuple[float, float] = (0.0, 0.0), exposure: float = 1.0
+) -> np.ndarray:
+    """``exposure * max(1 - falloff (rho / rho_corner)^2, 0.02)``, float32 ``(H, W)``: ``rho`` from the
+    illumination's centre, ``center`` (fractions of the half-width and half-height off the image
+    centre), ``rho_corner`` the image centre's distance to a corner."""
+    half_w, half_h = (width - 1) / 2.0, (height - 1) / 2.0
+    x = np.arange(width, dtype=np.float32) - np.float32(half_w * (1.0 + center[0]))
+    y = np.arange(height, dtype=np.float32) - np.float32(half_h * (1.0 + center[1]))
+    r2_corner = half_w**2 + half_h**2
     m = 1.0 - np.float32(falloff / r2_corner) * (y[:, None] ** 2 + x[None, :] ** 2)
-    m = m.astype(np.float32)
+    m = (np.maximum(m, _MIN_ILLUMINATION) * exposure).astype(np.float32)
     m.flags.writeable = False
     return m
 
@@ -661,6 +707,112 @@ def _speckle(rng: np.random.Generator, shape: tuple[int, int], corr_px: float, s
     return fine[:h, :w]
 
 
+def _coarse_grid(shape: tuple[int, int], corr_px: float) -> tuple[int, tuple[int, int], float]:
+    """:func:`_speckle`'s coarse grid for an image of ``shape``: its factor ``f``, its shape and the
+    smoothing sigma on it (coarse px)."""
+    h, w = shape
+    f = max(1, round(corr_px / 2.0))
+    return f, (h // f + 2, w // f + 2), max(corr_px / (2.0 * f), 0.3)
+
+
+def _coarse_texture(rng: np.random.Generator, coarse_shape: tuple[int, int], sigma: float) -> np.ndarray:
+    """White noise on the coarse grid smoothed by ``sigma`` coarse px, of unit standard deviation."""
+    coarse = _standard_normal(rng, coarse_shape)
+    coarse = cv2.GaussianBlur(coarse, (0, 0), sigmaX=sigma, borderType=cv2.BORDER_REFLECT)
+    coarse *= np.float32(1.0 / max(float(coarse.std()), 1e-12))
+    return coarse
+
+
+def _upsample(coarse: np.ndarray, f: int, shape: tuple[int, int], std: float) -> np.ndarray:
+    """``std`` times the coarse texture resized up bilinearly by ``f``, cropped to ``shape`` (a view of a
+    reused buffer)."""
+    hs, ws = coarse.shape
+    if std != 1.0:
+        coarse = coarse * np.float32(std)
+    fine = _WORKSPACE.get("speckle", (hs * f, ws * f))
+    cv2.resize(coarse, (ws * f, hs * f), dst=fine, interpolation=cv2.INTER_LINEAR)
+    return fine[: shape[0], : shape[1]]
+
+
+def speckle_correlation_px(jig: JigConfig, camera: CameraConfig) -> float:
+    """One bead diameter projected into ``camera`` (px) on the membrane's rest surface above it: the
+    static texture's correlation length, a property of the jig and the camera only (not of the frame, so
+    every frame's texture is the same).
+
+    Paraxially, a ray leaving the camera at a small angle ``t`` in air runs at ``t / n`` in a flat layer
+    of index ``n``, so a lateral offset ``dx`` at height ``z`` images at ``fx dx / D`` px with the
+    equivalent distance ``D = d_air + t_plate / n_plate + z / n_oil`` (``d_air`` from the camera up to
+    the plate's bottom face).
+    """
+    x, y, z_cam = (float(v) for v in camera.position_mm)
+    z = max(float(rest_inner_height_mm(jig, np.array([x]), np.array([y]))[0]), 0.0)
+    t = jig.plate.thickness_mm
+    distance = (-t - z_cam) + t / jig.plate.refractive_index + z / jig.medium.oil_refractive_index
+    corr = 0.5 * (camera.fx_px + camera.fy_px) * jig.medium.bead_diameter_mm / max(distance, 1e-6)
+    return float(corr) if math.isfinite(corr) and corr > 0 else 5.0
+
+
+def _bead_speckle(
+    jig: JigConfig,
+    camera: CameraConfig,
+    side: str,
+    optics: _MarkerOptics,
+    moved: np.ndarray,
+    rng: np.random.Generator,
+) -> np.ndarray:
+    """The bead pack's speckle ``s`` in this frame, float32 ``(H, W)`` (a view of a reused buffer).
+
+    The static texture is drawn from ``SeedSequence(medium.speckle_seed, spawn_key=(0, camera))``, so it
+    is the same in every frame of the jig and in every process. Around each marker in ``moved`` (the
+    membrane there has moved beads), within ``pitch / sqrt(2)`` of it (the membrane between markers moved
+    too), the beads next to the membrane re-pack: the texture is a sum over the bead column's layers, of
+    which those carrying a fraction ``f = medium.speckle_redraw_fraction`` of its variance are drawn
+    anew from ``rng``, so the texture's correlation with the static one there is ``1 - f``. On the
+    coarse grid, ``s = (1 - f m) s_static + sqrt(1 - (1 - f m)^2) s_new``, ``m`` the mask (softened
+    over one coarse pixel): the variance stays ``speckle_std^2`` everywhere.
+    """
+    md = jig.medium
+    shape = (camera.height_px, camera.width_px)
+    corr_px = speckle_correlation_px(jig, camera)
+    f, coarse_shape, sigma = _coarse_grid(shape, corr_px)
+    seed = np.random.SeedSequence(md.speckle_seed, spawn_key=(0, _CAMERA_INDEX[side]))
+    coarse = _coarse_texture(np.random.default_rng(seed), coarse_shape, sigma)
+    if md.speckle_redraw_fraction > 0 and moved.any():
+        centre = (optics.px[moved] + 0.5) / f - 0.5  # coarse-grid coordinates of the fine pixel
+        radius = jig.markers.pitch_mm / math.sqrt(2.0) * optics.scale_px_per_mm[moved] / f
+        # Only the box around the moved region is redrawn (its mask is zero elsewhere).
+        reach = radius + 5.0  # the mask's softening kernel reaches 4 coarse px
+        hs, ws = coarse_shape
+        x0, y0 = (max(int(np.floor(np.min(centre[:, k] - reach))), 0) for k in (0, 1))
+        x1 = min(int(np.ceil(np.max(centre[:, 0] + reach))) + 1, ws)
+        y1 = min(int(np.ceil(np.max(centre[:, 1] + reach))) + 1, hs)
+        if x0 < x1 and y0 < y1:
+            mask = np.zeros((y1 - y0, x1 - x0), dtype=np.float32)
+            local = np.rint((centre - [x0, y0]) * 16).astype(int).tolist()
+            for (u, v), r in zip(local, radius.tolist(), strict=True):  # 4 fractional bits (shift=4)
+                cv2.circle(mask, (u, v), max(1, round(16 * r)), 1.0, -1, cv2.LINE_AA, 4)
+            mask = cv2.GaussianBlur(mask, (0, 0), sigmaX=1.0)
+            keep = 1.0 - np.float32(md.speckle_redraw_fraction) * mask  # correlation with the static one
+            fresh = _coarse_texture(rng, mask.shape, sigma)
+            fresh *= np.sqrt(np.maximum(1.0 - keep * keep, 0.0))
+            box = coarse[y0:y1, x0:x1]
+            box *= keep
+            box += fresh
+    return _upsample(coarse, f, shape, md.speckle_std)
+
+
+def marker_brightness(im: ImagingConfig, n_markers: int) -> np.ndarray:
+    """Each marker's brightness factor, ``(n_markers,)``: ``1 + imaging.marker_brightness_spread * z``
+    (clipped at 0.05), ``z`` standard normal drawn from
+    ``SeedSequence(imaging.marker_brightness_seed, spawn_key=(1,))`` in marker order, so fixed per marker
+    for a jig (the same in both cameras, every frame and every process)."""
+    if im.marker_brightness_spread == 0:
+        return np.ones(n_markers)
+    rng = np.random.default_rng(np.random.SeedSequence(im.marker_brightness_seed, spawn_key=(1,)))
+    z = rng.standard_normal(n_markers)
+    return np.maximum(1.0 + im.marker_brightness_spread * z, _MIN_MARKER_BRIGHTNESS)
+
+
 def _patch_extent(optics: _MarkerOptics, md: MediumConfig) -> tuple[int, np.ndarray, int]:
     """Half-side of the ray-cast patches (px), each marker's blur sigma (px) and the blur pad (px)."""
     # A pixel k px from the (rounded) centre is at least |k| - 1 px from the true centre: the
@@ -674,6 +826,7 @@ def _patch_extent(optics: _MarkerOptics, md: MediumConfig) -> tuple[int, np.ndar
 def _render_view(
     jig: JigConfig,
     camera: CameraConfig,
+    side: str,
     state: MembraneState,
     rng: np.random.Generator,
     color: bool,
@@ -710,8 +863,11 @@ def _render_view(
         )
         idx = np.flatnonzero(on)
         origin = centre[idx] - half
-        patches = _cast_marker_patches(optics, idx, origin, size, im.supersampling)
-        patches *= 0.5 * (level - bg)
+        patches = _cast_marker_patches(
+            optics, idx, origin, size, im.supersampling, disc=im.marker_appearance == "disc"
+        )
+        amplitude = 0.5 * (level - bg) * marker_brightness(im, len(optics.px))[idx]
+        patches *= amplitude.astype(np.float32)[:, None, None]
         timer.lap("markers")
         if pad > 0:
             g = _gaussian_matrices(sigma_px[idx], size, pad)
@@ -722,9 +878,14 @@ def _render_view(
         timer.lap("paste")
 
     if md.speckle_std > 0:
-        scale = optics.scale_px_per_mm[optics.near]
-        corr_px = md.bead_diameter_mm * float(np.median(scale)) if len(scale) else 5.0
-        speckle = _speckle(rng, (h, w), corr_px, md.speckle_std)
+        if md.speckle_static:
+            displaced = np.abs(np.asarray(state.indentation_mm)) > md.speckle_redraw_displacement_mm
+            moved = optics.near & displaced
+            speckle = _bead_speckle(jig, camera, side, optics, moved, rng)
+        else:
+            scale = optics.scale_px_per_mm[optics.near]
+            corr_px = md.bead_diameter_mm * float(np.median(scale)) if len(scale) else 5.0
+            speckle = _speckle(rng, (h, w), corr_px, md.speckle_std)
         speckle += np.float32(1.0)
         image *= speckle
     timer.lap("speckle")
@@ -740,19 +901,26 @@ def _render_view(
     visible = inside & ~_hidden_by_quads(optics.px, r, quads)
     timer.lap("fiducials")
 
+    k = _CAMERA_INDEX[side]
+    exposure = float(im.exposure[k])
     if im.illumination_falloff > 0:
-        image *= _falloff_map(w, h, im.illumination_falloff)
+        cu, cv = (float(c) for c in im.illumination_center)
+        center = (cu if k == 0 else -cu, cv)
+        image *= _falloff_map(w, h, im.illumination_falloff, center, exposure)
+    elif exposure != 1.0:
+        image *= np.float32(exposure)
     timer.lap("falloff")
 
-    image = _sensor(image, im, rng)
+    image = _sensor(image, im, rng, float(im.gain[k]))
     if color:
         image = np.repeat(image[:, :, None], 3, axis=2)
     timer.lap("noise+quantise")
     return image, optics.px, visible, corners_px
 
 
-def _sensor(image: np.ndarray, im: ImagingConfig, rng: np.random.Generator) -> np.ndarray:
-    """Shot and read noise, clipping to [0, 1] and rounding to the bit depth (float32, in place)."""
+def _sensor(image: np.ndarray, im: ImagingConfig, rng: np.random.Generator, gain: float = 1.0) -> np.ndarray:
+    """Shot and read noise, the camera's ``gain``, clipping to [0, 1] and rounding to the bit depth
+    (float32, in place)."""
     cv2.max(image, 0.0, dst=image)
     # sigma^2 = I / full_well + read^2 (shot and read noise are independent Gaussians: one draw)
     sigma = _WORKSPACE.get("sigma", image.shape)
@@ -763,8 +931,8 @@ def _sensor(image: np.ndarray, im: ImagingConfig, rng: np.random.Generator) -> n
     cv2.max(image, 0.0, dst=image)
     if im.bit_depth == 8:
         # saturates at 255 and rounds to nearest
-        return cv2.convertScaleAbs(image, alpha=255.0)
-    image *= np.float32(65535.0)
+        return cv2.convertScaleAbs(image, alpha=255.0 * gain)
+    image *= np.float32(65535.0 * gain)
     image += np.float32(0.5)
     np.minimum(image, np.float32(65535.0), out=image)
     return image.astype(np.uint16)
