@@ -83,3 +83,28 @@ def test_good_frames_are_ok(fine_grid):
         assert estimate.quality == "ok", estimate.warnings
         assert not any(w.startswith("suspect") for w in estimate.warnings)
         assert _error_deg(estimate, 11.4, 89.0) < 2.5 * estimate.tilt_sigma_deg + 0.2
+
+
+def test_strip_of_wall_on_a_zoo_design_is_suspect():
+    """bench_zoo (seed 3, design 2, frame 6): a 73 mm hexagon 12 mm off the axis at 16 deg pressed 218
+    markers; size-free, 20 markers of the wall were fitted 33 deg off with a sigma of 0.57 deg, "ok"."""
+    from softjig.geometry import angle_between
+    from softjig.sim.scenarios import frame_truth
+    from softjig.sim.zoo import ZooRanges, draw_designs
+
+    design = list(draw_designs(3, seed=3, frames=8, ranges=ZooRanges()))[2]
+    as_built = draw_as_built(
+        design.jig, np.random.default_rng(np.random.SeedSequence(design.seed, spawn_key=(0,)))
+    )
+
+    def pair(index):
+        rng = np.random.default_rng(np.random.SeedSequence(design.seed, spawn_key=(1, index)))
+        return render_pair(as_built, design.specs[index].part, design.specs[index].pose, rng)
+
+    unloaded = pair(0)
+    reference = reference_from_pair(unloaded.left, unloaded.right, design.jig)
+    loaded = pair(6)
+    estimate = estimate_pair(loaded.left, loaded.right, design.jig, reference=reference).estimate
+    truth = frame_truth(as_built.jig, design.specs[6].pose)["normal"]
+    error = float(np.degrees(angle_between(np.array(estimate.normal), np.asarray(truth))))
+    assert estimate.quality == "suspect" or error < 3.0, (error, estimate.tilt_sigma_deg)
