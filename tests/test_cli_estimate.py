@@ -276,3 +276,90 @@ def test_a_calibration_applies_to_its_own_method_only(sweep, tmp_path):
         ],
     )
     assert accepted.exit_code == 0 and json.loads(accepted.stdout)["calibrated"]
+
+
+@pytest.mark.parametrize("method", [[], ["--method", "paper"]])
+def test_swapped_images_are_named(sweep, method):
+    """Issue 14: RIGHT LEFT gave exit 3 "no contact" (default method) or exit 0 with a 22 mm push (paper)."""
+    left, right, *rest = _pair_args(sweep)
+    result = runner.invoke(app, ["estimate", right, left, *rest, "--part-diameter", "50", *method])
+    assert result.exit_code == 2, result.output
+    assert "swapped" in result.output and "Traceback" not in result.output
+
+
+@pytest.mark.parametrize("diameter", ["1e9", "190", "inf"])
+def test_part_wider_than_the_membrane_is_refused(sweep, diameter):
+    """Issue 14: --part-diameter 1e9 gave exit 0 and a wrong tilt."""
+    result = runner.invoke(app, ["estimate", *_pair_args(sweep), "--part-diameter", diameter])
+    assert result.exit_code == 2, result.output
+    assert "part diameter" in result.output
+
+
+def test_12_bit_counts_in_a_16_bit_png(sweep, tmp_path):
+    """Issue 14: a 12-bit camera's counts in a 16-bit PNG gave 0 markers and "noise (nan mm)", exit 3."""
+    paths = []
+    for name, source in (("left", sweep[1].left_path), ("right", sweep[1].right_path)):
+        image = cv2.imread(str(source), cv2.IMREAD_UNCHANGED).astype(np.uint16) * 16  # 12-bit counts
+        paths.append(str(tmp_path / f"{name}.png"))
+        cv2.imwrite(paths[-1], image)
+    plain = runner.invoke(app, ["estimate", *_pair_args(sweep), "--json"])
+    result = runner.invoke(app, ["estimate", *paths, "--config", str(sweep.root / "rig.toml"), "--json"])
+    assert result.exit_code == 0, result.output
+    assert "nan" not in result.output.lower()
+    packed, unpacked = json.loads(result.stdout), json.loads(plain.stdout)
+    assert any("low 12 bits" in w for w in packed["warnings"])
+    assert abs(packed["tilt_x_deg"] - unpacked["tilt_x_deg"]) < 0.3
+    assert abs(packed["tilt_y_deg"] - unpacked["tilt_y_deg"]) < 0.3
+
+
+def test_every_estimate_carries_quality_and_sigma(sweep, tmp_path):
+    """Issue 13 item 6: the JSON object and every dataset row carry ``quality`` and ``tilt_sigma_deg``."""
+    for method in ([], ["--method", "paper"]):
+        result = runner.invoke(
+            app, ["estimate", *_pair_args(sweep), "--part-diameter", "50", "--json", *method]
+        )
+        assert result.exit_code == 0, result.output
+        data = json.loads(result.stdout)
+        assert data["quality"] == "ok", data["warnings"]
+        assert 0 < data["tilt_sigma_deg"] < 2
+    for out in (tmp_path / "rows.jsonl", tmp_path / "rows.csv"):
+        result = runner.invoke(app, ["estimate", str(sweep.root), "--out", str(out), "--workers", "1"])
+        assert result.exit_code == 0, result.output
+        text = out.read_text()
+        assert "quality" in text and "tilt_sigma_deg" in text
+    rows = [json.loads(line) for line in (tmp_path / "rows.jsonl").read_text().splitlines()][1:]
+    assert all(row["quality"] in ("ok", "suspect") and row["tilt_sigma_deg"] > 0 for row in rows)
+
+
+def test_no_part_size_ignores_the_frames_parts(sweep, tmp_path):
+    """Issue 13 item 5: ``--no-part-size`` runs the size-free case on a dataset whose frames name a part."""
+    sized, free = tmp_path / "sized.jsonl", tmp_path / "free.jsonl"
+    for out, extra in ((sized, []), (free, ["--no-part-size"])):
+        result = runner.invoke(
+            app, ["estimate", str(sweep.root), "--out", str(out), "--workers", "1", *extra]
+        )
+        assert result.exit_code == 0, result.output
+    sized_rows = [json.loads(line) for line in sized.read_text().splitlines()][1:]
+    free_rows = [json.loads(line) for line in free.read_text().splitlines()][1:]
+    assert all(row["part_diameter_mm"] == 50 for row in sized_rows)
+    assert all(row["part_diameter_mm"] is None for row in free_rows)
+    for extra in (["--part-diameter", "50"], ["--method", "paper"]):
+        result = runner.invoke(app, ["estimate", str(sweep.root), "--no-part-size", *extra])
+        assert result.exit_code == 2 and "--no-part-size" in result.output
+    result = runner.invoke(app, ["estimate", *_pair_args(sweep), "--no-part-size"])
+    assert result.exit_code == 2 and "--no-part-size" in result.output
+
+
+def test_the_table_says_suspect_plainly(capsys):
+    from softjig.cli.estimate import _print_estimate_table
+
+    reason = "the two halves of the contact are tilted 6.0 deg apart"
+    estimate = {
+        "normal": [0.0, 0.0, 1.0], "tilt_x_deg": 0.0, "tilt_y_deg": 0.0, "calibrated": False,
+        "push_depth_mm": 3.0, "n_points": 40, "rms_residual_mm": 0.1, "n_markers_left": 300,
+        "n_markers_right": 300, "n_matches": 290, "frame_source": "fiducials", "method": "paper",
+        "tilt_sigma_deg": 0.4, "quality": "suspect", "warnings": [f"suspect: {reason}"],
+    }  # fmt: skip
+    _print_estimate_table(estimate)
+    out = capsys.readouterr().out
+    assert f"SUSPECT: {reason}" in out and "quality" in out

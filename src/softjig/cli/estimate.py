@@ -45,6 +45,7 @@ def _print_estimate_table(estimate: dict) -> None:
             f"{estimate['n_markers_left']} / {estimate['n_markers_right']} / {estimate['n_matches']}",
         ),
         ("frame source", estimate["frame_source"]),
+        ("quality", _quality_text(estimate)),
         *(
             [
                 (
@@ -66,9 +67,24 @@ def _print_estimate_table(estimate: dict) -> None:
     ]
     for name, value in rows:
         table.add_row(name, value)
-    Console().print(table)
+    console = Console()
+    console.print(table)
     for message in estimate["warnings"]:
-        warn(message)
+        if message.startswith(SUSPECT_PREFIX):
+            console.print(f"SUSPECT: {message[len(SUSPECT_PREFIX) :]}", style="bold red", markup=False)
+        else:
+            warn(message)
+
+
+SUSPECT_PREFIX = "suspect: "  # how the estimator's self-check reasons start (softjig.sensing.pipeline)
+
+
+def _quality_text(estimate: dict) -> str:
+    """``ok``, or ``SUSPECT`` (the reasons follow the table), with the tilt's 1-sigma when known."""
+    quality = estimate.get("quality", "ok")
+    sigma = estimate.get("tilt_sigma_deg")
+    text = "SUSPECT (see below)" if quality == "suspect" else str(quality)
+    return text + ("" if sigma is None else f"  (tilt 1-sigma {sigma:.2f} deg)")
 
 
 @app.command()
@@ -120,6 +136,14 @@ def estimate(
             help="DATASET: measure indentations against its unloaded reference frame (else the rest shape).",
         ),
     ] = True,
+    part_size: Annotated[
+        bool,
+        typer.Option(
+            "--part-size/--no-part-size",
+            help="DATASET: use each frame's recorded part size (--no-part-size: the size-free estimate of "
+            "the refractive method, on the same data).",
+        ),
+    ] = True,
     displacements: Annotated[
         Path | None,
         typer.Option(help="PAIR: write every marker's id, position and 3-D displacement (.csv or .npz)."),
@@ -164,6 +188,11 @@ def estimate(
         given = [name for name, value in pair_only.items() if value]
         if given:
             raise InputError(f"{', '.join(given)} apply to a stereo pair; a DATASET's results go to --out")
+        if not part_size and (part_diameter is not None or method_name == "paper"):
+            raise InputError(
+                "--no-part-size estimates without the part's size: it excludes --part-diameter and "
+                "--method paper (which needs the size)"
+            )
         from softjig.io.rosbag import is_bag
 
         if is_bag(inputs[0]):  # a ROS 2 bag: its folder or its .mcap (softjig.cli.estimate_bag)
@@ -171,14 +200,14 @@ def estimate(
 
             estimate_bag(
                 inputs[0], config, part_diameter, cal, method_name, out, workers, progress, use_reference,
-                left_topic, right_topic, stamp_tolerance,
+                left_topic, right_topic, stamp_tolerance, part_size=part_size,
             )  # fmt: skip
             return
         if left_topic is not None or right_topic is not None:
             raise InputError("--left-topic and --right-topic apply to a ROS 2 bag (a folder or .mcap)")
         _estimate_dataset(
             inputs[0], config, part_diameter, cal, method_name, out, workers, progress, use_reference,
-            inputs=(config, calibration),
+            inputs=(config, calibration), part_size=part_size,
         )  # fmt: skip
         return
     if len(inputs) != 2:
@@ -187,8 +216,11 @@ def estimate(
         raise InputError("estimating a stereo pair needs --config RIG.toml (the jig and its cameras)")
     if (reference_left is None) != (reference_right is None):
         raise InputError("give both --reference-left and --reference-right (one unloaded stereo pair)")
-    if out is not None or workers is not None:
-        raise InputError("--out and --workers apply to a DATASET, not to a stereo pair")
+    if out is not None or workers is not None or not part_size:
+        raise InputError(
+            "--out, --workers and --no-part-size apply to a DATASET, not to a stereo pair (whose part size "
+            "is --part-diameter, or none)"
+        )
     from softjig.io.dataset import load_image
     from softjig.sensing.pipeline import estimate_pair, reference_from_pair
 
@@ -236,6 +268,7 @@ def _estimate_dataset(
     progress: bool,
     use_reference: bool,
     inputs: tuple[Path | None, ...] = (),
+    part_size: bool = True,
 ) -> None:
     """Estimate every frame of a dataset on ``workers`` processes, streaming the rows to ``out``.
 
@@ -267,21 +300,40 @@ def _estimate_dataset(
     jig = load_config(config) if config else dataset.jig
     reference = dataset_reference(dataset, jig) if use_reference and method == "refractive" else None
     settings = BatchSettings(
-        jig=jig, part_diameter_mm=part_diameter, calibration=cal, method=method, reference=reference
+        jig=jig,
+        part_diameter_mm=part_diameter,
+        calibration=cal,
+        method=method,
+        reference=reference,
+        frame_part_size=part_size,
     )
     t0 = time.perf_counter()
     # Rows stream to a temporary file as they complete, in frame order; it replaces `out` only at the end.
+    suspect: list[int] = []  # frame indices of the suspect estimates
+
     with Progress(console=stderr_console(), disable=not progress, transient=True) as bar:
         task = bar.add_task("estimating", total=len(dataset))
-        summary = estimate_dataset_to_file(
-            dataset, settings, out, workers=workers, on_row=lambda _row: bar.advance(task)
-        )
+
+        def on_row(row: dict) -> None:
+            bar.advance(task)
+            if row.get("quality") == "suspect":
+                suspect.append(row["index"])
+
+        summary = estimate_dataset_to_file(dataset, settings, out, workers=workers, on_row=on_row)
     typer.echo(
         f"estimated {summary.n_loaded - summary.n_failed} of {summary.n_loaded} loaded frames in "
         f"{time.perf_counter() - t0:.1f} s ({method}"
         + (", indentations against the reference frame" if reference is not None else "")
         + f"); wrote {out}"
     )
+    if suspect:
+        Console(stderr=True).print(
+            f'SUSPECT: {len(suspect)} estimates failed their self-check (quality "suspect", the reasons '
+            f"among their warnings in {out}): frames {', '.join(map(str, suspect[:10]))}"
+            + (" ..." if len(suspect) > 10 else ""),
+            style="bold red",
+            markup=False,
+        )
     if summary.n_loaded == 0:
         raise EstimationError(
             f"{path} has only unloaded reference frames: no frame with a part pressed in to estimate"

@@ -60,6 +60,8 @@ def estimate_bag(
     left_topic: str | None,
     right_topic: str | None,
     stamp_tolerance_s: float,
+    *,
+    part_size: bool = True,
 ) -> None:
     """Estimate every pair of a bag and stream the rows to ``out`` (default ``BAG_estimates.jsonl`` beside
     the bag). The reference frame (refractive method) is a softjig bag's reference pair that comes before
@@ -102,7 +104,12 @@ def estimate_bag(
         if not lead:
             raise no_pairs_error(path, topics, stream)
         settings = BatchSettings(
-            jig=jig, part_diameter_mm=part_diameter, calibration=cal, method=method, reference=reference
+            jig=jig,
+            part_diameter_mm=part_diameter,
+            calibration=cal,
+            method=method,
+            reference=reference,
+            frame_part_size=part_size,
         )
         sized = _Pairs(itertools.chain(lead, pairs))
         n_rows = n_loaded = n_failed = 0

@@ -351,7 +351,8 @@ def _estimate_in_workers(
 CSV_COLUMNS = (
     "index", "normal_x", "normal_y", "normal_z", "tilt_x_deg", "tilt_y_deg", "push_depth_mm", "n_points",
     "rms_residual_mm", "frame_source", "calibrated", "raw_tilt_x_deg", "raw_tilt_y_deg", "part_diameter_mm",
-    "method", "tilt_sigma_x_deg", "tilt_sigma_y_deg", "contact_area_mm2", "contact_x_mm", "contact_y_mm",
+    "method", "tilt_sigma_x_deg", "tilt_sigma_y_deg", "tilt_sigma_deg", "quality", "contact_area_mm2",
+    "contact_x_mm", "contact_y_mm",
     "contact_partial", "part_x_mm", "part_y_mm", "warnings", "indentation_reference", "reference", "error",
     "exit_code",
 )  # fmt: skip

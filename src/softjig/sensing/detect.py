@@ -225,6 +225,34 @@ def gray_image(image: npt.ArrayLike) -> tuple[np.ndarray, float]:
     return arr, _FULL_SCALE[arr.dtype]
 
 
+#: The bit depths a camera packs into a 16-bit image's low bits (10-, 12- and 14-bit sensors), tried in
+#: order: a ``uint16`` pair whose brightest pixel fits in one of them is taken to be of that depth.
+PACKED_BIT_DEPTHS = (10, 12, 14)
+
+
+def packed_bit_depth(*grays: np.ndarray) -> int | None:
+    """The bit depth of ``uint16`` images whose values use only their low bits, or ``None``.
+
+    A 10-, 12- or 14-bit camera writes its counts into 16-bit PNGs unscaled: full scale is then
+    ``2**bits - 1``, not 65535, and a marker's contrast looks 4-64 times fainter than it is (no marker
+    passes the detection threshold). Returns the least depth of :data:`PACKED_BIT_DEPTHS` whose full
+    scale holds every pixel of every image, ``None`` for other dtypes or when the top bits are used.
+    """
+    if not grays or any(g.dtype != np.uint16 for g in grays):
+        return None
+    brightest = max(int(g.max()) for g in grays)
+    for bits in PACKED_BIT_DEPTHS:
+        if brightest < 2**bits:
+            return bits
+    return None
+
+
+def unpack_bit_depth(gray: np.ndarray, bits: int) -> np.ndarray:
+    """A ``uint16`` image of ``bits``-bit counts scaled to the 16-bit range (shifted left by
+    ``16 - bits``, so that ``2**bits - 1`` maps to within one count step of 65535)."""
+    return np.left_shift(gray, 16 - bits)
+
+
 def check_image_content(gray: npt.ArrayLike, *, name: str = "the image") -> None:
     """Reject images that cannot contain usable markers: blank or saturated.
 

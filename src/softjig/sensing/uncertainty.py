@@ -43,6 +43,7 @@ __all__ = [
     "normal_from_slopes",
     "normal_uncertainty",
     "tilt_angles_from_slopes",
+    "with_angle_floor",
     "with_spread_between",
 ]
 
@@ -245,25 +246,30 @@ def _moments(points: np.ndarray, normal: np.ndarray, offset: float) -> tuple[boo
 
 
 def with_spread_between(
-    uncertainty: NormalUncertainty, normal_a: np.ndarray, normal_b: np.ndarray
+    uncertainty: NormalUncertainty, normal_a: np.ndarray, normal_b: np.ndarray, *, share: float = 1.0
 ) -> NormalUncertainty:
     """Add the spread between two equally plausible normals (e.g. of the narrowest and widest contact the
-    noise allows) to an uncertainty, as an independent error of covariance ``d d^T / 4``, ``d = a - b``:
-    the two lie about one sigma either side of the truth.
+    noise allows) to an uncertainty, as an independent error of covariance ``share^2 d d^T / 4``,
+    ``d = a - b``: the two lie about one sigma either side of the truth.
 
     Parameters
     ----------
     uncertainty : the statistical uncertainty of the normal.
     normal_a, normal_b : (3,) unit normals with ``n_z > 0``.
+    share : the part of their difference to add, in [0, 1] (e.g. the share that their own noise, already
+        in ``uncertainty``, does not explain).
     """
     a, b = np.asarray(normal_a, dtype=float), np.asarray(normal_b, dtype=float)
-    half_n = (a - b) / 2.0
+    share = float(share)
+    if not 0.0 <= share <= 1.0:
+        raise InputError(f"share must be in [0, 1], got {share}.")
+    half_n = share * (a - b) / 2.0
     (ax_a, ay_a), (ax_b, ay_b) = _tilts(a.tolist()), _tilts(b.tolist())  # floats: 10 us fewer, measured
     covariance = uncertainty.covariance + np.outer(half_n, half_n)
     return NormalUncertainty(
         covariance=covariance,
-        tilt_sigma_x_rad=math.hypot(uncertainty.tilt_sigma_x_rad, (ax_a - ax_b) / 2.0),
-        tilt_sigma_y_rad=math.hypot(uncertainty.tilt_sigma_y_rad, (ay_a - ay_b) / 2.0),
+        tilt_sigma_x_rad=math.hypot(uncertainty.tilt_sigma_x_rad, share * (ax_a - ax_b) / 2.0),
+        tilt_sigma_y_rad=math.hypot(uncertainty.tilt_sigma_y_rad, share * (ay_a - ay_b) / 2.0),
         tilt_sigma_rad=math.sqrt(covariance[0, 0] + covariance[1, 1] + covariance[2, 2]),
         residual_sigma_mm=uncertainty.residual_sigma_mm,
     )
@@ -283,5 +289,26 @@ def inflated(uncertainty: NormalUncertainty, factor: float) -> NormalUncertainty
         tilt_sigma_x_rad=uncertainty.tilt_sigma_x_rad * f,
         tilt_sigma_y_rad=uncertainty.tilt_sigma_y_rad * f,
         tilt_sigma_rad=uncertainty.tilt_sigma_rad * f,
+        residual_sigma_mm=uncertainty.residual_sigma_mm,
+    )
+
+
+def with_angle_floor(
+    uncertainty: NormalUncertainty, normal: np.ndarray, floor_rad: float
+) -> NormalUncertainty:
+    """Add an isotropic error of RMS angle ``floor_rad`` to the normal's uncertainty (``floor_rad^2 / 2``
+    on each tilt angle, and in the plane perpendicular to ``normal``): a systematic error of the normal
+    that does not shrink with the number of markers (the as-built jig against the nominal one)."""
+    f = finite_float(floor_rad, "floor_rad")
+    if f < 0:
+        raise InputError(f"floor_rad must be >= 0, got {f}.")
+    n = np.asarray(normal, dtype=float)
+    half = 0.5 * f * f
+    covariance = uncertainty.covariance + half * (np.eye(3) - np.outer(n, n))
+    return NormalUncertainty(
+        covariance=covariance,
+        tilt_sigma_x_rad=math.sqrt(uncertainty.tilt_sigma_x_rad**2 + half),
+        tilt_sigma_y_rad=math.sqrt(uncertainty.tilt_sigma_y_rad**2 + half),
+        tilt_sigma_rad=math.sqrt(covariance[0, 0] + covariance[1, 1] + covariance[2, 2]),
         residual_sigma_mm=uncertainty.residual_sigma_mm,
     )

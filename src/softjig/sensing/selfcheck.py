@@ -1,0 +1,201 @@
+"""Self-checks of a contact plane: evidence, from the frame alone, that an estimate may be wrong.
+
+A robot acts on a wrong normal as readily as on a right one, so every estimate of the refractive method
+says whether it passed these checks (``quality``: ``"ok"`` or ``"suspect"``, with the reasons among its
+warnings), and its ``tilt_sigma_deg`` grows with what the checks see beyond the noise.
+
+**Split halves.** The contact markers are split in two along each principal axis of their footprint
+(``(x, y)`` about the centroid), and a plane is fitted to each half. A flat face leaves two halves whose
+normals differ only by their noise, ``sigma_d^2 = sigma_a^2 + sigma_b^2`` (:func:`~softjig.sensing.
+uncertainty.normal_uncertainty` of each half); a plane fitted to a curved surface (the membrane's wall
+beside the part, or the drape around it) leaves halves tilted apart by the curvature across the
+footprint. The halves' noise comes from the markers' noise measured elsewhere (their own residuals
+would count that curvature as noise). The excess of the difference over its noise is an error the
+residuals do not show: it is added to the normal's uncertainty (half of it, as for two equally
+plausible normals), and a difference beyond :data:`SPLIT_SUSPECT_SIGMAS` of its noise *and*
+:data:`SPLIT_SUSPECT_MIN_DEG` makes the estimate suspect. Splitting along both axes sees a curvature
+in any direction.
+
+The other checks (the contact's consistency with its plane, its area against the part's, a plane too
+steep for a part on a soft jig) are made where their quantities are (:mod:`softjig.sensing.contact`,
+:mod:`softjig.sensing.pipeline`); this module is pure math on points.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+
+from softjig.geometry import angle_between
+
+__all__ = ["SplitCheck", "split_halves"]
+
+#: The halves' normals differing by more than this many sigmas of their difference's noise (a 2-D
+#: Gaussian difference of RMS ``noise`` exceeds ``k noise`` with probability ``exp(-k^2)``: 1e-4 for 3) ...
+SPLIT_SUSPECT_SIGMAS = 3.0
+#: ... and by more than this (deg), makes an estimate suspect: below it, a difference is too small to
+#: matter to a robot even when the noise model is too optimistic.
+SPLIT_SUSPECT_MIN_DEG = 1.5
+#: The fewest markers a half may have to be fitted (a plane and a residual scale need 4; a few more keep
+#: one stray marker from tilting it).
+MIN_HALF_POINTS = 6
+
+
+@dataclass(frozen=True)
+class SplitCheck:
+    """The agreement of the planes of the contact's two halves (:func:`split_halves`).
+
+    Attributes
+    ----------
+    angle_rad : the angle between the two halves' normals (rad), along the axis where it is largest
+        relative to its noise.
+    noise_rad : the RMS angle the noise alone would give them, ``sqrt(sigma_a^2 + sigma_b^2)`` (rad).
+    normal_a, normal_b : (3,) the two halves' unit normals (``n_z > 0``).
+    """
+
+    angle_rad: float
+    noise_rad: float
+    normal_a: np.ndarray
+    normal_b: np.ndarray
+
+    @property
+    def sigmas(self) -> float:
+        """The angle in units of its noise."""
+        return self.angle_rad / self.noise_rad if self.noise_rad > 0 else math.inf
+
+    @property
+    def excess_rad(self) -> float:
+        """The part of the angle the noise does not explain, ``sqrt(max(0, angle^2 - noise^2))`` (rad)."""
+        return math.sqrt(max(0.0, self.angle_rad**2 - self.noise_rad**2))
+
+    @property
+    def suspect(self) -> bool:
+        """Whether the halves disagree beyond both :data:`SPLIT_SUSPECT_SIGMAS` and
+        :data:`SPLIT_SUSPECT_MIN_DEG`."""
+        return self.sigmas > SPLIT_SUSPECT_SIGMAS and self.angle_rad > math.radians(SPLIT_SUSPECT_MIN_DEG)
+
+
+def split_halves(
+    points_mm: np.ndarray, *, point_sigma_mm: float, noise_factor: float = 1.0
+) -> SplitCheck | None:
+    """Fit the two halves of the contact markers along each principal axis of their ``(x, y)``.
+
+    Parameters
+    ----------
+    points_mm : (N, 3) the contact markers in J (mm).
+    point_sigma_mm : the markers' noise (mm), measured elsewhere (e.g. the frame's markers at rest): the
+        halves' own residuals would count the curvature being tested as noise.
+    noise_factor : the factor on the first-order sigmas for the errors the model leaves out (the one the
+        estimate's own uncertainty is inflated by), so that ``noise_rad`` is calibrated.
+
+    Returns
+    -------
+    SplitCheck or None
+        The split along the axis whose halves disagree most relative to their noise; ``None`` when no
+        split leaves :data:`MIN_HALF_POINTS` markers (not on a line) on each side.
+    """
+    pts = np.ascontiguousarray(points_mm, dtype=float)
+    if len(pts) < 2 * MIN_HALF_POINTS:
+        return None
+    ok, normals, sigmas = _split_kernel(pts, float(point_sigma_mm), MIN_HALF_POINTS)
+    worst: SplitCheck | None = None
+    for k in range(2):  # the split across the minor and across the major axis
+        if not ok[k]:
+            continue
+        check = SplitCheck(
+            angle_rad=float(angle_between(normals[k, 0], normals[k, 1])),
+            noise_rad=noise_factor * math.hypot(sigmas[k, 0], sigmas[k, 1]),
+            normal_a=normals[k, 0].copy(),
+            normal_b=normals[k, 1].copy(),
+        )
+        if worst is None or check.sigmas > worst.sigmas:
+            worst = check
+    return worst
+
+
+@numba.njit(cache=True)
+def _split_kernel(
+    points: np.ndarray, sigma: float, min_points: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`split_halves`' splits in one compiled pass (in NumPy, 0.3 ms per estimate, measured):
+    ``(ok (2,), normals (2, 2, 3), sigmas (2, 2))`` for the splits at the median along each principal
+    axis of the points' centred ``(x, y)`` (:func:`_half_fits`)."""
+    n = points.shape[0]
+    mx, my = points[:, 0].mean(), points[:, 1].mean()
+    sxx, sxy, syy = 0.0, 0.0, 0.0
+    for i in range(n):
+        dx, dy = points[i, 0] - mx, points[i, 1] - my
+        sxx += dx * dx
+        sxy += dx * dy
+        syy += dy * dy
+    # The 2x2 scatter's eigenvectors in closed form: the major axis at angle phi, the minor across it.
+    phi = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
+    ok = np.zeros(2, dtype=np.bool_)
+    normals = np.zeros((2, 2, 3))
+    sigmas = np.zeros((2, 2))
+    along = np.empty(n)
+    for k in range(2):
+        ux, uy = np.cos(phi + 0.5 * np.pi * k), np.sin(phi + 0.5 * np.pi * k)
+        for i in range(n):
+            along[i] = (points[i, 0] - mx) * ux + (points[i, 1] - my) * uy
+        side = along > np.median(along)
+        ok[k], normals[k], sigmas[k] = _half_fits(points, side, sigma, min_points)
+    return ok, normals, sigmas
+
+
+@numba.njit(cache=True)
+def _half_fits(
+    points: np.ndarray, side: np.ndarray, sigma: float, min_points: int
+) -> tuple[bool, np.ndarray, np.ndarray]:
+    """The least-squares planes of ``points[side]`` and ``points[~side]``: ``(ok, normals (2, 3),
+    sigmas (2,))``, each normal with ``n_z > 0`` and the RMS angle of its error for a depth noise
+    ``sigma`` (mm), as :func:`~softjig.sensing.uncertainty.normal_uncertainty` with ``point_sigma_mm``
+    (``ok`` false when a half has fewer than ``min_points`` or its ``(x, y)`` lie on a line).
+
+    One compiled pass (two SVD fits and two uncertainties in NumPy took 0.2 ms, measured).
+    """
+    normals = np.zeros((2, 3))
+    sigmas = np.zeros(2)
+    for h in range(2):
+        want = h == 0
+        m = 0
+        c = np.zeros(3)
+        for i in range(points.shape[0]):
+            if side[i] == want:
+                m += 1
+                for k in range(3):
+                    c[k] += points[i, k]
+        if m < min_points:
+            return False, normals, sigmas
+        c /= m
+        scatter = np.zeros((3, 3))
+        for i in range(points.shape[0]):
+            if side[i] == want:
+                for j in range(3):
+                    for k in range(3):
+                        scatter[j, k] += (points[i, j] - c[j]) * (points[i, k] - c[k])
+        _, vectors = np.linalg.eigh(scatter)
+        n = vectors[:, 0]
+        if n[2] < 0:
+            n = -n
+        if n[2] <= 1e-9:
+            return False, normals, sigmas
+        sxx, sxy, syy = scatter[0, 0], scatter[0, 1], scatter[1, 1]
+        det = sxx * syy - sxy * sxy
+        if det <= 1e-12 * (sxx + syy) ** 2:
+            return False, normals, sigmas
+        # cov(a, b) = sigma^2 (X^T X)^-1 of the slopes, propagated to the unit normal (normal_from_slopes)
+        scale = sigma * sigma / det
+        caa, cab, cbb = scale * syy, -scale * sxy, scale * sxx
+        a, b = -n[0] / n[2], -n[1] / n[2]
+        w3 = (1.0 + a * a + b * b) ** 1.5
+        j = np.array([[-(1.0 + b * b), a * b], [a * b, -(1.0 + a * a)], [-a, -b]]) / w3
+        trace = 0.0
+        for r in range(3):
+            trace += j[r, 0] * j[r, 0] * caa + 2.0 * j[r, 0] * j[r, 1] * cab + j[r, 1] * j[r, 1] * cbb
+        normals[h] = n
+        sigmas[h] = np.sqrt(trace)
+    return True, normals, sigmas
