@@ -28,7 +28,6 @@ from functools import lru_cache
 import cv2
 import numba
 import numpy as np
-from scipy.optimize import least_squares
 
 from softjig.caching import cached_by_identity
 from softjig.config import CameraConfig, JigConfig
@@ -316,6 +315,8 @@ def _fit_pose_lm(
         left_px = cv2.projectPoints(obj[0], rvec_l, tvec_l, cams[0].K, dist[0])[0].reshape(-1, 2)
         right_px = cv2.projectPoints(obj[1], rvec_r, tvec_r, cams[1].K, dist[1])[0].reshape(-1, 2)
         return np.concatenate([(left_px - img[0]).ravel(), (right_px - img[1]).ravel()])
+
+    from scipy.optimize import least_squares  # on first use: scipy.optimize is a slow import
 
     fit = least_squares(residuals, np.concatenate([rvec.ravel(), tvec.ravel()]), method="lm")
     if not fit.success:

@@ -22,7 +22,6 @@ from functools import lru_cache
 
 import cv2
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from softjig.config import CameraConfig, JigConfig, StereoConfig
 from softjig.errors import InputError
@@ -97,6 +96,8 @@ def _rectification(cameras: StereoConfig, alpha: float) -> Rectification:
     f, cx, cy = float(P1[0, 0]), float(P1[0, 2]), float(P1[1, 2])
     baseline = -float(P2[0, 3]) / float(P2[0, 0])
     R_J_rect = left.T_J_cam[:3, :3] @ R1.T
+    from scipy.spatial.transform import Rotation  # on first use: a slow import for one call
+
     rot_deg = tuple(float(x) for x in Rotation.from_matrix(R_J_rect).as_rotvec(degrees=True))
     common = dict(
         width_px=size[0],

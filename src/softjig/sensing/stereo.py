@@ -18,9 +18,6 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 import numpy.typing as npt
-from scipy.optimize import linear_sum_assignment
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
 from softjig.checks import finite_float, positive_float
 from softjig.errors import InputError
@@ -367,6 +364,9 @@ def _admissible_pairs(
 def _component_labels(li: np.ndarray, rj: np.ndarray, n_left: int, n_right: int) -> np.ndarray:
     """Connected component of each edge ``(li[k], rj[k])`` of a bipartite graph (SciPy's sparse graph
     search), numbered in order of the component's smallest left index."""
+    from scipy.sparse import coo_matrix  # on first use (as below): slow imports, rarely needed
+    from scipy.sparse.csgraph import connected_components
+
     graph = coo_matrix((np.ones(len(li), np.int8), (li, n_left + rj)), shape=(n_left + n_right,) * 2)
     _, labels = connected_components(graph, directed=False)
     _, first = np.unique(labels[li], return_inverse=True)
@@ -473,6 +473,8 @@ def _assign(li: np.ndarray, rj: np.ndarray, cost: np.ndarray, max_cost: float) -
     edge = np.full(matrix.shape, -1, np.intp)
     matrix[row, col] = cost
     edge[row, col] = np.arange(len(li))
+    from scipy.optimize import linear_sum_assignment
+
     rows, cols = linear_sum_assignment(matrix)
     chosen = edge[rows, cols]
     return chosen[chosen >= 0]
