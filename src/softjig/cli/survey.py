@@ -9,7 +9,7 @@ from typing import Annotated
 import numpy as np
 import typer
 
-from softjig.cli.app import app, handle_errors, load_config
+from softjig.cli.app import app, handle_errors, load_config, warn
 from softjig.errors import InputError
 
 
@@ -115,7 +115,7 @@ def survey_cmd(
     from softjig.config import marker_csv_text, save_jig
     from softjig.io.dataset import Dataset, load_image
     from softjig.io.files import write_text_atomic
-    from softjig.sensing.pipeline import reference_from_pair
+    from softjig.sensing.pipeline import observe_pair, reference_from_pair
     from softjig.sensing.survey import survey_markers
 
     if not (np.isfinite(max_deviation) and 0 <= max_deviation <= 50):
@@ -156,13 +156,24 @@ def survey_cmd(
         smooth=not raw_heights,
         max_deviation_mm=max_deviation,
     )
+    frame_source = observe_pair(*pairs[0], nominal).frame.source
     save_jig(survey.jig, out)
     if markers_csv is not None:
         write_text_atomic(
             markers_csv, marker_csv_text(survey.measured_xyz_mm[:, :2], survey.measured_xyz_mm[:, 2])
         )
     if json_output:
-        typer.echo(json.dumps({"source": source, "out": str(out), **survey.to_dict()}))
+        typer.echo(
+            json.dumps({"source": source, "out": str(out), "frame_source": frame_source, **survey.to_dict()})
+        )
     else:
         _print_report(survey, source)
+    if frame_source != "fiducials":
+        warn(
+            "the fiducials were not seen, so the cameras' poses come from the config: the markers are "
+            "measured in the cameras' nominal pose and the offsets above include the stereo head's own "
+            "placement error (a head tilted by 1 deg reads as a membrane shifted by a few mm). The surveyed "
+            "rig is consistent with these cameras for the estimator; to measure the membrane in the jig "
+            "frame itself, make the fiducials visible to both cameras"
+        )
     typer.echo(f"wrote the surveyed rig to {out}", err=True)

@@ -238,9 +238,13 @@ def _profile_table(points_J: np.ndarray, jig: JigConfig) -> tuple[tuple[float, .
 
 
 def _matched(points_J: np.ndarray, nominal: JigConfig, nominal_xyz: np.ndarray, where: str):
-    """A frame's finite points matched to the nominal markers: (points, nominal indices, unmatched)."""
+    """A frame's finite points above the plate matched to the nominal markers: (points, nominal indices,
+    unmatched). A point on or below the plate's top face (``z <= 0``) is not on the membrane (a fiducial's
+    corner on the plate, say) and counts as unmatched."""
     points = np.asarray(points_J, dtype=float).reshape(-1, 3)
-    points = points[np.all(np.isfinite(points), axis=1)]
+    finite = points[np.all(np.isfinite(points), axis=1)]
+    points = finite[finite[:, 2] > 0.0]
+    off_membrane = len(finite) - len(points)
     ids = identify_markers(
         points, ReferenceMarkers(nominal_xyz, "rest shape"), max_lateral_mm=nominal.markers.pitch_mm / 2.0
     ).ids
@@ -251,7 +255,7 @@ def _matched(points_J: np.ndarray, nominal: JigConfig, nominal_xyz: np.ndarray, 
             "marker: is this a pair of the unloaded jig, and the right rig.toml?"
         )
     order = np.argsort(ids[known], kind="stable")
-    return points[known][order], ids[known][order], int((~known).sum())
+    return points[known][order], ids[known][order], int((~known).sum()) + off_membrane
 
 
 def survey_markers(
