@@ -108,3 +108,24 @@ def test_strip_of_wall_on_a_zoo_design_is_suspect():
     truth = frame_truth(as_built.jig, design.specs[6].pose)["normal"]
     error = float(np.degrees(angle_between(np.array(estimate.normal), np.asarray(truth))))
     assert estimate.quality == "suspect" or error < 3.0, (error, estimate.tilt_sigma_deg)
+
+
+def test_without_the_fiducials_sigma_carries_the_stereo_heads_rotation_tolerance(default_with_reference):
+    """With the cameras' poses from the config (fiducials out of view, as on narrow-field zoo designs), a
+    stereo head rotated by its tolerance tilts the normal by as much: sigma^2 grows by 2 tol^2 (x and y),
+    and not when the fiducials measure the head, or when a calibration absorbs its offset."""
+    from dataclasses import replace
+
+    jig, as_built, _ = default_with_reference
+    pair = render_pair(as_built, CylinderPart(50.0), PartPose(np.radians(10.0), np.radians(30.0)), rng=3)
+
+    def sigma(extrinsics: str, rotation_tolerance_deg: float) -> float:
+        rig = replace(
+            jig,
+            sensing=replace(jig.sensing, extrinsics=extrinsics),
+            tolerances=replace(jig.tolerances, camera_rotation_deg=rotation_tolerance_deg),
+        )
+        return estimate_pair(pair.left, pair.right, rig, part_diameter_mm=50.0).estimate.tilt_sigma_deg
+
+    assert sigma("config", 0.5) ** 2 - sigma("config", 0.0) ** 2 == pytest.approx(2 * 0.5**2, rel=1e-6)
+    assert sigma("fiducials", 0.5) == sigma("fiducials", 0.0)

@@ -38,6 +38,7 @@ sees it, so zero push reads zero, and stays compressed by the same factor.
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
@@ -1051,6 +1052,11 @@ def _refractive_estimate(
             uncertainty, split.normal_a, split.normal_b, share=split.excess_rad / split.angle_rad
         )
     uncertainty = with_angle_floor(uncertainty, plane.normal, np.radians(NORMAL_ANGLE_FLOOR_DEG))
+    if observation.frame.source != "fiducials" and calibration is None:
+        # The cameras' poses are the config's, not measured: the stereo head's rotation error (its
+        # tolerance per axis, tolerances.camera_rotation_deg) tilts the normal by as much, about x and y.
+        head_rad = np.radians(jig.tolerances.camera_rotation_deg)
+        uncertainty = with_angle_floor(uncertainty, plane.normal, math.sqrt(2.0) * head_rad)
     outside = just_outside(points_J[:, :2], used, jig.markers.pitch_mm)
     contact = describe_contact(
         points_J[used, :2],
