@@ -96,6 +96,22 @@ def test_face_centre_in_full_contact_is_the_centroid():
     assert face_centre_xy(xy, region, plane, 20.0, pitch_mm=PITCH) == pytest.approx(region.centroid_xy_mm)
 
 
+def test_a_lift_off_seen_only_beside_the_outline_still_has_a_direction():
+    """A level plane well below the rest membrane at its outline, while a marker just outside the contact
+    says the face does not reach it: the lift-off direction was the mean of no edge points (NaN, and a
+    RuntimeWarning), now the outline's lowest point."""
+    import warnings
+
+    jig = default_jig()
+    xy = _grid(16.0)
+    plane = fit_plane_svd(np.column_stack([xy, np.full(len(xy), 27.0)]))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        region = describe_contact(xy, plane, jig, noise_mm=0.05, edge_face_depth_mm=np.array([-1.0, 2.0]))
+    assert region.partial
+    assert region.lift_azimuth_deg is not None and np.isfinite(region.lift_azimuth_deg)
+
+
 # ------------------------------------------------------------------ compiled helpers against references
 
 

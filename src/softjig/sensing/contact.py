@@ -786,6 +786,8 @@ def describe_contact(
             clearance = clearance_at_edge() if clearance is None else clearance
             lowest = int(np.argmin(clearance))
             low = clearance < tolerance if lifts else clearance <= clearance[lowest]
+            if not low.any():  # the lift-off was seen just outside the outline, not on it: its lowest point
+                low = clearance <= clearance[lowest]
             direction = edge[low].mean(axis=0) - centroid
         lift_azimuth = float(np.degrees(np.arctan2(direction[1], direction[0])) % 360.0)
     return ContactRegion(
