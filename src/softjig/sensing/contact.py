@@ -183,15 +183,10 @@ def _x_window(xs: np.ndarray, x: float, radius: float) -> tuple[int, int]:
 
 
 @numba.njit(cache=True)
-def _neighbour_residuals(
-    xy: np.ndarray, raw: np.ndarray, radius: float, k_max: int
-) -> tuple[np.ndarray, int]:
-    """For each point with at least 3 others closer than ``radius`` (at most its ``k_max`` nearest):
-    its value minus their mean, over ``sqrt(1 + 1/k)``; the first ``count`` entries, in point order.
-
-    The points are binned into square cells of side ``radius``, so each one's neighbours lie in its own
-    and the 8 adjacent cells (half the candidates of a sweep along ``x``, measured 2x faster).
-    """
+def _grid_cells(xy: np.ndarray, radius: float):
+    """Bin (N, 2) points into square cells of side ``radius`` (so each point's neighbours closer than
+    ``radius`` lie in its own and the 8 adjacent cells): each point's cell ``(cx, cy)``, the grid's size
+    ``(nx, ny)``, and the points of cell ``c = cx * ny + cy`` as ``members[start[c]:start[c + 1]]``."""
     n = xy.shape[0]
     x0, y0 = xy[:, 0].min(), xy[:, 1].min()
     nx = int((xy[:, 0].max() - x0) / radius) + 1
@@ -211,6 +206,21 @@ def _neighbour_residuals(
         c = cx[i] * ny + cy[i]
         members[fill[c]] = i
         fill[c] += 1
+    return cx, cy, nx, ny, start, members
+
+
+@numba.njit(cache=True)
+def _neighbour_residuals(
+    xy: np.ndarray, raw: np.ndarray, radius: float, k_max: int
+) -> tuple[np.ndarray, int]:
+    """For each point with at least 3 others closer than ``radius`` (at most its ``k_max`` nearest):
+    its value minus their mean, over ``sqrt(1 + 1/k)``; the first ``count`` entries, in point order.
+
+    The points are binned into square cells of side ``radius``, so each one's neighbours lie in its own
+    and the 8 adjacent cells (half the candidates of a sweep along ``x``, measured 2x faster).
+    """
+    n = xy.shape[0]
+    cx, cy, nx, ny, start, members = _grid_cells(xy, radius)
     r2 = radius * radius
     residual = np.empty(n)
     count = 0
@@ -473,24 +483,7 @@ def _flood(xy: np.ndarray, start: np.ndarray, allowed: np.ndarray, radius: float
     and the 8 adjacent cells): linear in the points for a grid of markers.
     """
     n = xy.shape[0]
-    x0, y0 = xy[:, 0].min(), xy[:, 1].min()
-    nx = int((xy[:, 0].max() - x0) / radius) + 1
-    ny = int((xy[:, 1].max() - y0) / radius) + 1
-    cx = np.empty(n, dtype=np.int64)
-    cy = np.empty(n, dtype=np.int64)
-    start_of = np.zeros(nx * ny + 1, dtype=np.int64)
-    for i in range(n):
-        cx[i] = min(int((xy[i, 0] - x0) / radius), nx - 1)
-        cy[i] = min(int((xy[i, 1] - y0) / radius), ny - 1)
-        start_of[cx[i] * ny + cy[i] + 1] += 1
-    for c in range(nx * ny):
-        start_of[c + 1] += start_of[c]
-    fill = start_of[:-1].copy()
-    members = np.empty(n, dtype=np.int64)
-    for i in range(n):
-        c = cx[i] * ny + cy[i]
-        members[fill[c]] = i
-        fill[c] += 1
+    cx, cy, nx, ny, start_of, members = _grid_cells(xy, radius)
     reached = start.copy()
     queue = np.empty(n, dtype=np.int64)
     head, tail = 0, 0
