@@ -389,3 +389,18 @@ def test_a_pump_that_cannot_be_opened_is_a_clear_error(creep, tmp_path):
         ],
     )
     assert result.exit_code == 2 and "serial port" in result.output, result.output
+
+
+@pytest.mark.parametrize(("option", "value"), [("--method", "svd"), ("--rate", "slow")])
+def test_choices_are_listed_and_checked_before_any_work(tmp_path, option, value):
+    """Like live: a misspelt choice is refused while parsing (exit 2), naming the valid ones, before the
+    replay is opened or the estimator warmed up."""
+    from typer.testing import CliRunner
+
+    from softjig.cli import app
+
+    missing = tmp_path / "no-such-dataset"  # never opened: the options fail first
+    result = CliRunner().invoke(app, ["serve", "--replay", str(missing), option, value])
+    assert result.exit_code == 2
+    assert ("refractive" in result.output) if option == "--method" else ("recorded" in result.output)
+    assert "no-such-dataset" not in result.output

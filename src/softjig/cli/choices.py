@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from enum import StrEnum
 
-__all__ = ["DEFAULT_METHOD", "FrameSelection", "Method"]
+__all__ = ["DEFAULT_METHOD", "FrameSelection", "Method", "ReplayRate"]
 
 
 class Method(StrEnum):
@@ -33,3 +33,10 @@ class FrameSelection(StrEnum):
     all = "all"
     even = "even"
     odd = "odd"
+
+
+class ReplayRate(StrEnum):
+    """How fast a replayed dataset is delivered: at its ``recorded`` rate (like cameras), or ``fast``."""
+
+    recorded = "recorded"
+    fast = "fast"

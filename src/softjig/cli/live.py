@@ -3,29 +3,14 @@
 from __future__ import annotations
 
 import signal
-from enum import StrEnum
 from pathlib import Path
 from typing import Annotated
 
 import typer
 
 from softjig.cli.app import EXIT_BAD_INPUT, EXIT_NO_ESTIMATE, app, error, handle_errors, load_config, warn
+from softjig.cli.choices import DEFAULT_METHOD, Method, ReplayRate
 from softjig.errors import InputError
-from softjig.sensing.pipeline import DEFAULT_METHOD
-
-
-class LiveMethod(StrEnum):
-    """``--method``: checked (and listed in the help) before any frame is read."""
-
-    refractive = "refractive"
-    paper = "paper"
-
-
-class ReplayRate(StrEnum):
-    """``--rate``."""
-
-    recorded = "recorded"
-    fast = "fast"
 
 
 @app.command()
@@ -83,7 +68,7 @@ def live(
         Path | None, typer.Option(help="Tilt calibration JSON to apply.", show_default=False)
     ] = None,
     method: Annotated[
-        LiveMethod | None,
+        Method | None,
         typer.Option(
             help="Estimation method: refractive (ours) or paper (as published).",
             show_default=f"the estimator's default, {DEFAULT_METHOD}",

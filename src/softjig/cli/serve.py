@@ -9,8 +9,8 @@ from typing import Annotated
 import typer
 
 from softjig.cli.app import app, handle_errors, load_config, warn
+from softjig.cli.choices import DEFAULT_METHOD, Method, ReplayRate
 from softjig.errors import InputError
-from softjig.sensing.pipeline import DEFAULT_METHOD
 
 
 @app.command()
@@ -53,14 +53,14 @@ def serve(
         Path | None, typer.Option(help="Tilt calibration JSON.", show_default=False)
     ] = None,
     method: Annotated[
-        str | None,
+        Method | None,
         typer.Option(
             help="refractive (ours) or paper (as published).", show_default="the estimator's default"
         ),
     ] = None,
     rate: Annotated[
-        str, typer.Option(help="Replay: 'recorded' (its own rate, like cameras) or 'fast'.")
-    ] = "recorded",
+        ReplayRate, typer.Option(help="Replay: its recorded rate (like cameras) or fast.")
+    ] = ReplayRate.recorded,
     loop: Annotated[bool, typer.Option(help="Replay: start again at the first frame after the last.")] = True,
     fps: Annotated[float, typer.Option(min=0.1, help="Camera frame rate (Hz).")] = 30.0,
     settle_s: Annotated[
@@ -102,6 +102,8 @@ def serve(
         warm_up,
     )
 
+    method = None if method is None else method.value
+    rate = rate.value
     if (replay is None) == (source is None):
         raise InputError("give either --replay DATASET or --source CAMERAS (e.g. --source opencv:0,1)")
     check_endpoint(bind, allow_remote=allow_remote)
