@@ -300,13 +300,15 @@ def holes(points_J: np.ndarray, contact: np.ndarray, plane: PlaneFit, depth_mm: 
     return below & ~contact & _inside_hull(points_J[:, :2], contact)
 
 
-def _inside_hull(xy: np.ndarray, contact: np.ndarray) -> np.ndarray:
-    """Which ``(x, y)`` lie inside the convex hull of the contact's, as booleans (none for < 3 markers, or
-    all on a line). A compiled hull test (:func:`~softjig.geometry.inside_convex_hull_xy`): it matches
+def _inside_hull(xy: np.ndarray, contact: np.ndarray, which: np.ndarray | None = None) -> np.ndarray:
+    """Which ``(x, y)`` (or only ``xy[which]``, for indices ``which``) lie inside the convex hull of the
+    contact's, as booleans (none for < 3 markers, or all on a line). A compiled hull test
+    (:func:`~softjig.geometry.inside_convex_hull_xy`): it matches
     ``Delaunay(xy[contact]).find_simplex(xy) >= 0``, which took up to 7 ms per call (measured)."""
+    query = xy if which is None else xy[which]
     if contact.sum() < 3:
-        return np.zeros(len(xy), dtype=bool)
-    return inside_convex_hull_xy(xy[contact], xy)
+        return np.zeros(len(query), dtype=bool)
+    return inside_convex_hull_xy(xy[contact], query)
 
 
 def grow_contact(
@@ -425,11 +427,21 @@ def _violations(
     # Penetration is judged inside the contact's core (its markers surrounded by contact), not its rim:
     # the growth takes in a ring of wall markers level with a deep edge, whose hull holds more wall above
     # the plane. Holes are judged in the whole hull: the membrane never falls far below a real face.
-    core = _core(points_J[:, :2], contact, pitch_mm)
-    impossible = penetrating(points_J, core, plane, threshold_mm) | holes(
-        points_J, contact, plane, HOLE_THRESHOLDS * threshold_mm
-    )
-    return max(0, int(impossible.sum()) - tolerated)
+    # :func:`penetrating` (in the core) and :func:`holes` (in the hull), fused: the markers' heights above
+    # the plane computed once, and the hull tests made only for the markers above or below (most are
+    # neither) and only when there are any (same counts; it halved this check's 0.1 ms, measured).
+    height = (points_J - plane.centroid_mm) @ plane.normal
+    above = np.flatnonzero(height > threshold_mm)
+    below = np.flatnonzero((height < -HOLE_THRESHOLDS * threshold_mm) & ~contact)
+    xy = points_J[:, :2]
+    count = 0
+    if len(above):
+        core = _core(xy, contact, pitch_mm)
+        inside = _inside_hull(xy, core, above)
+        count += int(inside.sum())
+    if len(below):  # no marker is both above and below the plane: each is counted once
+        count += int(_inside_hull(xy, contact, below).sum())
+    return max(0, count - tolerated)
 
 
 def _core(xy: np.ndarray, contact: np.ndarray, pitch_mm: float, min_neighbours: int = 4) -> np.ndarray:
