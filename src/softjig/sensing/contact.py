@@ -26,7 +26,7 @@ import numpy as np
 
 from softjig.config import JigConfig
 from softjig.errors import EstimationError
-from softjig.geometry import PlaneFit, inside_convex_hull_xy
+from softjig.geometry import PlaneFit, _inside_hull_kernel, inside_convex_hull_xy
 from softjig.jig_shape import rest_inner_height_mm
 
 #: Seeds of :func:`grow_contact`, in the order tried: the candidates indented at least this share of the
@@ -435,11 +435,38 @@ def _violations(
     # Penetration is judged inside the contact's core (its markers surrounded by contact), not its rim:
     # the growth takes in a ring of wall markers level with a deep edge, whose hull holds more wall above
     # the plane. Holes are judged in the whole hull: the membrane never falls far below a real face.
-    core = _core(points_J[:, :2], contact, pitch_mm)
-    impossible = penetrating(points_J, core, plane, threshold_mm) | holes(
-        points_J, contact, plane, HOLE_THRESHOLDS * threshold_mm
-    )
-    return max(0, int(impossible.sum()) - tolerated)
+    # :func:`penetrating` (in the core) and :func:`holes` (in the hull), fused: the markers' heights above
+    # the plane computed once, and the core and both hull tests in one compiled pass, made only for the
+    # markers above or below (same counts; 45 us in eleven NumPy and compiled calls, measured).
+    height = (points_J - plane.centroid_mm) @ plane.normal
+    above = height > threshold_mm
+    below = (height < -HOLE_THRESHOLDS * threshold_mm) & ~contact
+    xy = np.ascontiguousarray(points_J[:, :2], dtype=float)
+    count = _violations_kernel(xy, contact, above, below, 1.5 * pitch_mm)
+    return max(0, count - tolerated)
+
+
+@numba.njit(cache=True)
+def _violations_kernel(
+    xy: np.ndarray, contact: np.ndarray, above: np.ndarray, below: np.ndarray, radius: float
+) -> int:
+    """How many markers are ``above`` inside the hull of the contact's core (:func:`_core` with
+    ``radius`` = 1.5 pitches) plus how many are ``below`` inside the contact's hull (as
+    :func:`penetrating` and :func:`holes` with :func:`_inside_hull`; a marker is never both)."""
+    index = np.flatnonzero(contact)
+    members = xy[index]
+    count = 0
+    upper = np.flatnonzero(above)
+    if len(upper) and len(index) >= 3:
+        counts = _count_within(members, members, radius, True) - 1
+        core = index[counts >= 4]
+        if len(core) < 3:
+            core = index
+        count += int(_inside_hull_kernel(xy[core], xy[upper], 1e-9).sum())
+    lower = np.flatnonzero(below)
+    if len(lower) and len(index) >= 3:
+        count += int(_inside_hull_kernel(members, xy[lower], 1e-9).sum())
+    return count
 
 
 def _core(xy: np.ndarray, contact: np.ndarray, pitch_mm: float, min_neighbours: int = 4) -> np.ndarray:

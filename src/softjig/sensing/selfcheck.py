@@ -29,8 +29,6 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from softjig.geometry import angle_between
-
 __all__ = ["SplitCheck", "split_halves"]
 
 #: The halves' normals differing by more than this many sigmas of their difference's noise (a 2-D
@@ -106,7 +104,7 @@ def split_halves(
         if not ok[k]:
             continue
         check = SplitCheck(
-            angle_rad=float(angle_between(normals[k, 0], normals[k, 1])),
+            angle_rad=_angle_between(normals[k, 0].tolist(), normals[k, 1].tolist()),
             noise_rad=noise_factor * math.hypot(sigmas[k, 0], sigmas[k, 1]),
             normal_a=normals[k, 0].copy(),
             normal_b=normals[k, 1].copy(),
@@ -114,6 +112,16 @@ def split_halves(
         if worst is None or check.sigmas > worst.sigmas:
             worst = check
     return worst
+
+
+def _angle_between(a: list[float], b: list[float]) -> float:
+    """:func:`~softjig.geometry.angle_between` of two unit 3-vectors given as lists (rad): the same
+    ``atan2(|a x b|, a . b)`` in the same order of operations, in scalars (``np.cross`` and
+    ``np.linalg.norm`` on (3,) arrays cost 40 us a pair, measured)."""
+    cx = a[1] * b[2] - a[2] * b[1]
+    cy = a[2] * b[0] - a[0] * b[2]
+    cz = a[0] * b[1] - a[1] * b[0]
+    return math.atan2(math.sqrt(cx * cx + cy * cy + cz * cz), a[0] * b[0] + a[1] * b[1] + a[2] * b[2])
 
 
 @numba.njit(cache=True)
