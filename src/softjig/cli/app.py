@@ -29,6 +29,8 @@ import functools
 import importlib
 import json
 import math
+import os
+import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, NoReturn, TypeVar
@@ -250,6 +252,21 @@ def error(message: str, code: int = EXIT_BAD_INPUT) -> NoReturn:
     raise typer.Exit(code)
 
 
+def _exit_after_signal(message: str, code: int) -> NoReturn:
+    """Print ``error: message`` and end the process at once with ``code`` (128 + the signal's number).
+
+    Every ``finally`` of the command has run (temporary files removed, worker pools stopped); what is
+    skipped are the interpreter's exit handlers, as the signal's default action skips them too. Those can
+    wait for ever on threads the signal interrupted (``concurrent.futures`` joins its pools' manager
+    threads at exit: seen as a ``softjig demo`` still running after its "terminated" message)."""
+    from rich.text import Text
+
+    stderr_console().print(Text("error: ", style="bold red") + Text(str(message)))
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
+
+
 def warn(message: str) -> None:
     """Print ``warning: message`` on stderr (yellow prefix)."""
     from rich.text import Text
@@ -276,7 +293,7 @@ def handle_errors(func: _F) -> _F:
         except SoftjigError as exc:
             error(str(exc), EXIT_BAD_INPUT)
         except Terminated as exc:
-            error(str(exc), exc.exit_code)
+            _exit_after_signal(str(exc), exc.exit_code)
         except KeyboardInterrupt:
             error("interrupted", EXIT_INTERRUPTED)
 
