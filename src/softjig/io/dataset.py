@@ -787,14 +787,16 @@ def _index_frames(root: Path, frames_path: Path) -> tuple[_LineIndex, list[str]]
 # ---------------------------------------------------------------------------------------- writer
 
 
-def _json_default(value: Any) -> Any:
+def json_default(value: Any) -> Any:
+    """``json.dumps``'s ``default`` for what frames and estimates hold: arrays and NumPy scalars as their
+    values, paths in POSIX form."""
     if isinstance(value, np.ndarray):
         return value.tolist()
     if isinstance(value, np.generic):
         return value.item()
     if isinstance(value, Path):
         return value.as_posix()
-    raise TypeError(f"cannot write {type(value).__name__} to frames.jsonl")
+    raise TypeError(f"cannot write {type(value).__name__} as JSON")
 
 
 def _truth_arrays(truth_markers: Any) -> dict[str, np.ndarray]:
@@ -1020,7 +1022,7 @@ class DatasetWriter:
             truth["markers"] = f"truth/{name}.npz"
             record["truth"] = truth
         try:
-            line = json.dumps(record, default=_json_default, allow_nan=False, separators=(",", ":"))
+            line = json.dumps(record, default=json_default, allow_nan=False, separators=(",", ":"))
         except (TypeError, ValueError) as exc:
             raise InputError(f"frame {index}: metadata cannot be written as JSON: {exc}") from None
         arrays = None if truth_markers is None else _truth_arrays(truth_markers)

@@ -61,6 +61,7 @@ import cv2
 import numpy as np
 
 from softjig.errors import InputError
+from softjig.io.dataset import json_default
 
 if TYPE_CHECKING:
     from softjig.config import JigConfig, Part
@@ -1149,7 +1150,7 @@ class BagWriter:
             self._static(min(stamp_left_ns, stamp_right_ns))
         obj = {k: v for k, v in (meta or {}).items() if k not in ("left", "right")}
         obj["stamp_ns"] = int(stamp_left_ns)
-        self.write(TOPIC_FRAME, self._string(json.dumps(obj, default=_json_default)), stamp_left_ns)
+        self.write(TOPIC_FRAME, self._string(json.dumps(obj, default=json_default)), stamp_left_ns)
         self.write(TOPIC_LEFT_INFO, self._camera_info("left", stamp_left_ns, FRAME_LEFT), stamp_left_ns)
         self.write(TOPIC_LEFT, self._image(left, stamp_left_ns, FRAME_LEFT), stamp_left_ns)
         self.write(TOPIC_RIGHT_INFO, self._camera_info("right", stamp_right_ns, FRAME_RIGHT), stamp_right_ns)
@@ -1184,7 +1185,7 @@ class BagWriter:
         )
         self.write(TOPIC_MARKERS, self._cloud(np.asarray(result.points_J, dtype=float), stamp_ns), stamp_ns)
         self.write(
-            TOPIC_ESTIMATE, self._string(json.dumps(estimate.to_dict(), default=_json_default)), stamp_ns
+            TOPIC_ESTIMATE, self._string(json.dumps(estimate.to_dict(), default=json_default)), stamp_ns
         )
         self._sync()
 
@@ -1206,16 +1207,6 @@ class BagWriter:
             data=points.reshape(-1).view(np.uint8),
             is_dense=True,
         )
-
-
-def _json_default(value: Any) -> Any:
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, Path):
-        return value.as_posix()
-    raise TypeError(f"cannot write {type(value).__name__} as JSON")
 
 
 # ------------------------------------------------------------------------------------------- repair
