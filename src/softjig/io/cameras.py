@@ -102,6 +102,19 @@ class StereoFrame:
     wall_time_s: float
     meta: Mapping[str, Any] = field(default_factory=dict)
 
+    @classmethod
+    def completed_now(
+        cls,
+        left: np.ndarray,
+        right: np.ndarray,
+        t_left_s: float,
+        t_right_s: float,
+        seq: int,
+        meta: Mapping[str, Any] | None = None,
+    ) -> StereoFrame:
+        """A pair completed now: ``received_s`` and ``wall_time_s`` are the host's clocks at this call."""
+        return cls(left, right, t_left_s, t_right_s, seq, time.monotonic(), time.time(), dict(meta or {}))
+
     @property
     def skew_s(self) -> float:
         """Right capture time minus left capture time (s)."""
@@ -287,16 +300,7 @@ class ReplaySource(StereoSource):
             left, right = frame.load_left(), frame.load_right()
         except InputError as exc:
             raise BadFrame(f"{self.name}, frame {frame.index}: {exc}") from None
-        return StereoFrame(
-            left=left,
-            right=right,
-            t_left_s=t_left,
-            t_right_s=t_right,
-            seq=i,
-            received_s=time.monotonic(),
-            wall_time_s=time.time(),
-            meta=dict(frame.meta),
-        )
+        return StereoFrame.completed_now(left, right, t_left, t_right, i, frame.meta)
 
     def close(self) -> None:
         pass
@@ -406,15 +410,7 @@ class OpenCVStereoSource(StereoSource):
                 )
             images.append(_to_rgb(image))
         seq, self._seq = self._seq, self._seq + 1
-        return StereoFrame(
-            left=images[0],
-            right=images[1],
-            t_left_s=times[0],
-            t_right_s=times[1],
-            seq=seq,
-            received_s=time.monotonic(),
-            wall_time_s=time.time(),
-        )
+        return StereoFrame.completed_now(images[0], images[1], times[0], times[1], seq)
 
     def close(self) -> None:
         for cap in self._caps:
@@ -528,15 +524,7 @@ class RealSenseStereoSource(StereoSource):
             if pair is not None:
                 (tl, left), (tr, right) = pair
                 seq, self._seq = self._seq, self._seq + 1
-                return StereoFrame(
-                    left=left,
-                    right=right,
-                    t_left_s=tl,
-                    t_right_s=tr,
-                    seq=seq,
-                    received_s=time.monotonic(),
-                    wall_time_s=time.time(),
-                )
+                return StereoFrame.completed_now(left, right, tl, tr, seq)
             if time.monotonic() >= deadline:
                 return None
             time.sleep(0.002)
@@ -658,15 +646,8 @@ class RealSenseIRSource(StereoSource):
             if pair is not None:
                 (tl, left), (tr, right) = pair[1], pair[2]
                 seq, self._seq = self._seq, self._seq + 1
-                return StereoFrame(
-                    left=left.reshape(self.height_px, self.width_px),
-                    right=right.reshape(self.height_px, self.width_px),
-                    t_left_s=tl,
-                    t_right_s=tr,
-                    seq=seq,
-                    received_s=time.monotonic(),
-                    wall_time_s=time.time(),
-                )
+                shape = (self.height_px, self.width_px)
+                return StereoFrame.completed_now(left.reshape(shape), right.reshape(shape), tl, tr, seq)
             if time.monotonic() >= deadline:
                 return None
             time.sleep(0.001)
