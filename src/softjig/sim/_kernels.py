@@ -1,0 +1,245 @@
+"""Compiled kernels of the simulator (:mod:`softjig.sim.render`, :mod:`softjig.sim.membrane`).
+
+Each kernel is the per-pixel (or per-pair) loop of one step of the image model, fused so that it reads
+and writes its arrays once instead of once per NumPy operation. The model itself is described where it
+is used; these functions only compute it. Every float here is float32 unless said otherwise, as in the
+NumPy code they replace.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+_ONE = np.float32(1.0)
+_ZERO = np.float32(0.0)
+
+
+@numba.njit(cache=True, nogil=True)
+def cast_marker_patches(
+    du: np.ndarray,
+    dv: np.ndarray,
+    quad: np.ndarray,
+    lin: np.ndarray,
+    size: int,
+    ss: int,
+    disc: bool,
+) -> np.ndarray:
+    """Per-pixel average of the shading factor over the ``ss x ss`` sub-samples of each patch pixel.
+
+    Parameters
+    ----------
+    du, dv : (n, size * ss) float32
+        Offset of each sub-sample column / row from the marker's projected centre (px).
+    quad : (n, 3) float32
+        ``|q|^2 / r^2 = a0 du^2 + a1 du dv + a2 dv^2``.
+    lin : (n, 2) float32
+        ``(l0, l1)``: the axis term divided by ``cos_axis``, ``w = -(l0 du + l1 dv)``.
+    size, ss : int
+        Patch side (px) and sub-samples per pixel side.
+    disc : bool
+        Flat disc (hit iff ``cos(beta) > |w|``, value 1) instead of the hemisphere (hit iff
+        ``cos(beta) > max(w, 0)``, value ``1 + cos(beta)``).
+
+    Returns
+    -------
+    (n, size, size) float32
+        Rows ``dv``, columns ``du``.
+
+    Only the sub-samples of a row between the roots of ``cos(beta)^2 = 0`` (widened by one sub-sample) are
+    evaluated: outside them ``cos(beta)^2 < 0`` and nothing is hit.
+    """
+    n = du.shape[0]
+    q = size * ss
+    out = np.zeros((n, size, size), dtype=np.float32)
+    row = np.empty(q, dtype=np.float32)
+    inv = np.float32(1.0 / (ss * ss))
+    for m in range(n):
+        a0, a1, a2 = quad[m, 0], quad[m, 1], quad[m, 2]
+        l0, l1 = lin[m, 0], lin[m, 1]
+        du0 = float(du[m, 0])
+        step = float(du[m, 1] - du[m, 0]) if q > 1 else 1.0
+        for r in range(q):
+            y = dv[m, r]
+            c0 = _ONE - a2 * y * y
+            c1 = -a1 * y
+            c2 = -a0
+            w0 = -l1 * y
+            p0, p1 = 0, size  # the pixels (columns) whose sub-samples may hit
+            if c2 < _ZERO:
+                # cos(beta)^2 = c0 + c1 du + c2 du^2 > 0 only between its roots
+                disc2 = float(c1) * float(c1) - 4.0 * float(c2) * float(c0)
+                if disc2 <= 0.0:
+                    continue
+                root = math.sqrt(disc2)
+                lo = (-float(c1) + root) / (2.0 * float(c2))
+                hi = (-float(c1) - root) / (2.0 * float(c2))
+                p0 = max((math.floor((lo - du0) / step) - 1) // ss, 0)
+                p1 = min((math.ceil((hi - du0) / step) + 2 + ss - 1) // ss, size)
+            if p0 >= p1:
+                continue
+            # 1-D views indexed from 0 and a branch-free body: the sample loop vectorises
+            xs = du[m, p0 * ss : p1 * ss]
+            vals = row[: xs.shape[0]]
+            if disc:
+                for k in range(xs.shape[0]):
+                    x = xs[k]
+                    c = math.sqrt(max(c0 + c1 * x + c2 * (x * x), _ZERO))
+                    vals[k] = _ONE if c > abs(w0 - l0 * x) else _ZERO
+            else:
+                for k in range(xs.shape[0]):
+                    x = xs[k]
+                    c = math.sqrt(max(c0 + c1 * x + c2 * (x * x), _ZERO))
+                    vals[k] = (_ONE + c) if c > max(w0 - l0 * x, _ZERO) else _ZERO
+            dst = out[m, r // ss, p0:p1]
+            for p in range(p1 - p0):
+                acc = _ZERO
+                for j in range(ss):
+                    acc += vals[p * ss + j]
+                dst[p] += acc
+    out *= inv
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def paste_excess(
+    image: np.ndarray,
+    patches: np.ndarray,
+    origin: np.ndarray,
+    gain: np.ndarray,
+    box_gain: np.ndarray,
+    box_x0: int,
+    box_y0: int,
+) -> None:
+    """``image += patch * gain`` for each ``(P, P)`` patch at its top-left ``origin`` (clipped), in place.
+
+    Inside the box of ``box_gain`` (top-left ``box_x0, box_y0``; an empty array for none) its values
+    replace ``gain``'s.
+    """
+    h, w = image.shape
+    n, p, _ = patches.shape
+    bh, bw = box_gain.shape
+    for m in range(n):
+        ox, oy = origin[m, 0], origin[m, 1]
+        j0, j1 = max(0, -ox), min(p, w - ox)
+        # columns of the patch inside the box: [b0, b1)
+        b0 = min(max(box_x0 - ox, j0), j1)
+        b1 = min(max(box_x0 + bw - ox, b0), j1)
+        for i in range(max(0, -oy), min(p, h - oy)):
+            y = oy + i
+            by = y - box_y0
+            src = patches[m, i]
+            dst = image[y]
+            if 0 <= by < bh and b0 < b1:
+                _add_product(dst[ox + j0 : ox + b0], src[j0:b0], gain[y, ox + j0 : ox + b0])
+                _add_product(
+                    dst[ox + b0 : ox + b1], src[b0:b1], box_gain[by, ox + b0 - box_x0 : ox + b1 - box_x0]
+                )
+                _add_product(dst[ox + b1 : ox + j1], src[b1:j1], gain[y, ox + b1 : ox + j1])
+            else:
+                _add_product(dst[ox + j0 : ox + j1], src[j0:j1], gain[y, ox + j0 : ox + j1])
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _add_product(dst: np.ndarray, a: np.ndarray, b: np.ndarray) -> None:
+    """``dst += a * b`` over three 1-D arrays of one length (indexed from 0, so the loop vectorises)."""
+    for k in range(dst.shape[0]):
+        dst[k] += a[k] * b[k]
+
+
+@numba.njit(cache=True, nogil=True)
+def sensor_uint8(
+    image: np.ndarray,
+    hi: np.ndarray,
+    lo: np.ndarray,
+    offset: np.ndarray,
+    slope: np.ndarray,
+    inv_full_well: np.float32,
+    read_var: np.float32,
+    scale: np.float32,
+) -> np.ndarray:
+    """Shot and read noise, gain and rounding to ``uint8`` of a float32 radiance image.
+
+    ``z = offset[hi] + slope[hi] lo`` is the standard-normal deviate of each pixel (two random bytes,
+    ``hi`` and ``lo``); the result is ``round(clip(max(I, 0) + sqrt(max(I, 0) / full_well + read^2) z,
+    0, 1) * scale)``, rounding half to even and saturating at 255.
+    """
+    h, w = image.shape
+    out = np.empty((h, w), dtype=np.uint8)
+    for y in range(h):
+        for x in range(w):
+            v = max(image[y, x], _ZERO)
+            b = hi[y, x]
+            z = offset[b] + slope[b] * np.float32(lo[y, x])
+            v = max(v + math.sqrt(v * inv_full_well + read_var) * z, _ZERO) * scale
+            out[y, x] = np.uint8(min(np.rint(v), np.float32(255.0)))
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def sensor_uint16(
+    image: np.ndarray,
+    hi: np.ndarray,
+    lo: np.ndarray,
+    offset: np.ndarray,
+    slope: np.ndarray,
+    inv_full_well: np.float32,
+    read_var: np.float32,
+    scale: np.float32,
+) -> np.ndarray:
+    """:func:`sensor_uint8` for ``uint16``: ``min(v * scale + 0.5, 65535)`` truncated."""
+    h, w = image.shape
+    out = np.empty((h, w), dtype=np.uint16)
+    half = np.float32(0.5)
+    top = np.float32(65535.0)
+    for y in range(h):
+        for x in range(w):
+            v = max(image[y, x], _ZERO)
+            b = hi[y, x]
+            z = offset[b] + slope[b] * np.float32(lo[y, x])
+            v = max(v + math.sqrt(v * inv_full_well + read_var) * z, _ZERO)
+            out[y, x] = np.uint16(min(v * scale + half, top))
+    return out
+
+
+_ENVELOPE_CANDIDATE_WINDOW = np.float32(1e-3)  # >> the float32 error of sqrt(dx^2 + dy^2) against hypot
+
+
+@numba.njit(cache=True, nogil=True)
+def log_envelope(
+    qx: np.ndarray,
+    qy: np.ndarray,
+    cx: np.ndarray,
+    cy: np.ndarray,
+    log_depth: np.ndarray,
+    inv_decay: np.ndarray,
+) -> np.ndarray:
+    """``max_c (log_depth[c] - hypot(q - c) inv_decay[c])`` for each point ``q``, float32 ``(len(qx),)``.
+
+    A first pass finds the maximum with ``sqrt(dx^2 + dy^2)`` (which vectorises); the contacts within a
+    window of it are then evaluated with ``hypot``, so the result is the exact maximum of the ``hypot``
+    values (those of the NumPy expression).
+    """
+    n = qx.shape[0]
+    nc = cx.shape[0]
+    out = np.empty(n, dtype=np.float32)
+    approx = np.empty(nc, dtype=np.float32)
+    for i in range(n):
+        x, y = qx[i], qy[i]
+        best = np.float32(-np.inf)
+        for c in range(nc):
+            dx = x - cx[c]
+            dy = y - cy[c]
+            v = log_depth[c] - math.sqrt(dx * dx + dy * dy) * inv_decay[c]
+            approx[c] = v
+            best = max(best, v)
+        exact = np.float32(-np.inf)
+        floor = best - _ENVELOPE_CANDIDATE_WINDOW
+        for c in range(nc):
+            if approx[c] >= floor:
+                v = log_depth[c] - np.hypot(x - cx[c], y - cy[c]) * inv_decay[c]
+                exact = max(exact, v)
+        out[i] = exact
+    return out
