@@ -626,16 +626,14 @@ class _CameraView:
         optics = _marker_optics(jig, camera, state, self.layers)
         timer.lap("geometry")
         excess = _marker_excess(jig, camera, state, optics, brightness, self.layers, timer)
-        if excess is not None:
-            optics = excess[2]
-        image, gain, box = self._frame_radiance(jig, state, optics, rng)
+        if excess is None:
+            patches, origin = np.zeros((0, 1, 1), dtype=np.float32), np.zeros((0, 2), dtype=np.int64)
+        else:
+            patches, origin, optics = excess
+            origin = np.ascontiguousarray(origin, dtype=np.int64)
+        order = np.argsort(origin[:, 1], kind="stable")  # the exposure walks down the rows
+        base, gain, box = self._frame_radiance(jig, state, optics, rng)
         timer.lap("speckle")
-        if excess is not None:
-            patches, origin, _ = excess
-            empty = np.zeros((0, 0), dtype=np.float32)
-            box_gain, bx0, by0 = box if box is not None else (empty, 0, 0)
-            _kernels.paste_excess(image, patches, origin.astype(np.int64), gain, box_gain, bx0, by0)
-        timer.lap("paste")
         r = optics.radius_px
         inside = (
             (optics.px[:, 0] - r >= -0.5)
@@ -645,17 +643,19 @@ class _CameraView:
         )
         visible = inside & ~_hidden_by_quads(optics.px, r, [f.quad for f in self.fiducials])
         timer.lap("fiducials")
-        out = _sensor(image, im, rng, float(im.gain[_CAMERA_INDEX[self.side]]))
+        out = _expose(
+            base, gain, box, (patches, origin, order), im, rng, float(im.gain[_CAMERA_INDEX[self.side]])
+        )
         if color:
             out = np.repeat(out[:, :, None], 3, axis=2)
-        timer.lap("noise+quantise")
+        timer.lap("paste+noise+quantise")
         return _ViewResult(out, optics.px, visible, self.corners_px)
 
     def _frame_radiance(
         self, jig: JigConfig, state: MembraneState, optics: _MarkerOptics, rng: np.random.Generator
-    ) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, int, int] | None]:
-        """This frame's bare-membrane radiance (a new array), the markers' gain, and the region where the
-        gain differs from it (the beads re-packed by the part: ``(box_gain, x0, y0)``, or None)."""
+    ) -> tuple[np.ndarray, np.ndarray, _Box | None]:
+        """This frame's bare-membrane radiance and the markers' gain (module docstring, steps 4-6), and
+        the box where the beads re-packed, whose radiance and gain replace them there (or None)."""
         md = jig.medium
         if md.speckle_std > 0 and not md.speckle_static:
             scale = optics.scale_px_per_mm[optics.near]
@@ -666,22 +666,55 @@ class _CameraView:
             gain = factor
             self._finish(radiance, gain, 0, 0)
             return radiance, gain, None
-        radiance = self.base.copy()
         if self.speckle is None or md.speckle_redraw_fraction <= 0:
-            return radiance, self.gain, None
+            return self.base, self.gain, None
         displaced = np.abs(np.asarray(state.indentation_mm)) > md.speckle_redraw_displacement_mm
         moved = optics.near & displaced
         if not moved.any():
-            return radiance, self.gain, None
-        redrawn = _redrawn_speckle(jig, self.speckle, optics, moved, rng, radiance.shape)
+            return self.base, self.gain, None
+        redrawn = _redrawn_speckle(jig, self.speckle, optics, moved, rng, self.base.shape)
         if redrawn is None:
-            return radiance, self.gain, None
+            return self.base, self.gain, None
         factor, x0, y0 = redrawn
         box_radiance = factor * np.float32(jig.imaging.background_level)
         box_gain = factor
         self._finish(box_radiance, box_gain, y0, x0)
-        radiance[y0 : y0 + factor.shape[0], x0 : x0 + factor.shape[1]] = box_radiance
-        return radiance, self.gain, (box_gain, x0, y0)
+        return self.base, self.gain, _Box(box_radiance, box_gain, x0, y0)
+
+
+@dataclass(frozen=True)
+class _Box:
+    """A frame's radiance and gain over the fine pixels from ``(y0, x0)`` where they differ from the jig's."""
+
+    radiance: np.ndarray
+    gain: np.ndarray
+    x0: int
+    y0: int
+
+
+def _expose(
+    base: np.ndarray,
+    gain: np.ndarray,
+    box: _Box | None,
+    excess: tuple[np.ndarray, np.ndarray, np.ndarray],
+    im: ImagingConfig,
+    rng: np.random.Generator,
+    camera_gain: float,
+) -> np.ndarray:
+    """The image: the bare membrane's radiance plus the markers' excess times the gain, then shot and
+    read noise, the camera's gain, clipping to [0, 1] and rounding to the bit depth (module docstring,
+    step 7): ``sigma^2 = I / full_well + read^2`` (shot and read noise are independent Gaussians: one
+    draw, :func:`_standard_normal`'s two bytes per pixel). ``excess`` is the markers' ``(patches, origin,
+    order)``: see :func:`softjig.sim._kernels.expose_uint8`.
+    """
+    if box is None:
+        empty = np.zeros((0, 0), dtype=np.float32)
+        box = _Box(empty, empty, 0, 0)
+    hi, lo = _random_bytes(rng, base.shape)
+    noise = (_NORMAL_TABLE, np.float32(1.0 / im.full_well_electrons), np.float32(im.read_noise**2))
+    kernel = _kernels.expose_uint8 if im.bit_depth == 8 else _kernels.expose_uint16
+    scale = np.float32((255.0 if im.bit_depth == 8 else 65535.0) * camera_gain)
+    return kernel(base, gain, box.radiance, box.gain, box.x0, box.y0, *excess, hi, lo, *noise, scale)
 
 
 def _redrawn_speckle(
@@ -786,8 +819,7 @@ def _marker_excess(
     patches *= amplitude.astype(np.float32)[:, None, None]
     timer.lap("markers")
     if pad > 0:
-        g = _gaussian_matrices(sigma_px[idx], size, pad)
-        patches = (g @ patches) @ np.ascontiguousarray(np.swapaxes(g, 1, 2))
+        patches = _kernels.blur_patches(patches, _gaussian_kernels(sigma_px[idx], pad))
         origin = origin - pad
     timer.lap("blur")
     return patches, origin, optics
@@ -820,6 +852,9 @@ def _normal_tables() -> tuple[np.ndarray, np.ndarray]:
 
 
 _NORMAL_OFFSET, _NORMAL_SLOPE = _normal_tables()  # constants of the generator, not state
+# Every deviate of the generator, indexed by 256 hi + lo: offset[hi] + slope[hi] lo in float32.
+_NORMAL_TABLE = (_NORMAL_OFFSET[:, None] + _NORMAL_SLOPE[:, None] * np.arange(256, dtype=np.float32)).ravel()
+_read_only(_NORMAL_TABLE)
 
 
 def _random_bytes(rng: np.random.Generator, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
@@ -893,24 +928,6 @@ def _patch_extent(optics: _MarkerOptics, md: MediumConfig) -> tuple[int, np.ndar
     sigma_px = md.blur_coefficient * optics.oil_path_mm**1.5 * optics.scale_px_per_mm
     pad = math.ceil(_BLUR_TRUNCATE_SIGMAS * float(np.nanmax(sigma_px)))
     return half, sigma_px, pad
-
-
-def _sensor(image: np.ndarray, im: ImagingConfig, rng: np.random.Generator, gain: float = 1.0) -> np.ndarray:
-    """Shot and read noise, the camera's ``gain``, clipping to [0, 1] and rounding to the bit depth
-    (module docstring, step 7): ``sigma^2 = I / full_well + read^2`` (shot and read noise are independent
-    Gaussians: one draw, :func:`_standard_normal`'s two bytes per pixel)."""
-    hi, lo = _random_bytes(rng, image.shape)
-    inv_full_well = np.float32(1.0 / im.full_well_electrons)
-    read_var = np.float32(im.read_noise**2)
-    if im.bit_depth == 8:
-        scale = np.float32(255.0 * gain)
-        return _kernels.sensor_uint8(
-            image, hi, lo, _NORMAL_OFFSET, _NORMAL_SLOPE, inv_full_well, read_var, scale
-        )
-    scale = np.float32(65535.0 * gain)
-    return _kernels.sensor_uint16(
-        image, hi, lo, _NORMAL_OFFSET, _NORMAL_SLOPE, inv_full_well, read_var, scale
-    )
 
 
 @dataclass(frozen=True)
@@ -1012,22 +1029,15 @@ def _cast_marker_patches(
     return out
 
 
-def _gaussian_matrices(sigma_px: np.ndarray, size: int, pad: int) -> np.ndarray:
-    """``(N, size + 2 pad, size)`` float32: column ``j`` spreads input pixel ``j`` over output pixels
-    ``j .. j + 2 pad`` with a Gaussian of ``sigma_px`` truncated at ``pad`` and normalised to sum 1
-    (light is conserved; the kernel is symmetric, so centroids are too)."""
+def _gaussian_kernels(sigma_px: np.ndarray, pad: int) -> np.ndarray:
+    """``(N, 2 pad + 1)`` float32: each marker's Gaussian of ``sigma_px`` truncated at ``pad`` and
+    normalised to sum 1 (light is conserved; the kernel is symmetric, so centroids are too)."""
     offsets = np.arange(-pad, pad + 1, dtype=np.float64)
     s = np.maximum(np.asarray(sigma_px, dtype=np.float64), 1e-3)[:, None]
     kernel = np.exp(-0.5 * np.minimum((offsets / s) ** 2, 200.0))
     kernel /= kernel.sum(axis=1, keepdims=True)
     kernel[kernel < 1e-20] = 0.0  # float32 denormals would slow the products down tenfold
-    i = np.arange(size + 2 * pad)[:, None]
-    j = np.arange(size)[None, :]
-    k = i - j  # index into the kernel: output i, input j
-    valid = (k >= 0) & (k <= 2 * pad)
-    g = kernel.astype(np.float32)[:, np.clip(k, 0, 2 * pad)]
-    g *= valid
-    return g
+    return kernel.astype(np.float32)
 
 
 def _fiducial_texture(dictionary: str, marker_id: int, cell_px: int) -> np.ndarray:
@@ -1110,5 +1120,8 @@ def _falloff_map(
     x = np.arange(width, dtype=np.float32) - np.float32(half_w * (1.0 + center[0]))
     y = np.arange(height, dtype=np.float32) - np.float32(half_h * (1.0 + center[1]))
     r2_corner = half_w**2 + half_h**2
-    m = 1.0 - np.float32(falloff / r2_corner) * (y[:, None] ** 2 + x[None, :] ** 2)
-    return (np.maximum(m, _MIN_ILLUMINATION) * exposure).astype(np.float32)
+    m = np.add.outer(y * y, x * x)  # float32 (H, W)
+    m *= np.float32(-falloff / r2_corner)
+    m += np.float32(1.0)
+    np.maximum(m, np.float32(_MIN_ILLUMINATION), out=m)
+    return m if exposure == 1.0 else (m * exposure).astype(np.float32)
