@@ -48,8 +48,7 @@ def cast_marker_patches(
     (n, size, size) float32
         Rows ``dv``, columns ``du``.
 
-    Only the sub-samples of a row between the roots of ``cos(beta)^2 = 0`` (widened by one sub-sample) are
-    evaluated: outside them ``cos(beta)^2 < 0`` and nothing is hit.
+    Rows of sub-samples on which ``cos(beta)^2`` is nowhere positive are skipped.
     """
     n = du.shape[0]
     q = size * ss
@@ -59,82 +58,34 @@ def cast_marker_patches(
     for m in range(n):
         a0, a1, a2 = quad[m, 0], quad[m, 1], quad[m, 2]
         l0, l1 = lin[m, 0], lin[m, 1]
-        du0 = float(du[m, 0])
-        step = float(du[m, 1] - du[m, 0]) if q > 1 else 1.0
+        xs = du[m]
         for r in range(q):
             y = dv[m, r]
             c0 = _ONE - a2 * y * y
             c1 = -a1 * y
             c2 = -a0
             w0 = -l1 * y
-            p0, p1 = 0, size  # the pixels (columns) whose sub-samples may hit
-            if c2 < _ZERO:
-                # cos(beta)^2 = c0 + c1 du + c2 du^2 > 0 only between its roots
-                disc2 = float(c1) * float(c1) - 4.0 * float(c2) * float(c0)
-                if disc2 <= 0.0:
-                    continue
-                root = math.sqrt(disc2)
-                lo = (-float(c1) + root) / (2.0 * float(c2))
-                hi = (-float(c1) - root) / (2.0 * float(c2))
-                p0 = max((math.floor((lo - du0) / step) - 1) // ss, 0)
-                p1 = min((math.ceil((hi - du0) / step) + 2 + ss - 1) // ss, size)
-            if p0 >= p1:
+            # cos(beta)^2 = c0 + c1 du + c2 du^2 is nowhere positive on this row: nothing is hit
+            if c2 < _ZERO and float(c1) * float(c1) - 4.0 * float(c2) * float(c0) <= 0.0:
                 continue
-            # 1-D views indexed from 0 and a branch-free body: the sample loop vectorises
-            xs = du[m, p0 * ss : p1 * ss]
-            vals = row[: xs.shape[0]]
+            # a branch-free body over the whole row: the loop vectorises
             if disc:
-                for k in range(xs.shape[0]):
+                for k in range(q):
                     x = xs[k]
                     c = math.sqrt(max(c0 + c1 * x + c2 * (x * x), _ZERO))
-                    vals[k] = _ONE if c > abs(w0 - l0 * x) else _ZERO
+                    row[k] = _ONE if c > abs(w0 - l0 * x) else _ZERO
             else:
-                for k in range(xs.shape[0]):
+                for k in range(q):
                     x = xs[k]
                     c = math.sqrt(max(c0 + c1 * x + c2 * (x * x), _ZERO))
-                    vals[k] = (_ONE + c) if c > max(w0 - l0 * x, _ZERO) else _ZERO
-            dst = out[m, r // ss, p0:p1]
-            for p in range(p1 - p0):
+                    row[k] = (_ONE + c) if c > max(w0 - l0 * x, _ZERO) else _ZERO
+            dst = out[m, r // ss]
+            for p in range(size):
                 acc = _ZERO
                 for j in range(ss):
-                    acc += vals[p * ss + j]
+                    acc += row[p * ss + j]
                 dst[p] += acc
     out *= inv
-    return out
-
-
-@numba.njit(cache=True, nogil=True)
-def blur_patches(patches: np.ndarray, kernels: np.ndarray) -> np.ndarray:
-    """Each ``(P, P)`` patch convolved with its own separable kernel, ``(n, P + 2 pad, P + 2 pad)``.
-
-    ``kernels`` is ``(n, 2 pad + 1)``: input pixel ``j`` spreads over output pixels ``j .. j + 2 pad``
-    with weights ``kernel[0 .. 2 pad]`` along each axis (the full convolution, no border).
-    """
-    n, p, _ = patches.shape
-    taps = kernels.shape[1]
-    t = p + taps - 1
-    out = np.zeros((n, t, t), dtype=np.float32)
-    rows = np.zeros((p, t), dtype=np.float32)
-    for m in range(n):
-        k = kernels[m]
-        rows[:] = _ZERO
-        for i in range(p):  # along the rows: rows[i, j + tap] += patch[i, j] k[tap]
-            src = patches[m, i]
-            dst = rows[i]
-            for j in range(p):
-                v = src[j]
-                if v != _ZERO:
-                    seg = dst[j : j + taps]
-                    for tap in range(taps):
-                        seg[tap] += v * k[tap]
-        for i in range(p):  # along the columns: out[i + tap, :] += rows[i, :] k[tap]
-            row = rows[i]
-            for tap in range(taps):
-                kv = k[tap]
-                if kv != _ZERO:
-                    dst = out[m, i + tap]
-                    for c in range(t):
-                        dst[c] += kv * row[c]
     return out
 
 
@@ -143,6 +94,13 @@ def _add_product(dst: np.ndarray, a: np.ndarray, b: np.ndarray) -> None:
     """``dst += a * b`` over three 1-D arrays of one length (indexed from 0, so the loop vectorises)."""
     for k in range(dst.shape[0]):
         dst[k] += a[k] * b[k]
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _copy(dst: np.ndarray, src: np.ndarray) -> None:
+    """``dst[:] = src`` for two 1-D arrays of one length (a plain loop, faster than a slice assignment)."""
+    for k in range(dst.shape[0]):
+        dst[k] = src[k]
 
 
 @numba.njit(cache=True, nogil=True)
@@ -170,12 +128,12 @@ def _compose_row(
     w = base.shape[1]
     n, p, _ = patches.shape
     bh, bw = box_base.shape
-    rad[:] = base[y]
-    g[:] = gain[y]
+    _copy(rad, base[y])
+    _copy(g, gain[y])
     by = y - box_y0
     if 0 <= by < bh:
-        rad[box_x0 : box_x0 + bw] = box_base[by]
-        g[box_x0 : box_x0 + bw] = box_gain[by]
+        _copy(rad[box_x0 : box_x0 + bw], box_base[by])
+        _copy(g[box_x0 : box_x0 + bw], box_gain[by])
     while first < n and origin[order[first], 1] + p <= y:
         first += 1
     k = first

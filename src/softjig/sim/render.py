@@ -135,7 +135,7 @@ from scipy.special import ndtri
 
 from softjig.config import CameraConfig, ImagingConfig, JigConfig, MediumConfig, Part, PlateConfig
 from softjig.jig_shape import rest_inner_height_mm
-from softjig.optics import FlatLayers, project_points, projection_jacobian, rays_in_top_region
+from softjig.optics import FlatLayers, project_points, rays_in_top_region
 from softjig.rig import AIR_REFRACTIVE_INDEX, distortion_of, flat_layers
 from softjig.sensing.fiducials import aruco_dictionary, fiducial_corners_J
 from softjig.sim import _kernels
@@ -161,6 +161,9 @@ _MIN_ILLUMINATION = 0.02  # the fall-off map is clipped here (an off-centre spot
 _MASK_REACH_COARSE_PX = 5.0  # the redraw mask's softening kernel (sigma 1) reaches 4 coarse px
 _MASK_SUBPIXEL_BITS = 4  # cv2.circle's fractional bits for the redraw mask's centres and radii
 _CAMERA_INDEX = {"left": 0, "right": 1}
+_JACOBIAN_STEP_MM = 1e-3  # central differences of the projection (softjig.optics.projection_jacobian's)
+_JACOBIAN_OFFSETS_MM = np.concatenate([np.zeros((1, 3)), np.eye(3), -np.eye(3)]) * _JACOBIAN_STEP_MM
+_JACOBIAN_OFFSETS_MM.flags.writeable = False
 
 
 # ------------------------------------------------------------------------------------------- results
@@ -548,6 +551,7 @@ class _CameraView:
     layers: FlatLayers
     corners_px: np.ndarray
     fiducials: tuple[_Fiducial, ...]
+    quad_half_planes: tuple[np.ndarray, np.ndarray]  # of the fiducials' quiet zones (_quad_half_planes)
     speckle: _SpeckleGrid | None
     falloff: np.ndarray | None  # (H, W) exposure times fall-off, None for a uniform exposure
     exposure: np.float32
@@ -582,7 +586,11 @@ class _CameraView:
             factor += np.float32(1.0)
         base = factor * np.float32(im.background_level)
         gain = factor
-        view = cls(camera, side, layers, corners_px, fiducials, speckle, falloff, exposure, base, gain)
+        half_planes = _quad_half_planes([f.quad for f in fiducials])
+        _read_only(*half_planes)
+        view = cls(
+            camera, side, layers, corners_px, fiducials, half_planes, speckle, falloff, exposure, base, gain
+        )
         view._finish(base, gain, 0, 0)
         _read_only(corners_px, base, gain, *([] if falloff is None else [falloff]))
         if speckle is not None:
@@ -641,7 +649,7 @@ class _CameraView:
             & (optics.px[:, 1] - r >= -0.5)
             & (optics.px[:, 1] + r <= h - 0.5)
         )
-        visible = inside & ~_hidden_by_quads(optics.px, r, [f.quad for f in self.fiducials])
+        visible = inside & ~_hidden_by_quads(optics.px, r, self.quad_half_planes)
         timer.lap("fiducials")
         out = _expose(
             base, gain, box, (patches, origin, order), im, rng, float(im.gain[_CAMERA_INDEX[self.side]])
@@ -819,7 +827,8 @@ def _marker_excess(
     patches *= amplitude.astype(np.float32)[:, None, None]
     timer.lap("markers")
     if pad > 0:
-        patches = _kernels.blur_patches(patches, _gaussian_kernels(sigma_px[idx], pad))
+        g = _gaussian_matrices(sigma_px[idx], size, pad)
+        patches = (g @ patches) @ np.ascontiguousarray(np.swapaxes(g, 1, 2))
         origin = origin - pad
     timer.lap("blur")
     return patches, origin, optics
@@ -957,7 +966,10 @@ def _marker_optics(
     K, dist, T = camera.K, distortion_of(camera), camera.T_J_cam
     P = np.asarray(state.marker_xyz_mm, dtype=float)
     axis = np.asarray(state.marker_axis, dtype=float)
-    px = project_points(P, K, dist, T, layers)
+    # Each marker and its six central-difference neighbours (projection_jacobian's) in one projection.
+    uv = project_points((P[:, None, :] + _JACOBIAN_OFFSETS_MM).reshape(-1, 3), K, dist, T, layers)
+    uv = uv.reshape(len(P), len(_JACOBIAN_OFFSETS_MM), 2)
+    px = np.ascontiguousarray(uv[:, 0])
     if margin_px is None:
         margin_px = 0.1 * max(camera.width_px, camera.height_px)
     near = np.all(
@@ -966,7 +978,7 @@ def _marker_optics(
     quad, lin = np.full((len(P), 3), np.nan), np.full((len(P), 2), np.nan)
     cos_axis, radius, scale, oil_path = (np.full(len(P), np.nan) for _ in range(4))
     if near.any():
-        jac = projection_jacobian(P[near], K, dist, T, layers)  # (n, 2, 3) px/mm
+        jac = np.swapaxes(uv[near, 1:4] - uv[near, 4:7], 1, 2) / (2.0 * _JACOBIAN_STEP_MM)  # (n, 2, 3) px/mm
         _, d = rays_in_top_region(px[near], K, dist, T, layers)  # (n, 3) unit oil rays, going up
         # Orthonormal basis (e1, e2) of the plane perpendicular to d.
         ref = np.where(np.abs(d[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
@@ -1029,15 +1041,22 @@ def _cast_marker_patches(
     return out
 
 
-def _gaussian_kernels(sigma_px: np.ndarray, pad: int) -> np.ndarray:
-    """``(N, 2 pad + 1)`` float32: each marker's Gaussian of ``sigma_px`` truncated at ``pad`` and
-    normalised to sum 1 (light is conserved; the kernel is symmetric, so centroids are too)."""
+def _gaussian_matrices(sigma_px: np.ndarray, size: int, pad: int) -> np.ndarray:
+    """``(N, size + 2 pad, size)`` float32: column ``j`` spreads input pixel ``j`` over output pixels
+    ``j .. j + 2 pad`` with a Gaussian of ``sigma_px`` truncated at ``pad`` and normalised to sum 1
+    (light is conserved; the kernel is symmetric, so centroids are too)."""
     offsets = np.arange(-pad, pad + 1, dtype=np.float64)
     s = np.maximum(np.asarray(sigma_px, dtype=np.float64), 1e-3)[:, None]
     kernel = np.exp(-0.5 * np.minimum((offsets / s) ** 2, 200.0))
     kernel /= kernel.sum(axis=1, keepdims=True)
     kernel[kernel < 1e-20] = 0.0  # float32 denormals would slow the products down tenfold
-    return kernel.astype(np.float32)
+    i = np.arange(size + 2 * pad)[:, None]
+    j = np.arange(size)[None, :]
+    k = i - j  # index into the kernel: output i, input j
+    valid = (k >= 0) & (k <= 2 * pad)
+    g = kernel.astype(np.float32)[:, np.clip(k, 0, 2 * pad)]
+    g *= valid
+    return g
 
 
 def _fiducial_texture(dictionary: str, marker_id: int, cell_px: int) -> np.ndarray:
@@ -1093,21 +1112,30 @@ def _fiducial_composites(
     return tuple(out)
 
 
-def _hidden_by_quads(px: np.ndarray, radius_px: np.ndarray, quads: list[np.ndarray]) -> np.ndarray:
-    """Whether the disc of ``radius_px`` around each ``px`` meets any convex quad (conservative: the
-    quad is grown by the radius along each edge's normal, which also takes its corners' squares)."""
-    hidden = np.zeros(len(px), dtype=bool)
-    for quad in quads:
+def _quad_half_planes(quads: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Outward unit normals ``(M, 4, 2)`` and offsets ``(M, 4)`` of each convex quad's edges: a point ``p``
+    lies ``p . normal - offset`` outside an edge."""
+    normals, offsets = np.zeros((len(quads), 4, 2)), np.zeros((len(quads), 4))
+    for k, quad in enumerate(quads):
         edges = np.roll(quad, -1, axis=0) - quad
-        normals = np.stack([edges[:, 1], -edges[:, 0]], axis=1)
-        normals /= np.linalg.norm(normals, axis=1, keepdims=True)
-        centre = quad.mean(axis=0)
-        # orient the normals outwards
-        sign = np.sign(np.sum((quad - centre) * normals, axis=1))
-        normals *= sign[:, None]
-        dist = np.einsum("nk,ek->ne", px, normals) - np.sum(quad * normals, axis=1)[None, :]
-        hidden |= np.all(dist < radius_px[:, None], axis=1)
-    return hidden
+        n = np.stack([edges[:, 1], -edges[:, 0]], axis=1)
+        n /= np.linalg.norm(n, axis=1, keepdims=True)
+        n *= np.sign(np.sum((quad - quad.mean(axis=0)) * n, axis=1))[:, None]  # outwards
+        normals[k], offsets[k] = n, np.sum(quad * n, axis=1)
+    return normals, offsets
+
+
+def _hidden_by_quads(
+    px: np.ndarray, radius_px: np.ndarray, half_planes: tuple[np.ndarray, np.ndarray]
+) -> np.ndarray:
+    """Whether the disc of ``radius_px`` around each ``px`` meets any convex quad (conservative: the
+    quad is grown by the radius along each edge's normal, which also takes its corners' squares);
+    ``half_planes`` from :func:`_quad_half_planes`."""
+    normals, offsets = half_planes
+    if len(normals) == 0:
+        return np.zeros(len(px), dtype=bool)
+    dist = np.einsum("nk,mek->nme", px, normals) - offsets[None]
+    return np.any(np.all(dist < radius_px[:, None, None], axis=2), axis=1)
 
 
 def _falloff_map(
