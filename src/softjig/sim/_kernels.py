@@ -96,68 +96,47 @@ def _add_product(dst: np.ndarray, a: np.ndarray, b: np.ndarray) -> None:
         dst[k] += a[k] * b[k]
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
-def _copy(dst: np.ndarray, src: np.ndarray) -> None:
-    """``dst[:] = src`` for two 1-D arrays of one length (a plain loop, faster than a slice assignment)."""
-    for k in range(dst.shape[0]):
-        dst[k] = src[k]
-
-
 @numba.njit(cache=True, nogil=True)
-def _compose_row(
-    y: int,
-    base: np.ndarray,
+def paste_excess(
+    image: np.ndarray,
+    patches: np.ndarray,
+    origin: np.ndarray,
     gain: np.ndarray,
-    box_base: np.ndarray,
     box_gain: np.ndarray,
     box_x0: int,
     box_y0: int,
-    patches: np.ndarray,
-    origin: np.ndarray,
-    order: np.ndarray,
-    first: int,
-    rad: np.ndarray,
-    g: np.ndarray,
-) -> int:
-    """Row ``y`` of the frame's radiance into ``rad``: the bare membrane's (``base``, or ``box_base`` in its
-    box) plus every patch covering the row times the gain; returns the first patch still to come.
+) -> None:
+    """``image += patch * gain`` for each ``(P, P)`` patch at its top-left ``origin`` (``(x, y)`` px,
+    clipped to the image), in place.
 
-    ``order`` sorts the patches by the ``y`` of their top-left pixel (``origin``, ``(x, y)``); the patches
-    before ``order[first]`` end above row ``y``.
+    Inside the box of ``box_gain`` (top-left pixel ``box_x0, box_y0``; an empty array for none) its values
+    replace ``gain``'s.
     """
-    w = base.shape[1]
+    h, w = image.shape
     n, p, _ = patches.shape
-    bh, bw = box_base.shape
-    _copy(rad, base[y])
-    _copy(g, gain[y])
-    by = y - box_y0
-    if 0 <= by < bh:
-        _copy(rad[box_x0 : box_x0 + bw], box_base[by])
-        _copy(g[box_x0 : box_x0 + bw], box_gain[by])
-    while first < n and origin[order[first], 1] + p <= y:
-        first += 1
-    k = first
-    while k < n and origin[order[k], 1] <= y:
-        m = order[k]
-        ox = origin[m, 0]
+    bh, bw = box_gain.shape
+    for m in range(n):
+        ox, oy = origin[m, 0], origin[m, 1]
         j0, j1 = max(0, -ox), min(p, w - ox)
-        if j0 < j1:
-            _add_product(rad[ox + j0 : ox + j1], patches[m, y - origin[m, 1], j0:j1], g[ox + j0 : ox + j1])
-        k += 1
-    return first
+        b0 = min(max(box_x0 - ox, j0), j1)  # the patch's columns inside the box: [b0, b1)
+        b1 = min(max(box_x0 + bw - ox, b0), j1)
+        for i in range(max(0, -oy), min(p, h - oy)):
+            y = oy + i
+            by = y - box_y0
+            src = patches[m, i]
+            dst = image[y]
+            if 0 <= by < bh and b0 < b1:
+                _add_product(dst[ox + j0 : ox + b0], src[j0:b0], gain[y, ox + j0 : ox + b0])
+                box_row = box_gain[by, ox + b0 - box_x0 : ox + b1 - box_x0]
+                _add_product(dst[ox + b0 : ox + b1], src[b0:b1], box_row)
+                _add_product(dst[ox + b1 : ox + j1], src[b1:j1], gain[y, ox + b1 : ox + j1])
+            else:
+                _add_product(dst[ox + j0 : ox + j1], src[j0:j1], gain[y, ox + j0 : ox + j1])
 
 
 @numba.njit(cache=True, nogil=True)
-def expose_uint8(
-    base: np.ndarray,
-    gain: np.ndarray,
-    box_base: np.ndarray,
-    box_gain: np.ndarray,
-    box_x0: int,
-    box_y0: int,
-    patches: np.ndarray,
-    origin: np.ndarray,
-    order: np.ndarray,
+def sensor_uint8(
+    image: np.ndarray,
     hi: np.ndarray,
     lo: np.ndarray,
     normal: np.ndarray,
@@ -165,48 +144,30 @@ def expose_uint8(
     read_var: np.float32,
     scale: np.float32,
 ) -> np.ndarray:
-    """The frame's ``uint8`` image: its radiance row by row (:func:`_compose_row`), then shot and read noise,
-    gain and rounding.
+    """Shot and read noise, gain and rounding to ``uint8`` of a float32 radiance image ``I``.
 
-    The radiance ``I`` of a pixel is the bare membrane's (``base``; ``box_base`` inside the box of top-left
-    pixel ``(box_x0, box_y0)``, where the beads re-packed) plus each marker patch covering it times the
-    gain there (``gain``, or ``box_gain`` in the box); ``order`` sorts the patches by their top row.
-    ``z = normal[256 hi + lo]`` is the pixel's standard-normal deviate (two random bytes); the image is
-    ``round(max(max(I, 0) + sqrt(max(I, 0) / full_well + read^2) z, 0) * scale)``, rounding half to even
-    and saturating at 255. No full-image temporary is written.
+    ``z = normal[256 hi + lo]`` is each pixel's standard-normal deviate (two random bytes); the image is
+    ``round(max(max(I, 0) + sqrt(max(I, 0) / full_well + read^2) z, 0) * scale)``, rounding half to
+    even and saturating at 255.
     """
-    h, w = base.shape
+    h, w = image.shape
     out = np.empty((h, w), dtype=np.uint8)
-    rad = np.empty(w, dtype=np.float32)
-    g = np.empty(w, dtype=np.float32)
     z = np.empty(w, dtype=np.float32)
     top = np.float32(255.0)
-    first = 0
     for y in range(h):
-        first = _compose_row(
-            y, base, gain, box_base, box_gain, box_x0, box_y0, patches, origin, order, first, rad, g
-        )
-        a, b, dst = hi[y], lo[y], out[y]
-        for x in range(w):
+        src, a, b, dst = image[y], hi[y], lo[y], out[y]
+        for x in range(w):  # the gather, apart: the arithmetic below vectorises
             z[x] = normal[(np.intp(a[x]) << 8) | np.intp(b[x])]
         for x in range(w):
-            v = max(rad[x], _ZERO)
+            v = max(src[x], _ZERO)
             v = max(v + math.sqrt(v * inv_full_well + read_var) * z[x], _ZERO) * scale
             dst[x] = np.uint8(min(np.rint(v), top))
     return out
 
 
 @numba.njit(cache=True, nogil=True)
-def expose_uint16(
-    base: np.ndarray,
-    gain: np.ndarray,
-    box_base: np.ndarray,
-    box_gain: np.ndarray,
-    box_x0: int,
-    box_y0: int,
-    patches: np.ndarray,
-    origin: np.ndarray,
-    order: np.ndarray,
+def sensor_uint16(
+    image: np.ndarray,
     hi: np.ndarray,
     lo: np.ndarray,
     normal: np.ndarray,
@@ -214,24 +175,18 @@ def expose_uint16(
     read_var: np.float32,
     scale: np.float32,
 ) -> np.ndarray:
-    """:func:`expose_uint8` for ``uint16``: ``min(v * scale + 0.5, 65535)`` truncated."""
-    h, w = base.shape
+    """:func:`sensor_uint8` for ``uint16``: ``min(v * scale + 0.5, 65535)`` truncated."""
+    h, w = image.shape
     out = np.empty((h, w), dtype=np.uint16)
-    rad = np.empty(w, dtype=np.float32)
-    g = np.empty(w, dtype=np.float32)
     z = np.empty(w, dtype=np.float32)
     half = np.float32(0.5)
     top = np.float32(65535.0)
-    first = 0
     for y in range(h):
-        first = _compose_row(
-            y, base, gain, box_base, box_gain, box_x0, box_y0, patches, origin, order, first, rad, g
-        )
-        a, b, dst = hi[y], lo[y], out[y]
+        src, a, b, dst = image[y], hi[y], lo[y], out[y]
         for x in range(w):
             z[x] = normal[(np.intp(a[x]) << 8) | np.intp(b[x])]
         for x in range(w):
-            v = max(rad[x], _ZERO)
+            v = max(src[x], _ZERO)
             v = max(v + math.sqrt(v * inv_full_well + read_var) * z[x], _ZERO)
             dst[x] = np.uint16(min(v * scale + half, top))
     return out

@@ -634,14 +634,19 @@ class _CameraView:
         optics = _marker_optics(jig, camera, state, self.layers)
         timer.lap("geometry")
         excess = _marker_excess(jig, camera, state, optics, brightness, self.layers, timer)
-        if excess is None:
-            patches, origin = np.zeros((0, 1, 1), dtype=np.float32), np.zeros((0, 2), dtype=np.int64)
-        else:
-            patches, origin, optics = excess
-            origin = np.ascontiguousarray(origin, dtype=np.int64)
-        order = np.argsort(origin[:, 1], kind="stable")  # the exposure walks down the rows
+        if excess is not None:
+            optics = excess[2]
         base, gain, box = self._frame_radiance(jig, state, optics, rng)
+        image = base.copy()
+        box_gain, bx0, by0 = np.zeros((0, 0), dtype=np.float32), 0, 0
+        if box is not None:
+            box_gain, bx0, by0 = box.gain, box.x0, box.y0
+            image[by0 : by0 + box_gain.shape[0], bx0 : bx0 + box_gain.shape[1]] = box.radiance
         timer.lap("speckle")
+        if excess is not None:
+            patches, origin, _ = excess
+            _kernels.paste_excess(image, patches, origin.astype(np.int64), gain, box_gain, bx0, by0)
+        timer.lap("paste")
         r = optics.radius_px
         inside = (
             (optics.px[:, 0] - r >= -0.5)
@@ -651,12 +656,10 @@ class _CameraView:
         )
         visible = inside & ~_hidden_by_quads(optics.px, r, self.quad_half_planes)
         timer.lap("fiducials")
-        out = _expose(
-            base, gain, box, (patches, origin, order), im, rng, float(im.gain[_CAMERA_INDEX[self.side]])
-        )
+        out = _sensor(image, im, rng, float(im.gain[_CAMERA_INDEX[self.side]]))
         if color:
             out = np.repeat(out[:, :, None], 3, axis=2)
-        timer.lap("paste+noise+quantise")
+        timer.lap("noise+quantise")
         return _ViewResult(out, optics.px, visible, self.corners_px)
 
     def _frame_radiance(
@@ -700,29 +703,15 @@ class _Box:
     y0: int
 
 
-def _expose(
-    base: np.ndarray,
-    gain: np.ndarray,
-    box: _Box | None,
-    excess: tuple[np.ndarray, np.ndarray, np.ndarray],
-    im: ImagingConfig,
-    rng: np.random.Generator,
-    camera_gain: float,
-) -> np.ndarray:
-    """The image: the bare membrane's radiance plus the markers' excess times the gain, then shot and
-    read noise, the camera's gain, clipping to [0, 1] and rounding to the bit depth (module docstring,
-    step 7): ``sigma^2 = I / full_well + read^2`` (shot and read noise are independent Gaussians: one
-    draw, :func:`_standard_normal`'s two bytes per pixel). ``excess`` is the markers' ``(patches, origin,
-    order)``: see :func:`softjig.sim._kernels.expose_uint8`.
-    """
-    if box is None:
-        empty = np.zeros((0, 0), dtype=np.float32)
-        box = _Box(empty, empty, 0, 0)
-    hi, lo = _random_bytes(rng, base.shape)
+def _sensor(image: np.ndarray, im: ImagingConfig, rng: np.random.Generator, gain: float) -> np.ndarray:
+    """Shot and read noise, the camera's ``gain``, clipping to [0, 1] and rounding to the bit depth
+    (module docstring, step 7): ``sigma^2 = I / full_well + read^2`` (shot and read noise are independent
+    Gaussians: one draw, :func:`_standard_normal`'s two bytes per pixel)."""
+    hi, lo = _random_bytes(rng, image.shape)
     noise = (_NORMAL_TABLE, np.float32(1.0 / im.full_well_electrons), np.float32(im.read_noise**2))
-    kernel = _kernels.expose_uint8 if im.bit_depth == 8 else _kernels.expose_uint16
-    scale = np.float32((255.0 if im.bit_depth == 8 else 65535.0) * camera_gain)
-    return kernel(base, gain, box.radiance, box.gain, box.x0, box.y0, *excess, hi, lo, *noise, scale)
+    if im.bit_depth == 8:
+        return _kernels.sensor_uint8(image, hi, lo, *noise, np.float32(255.0 * gain))
+    return _kernels.sensor_uint16(image, hi, lo, *noise, np.float32(65535.0 * gain))
 
 
 def _redrawn_speckle(
