@@ -161,9 +161,9 @@ _MIN_ILLUMINATION = 0.02  # the fall-off map is clipped here (an off-centre spot
 _MASK_REACH_COARSE_PX = 5.0  # the redraw mask's softening kernel (sigma 1) reaches 4 coarse px
 _MASK_SUBPIXEL_BITS = 4  # cv2.circle's fractional bits for the redraw mask's centres and radii
 _CAMERA_INDEX = {"left": 0, "right": 1}
-_JACOBIAN_STEP_MM = 1e-3  # central differences of the projection (softjig.optics.projection_jacobian's)
-_JACOBIAN_OFFSETS_MM = np.concatenate([np.zeros((1, 3)), np.eye(3), -np.eye(3)]) * _JACOBIAN_STEP_MM
-_JACOBIAN_OFFSETS_MM.flags.writeable = False
+_PIXEL_STEP = 0.01  # px: central differences of the back-projection (a 1e-3 mm step on the membrane)
+_PIXEL_OFFSETS = np.array([[0.0, 0.0], [1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]]) * _PIXEL_STEP
+_PIXEL_OFFSETS.flags.writeable = False
 
 
 # ------------------------------------------------------------------------------------------- results
@@ -955,10 +955,7 @@ def _marker_optics(
     K, dist, T = camera.K, distortion_of(camera), camera.T_J_cam
     P = np.asarray(state.marker_xyz_mm, dtype=float)
     axis = np.asarray(state.marker_axis, dtype=float)
-    # Each marker and its six central-difference neighbours (projection_jacobian's) in one projection.
-    uv = project_points((P[:, None, :] + _JACOBIAN_OFFSETS_MM).reshape(-1, 3), K, dist, T, layers)
-    uv = uv.reshape(len(P), len(_JACOBIAN_OFFSETS_MM), 2)
-    px = np.ascontiguousarray(uv[:, 0])
+    px = project_points(P, K, dist, T, layers)
     if margin_px is None:
         margin_px = 0.1 * max(camera.width_px, camera.height_px)
     near = np.all(
@@ -967,16 +964,30 @@ def _marker_optics(
     quad, lin = np.full((len(P), 3), np.nan), np.full((len(P), 2), np.nan)
     cos_axis, radius, scale, oil_path = (np.full(len(P), np.nan) for _ in range(4))
     if near.any():
-        jac = np.swapaxes(uv[near, 1:4] - uv[near, 4:7], 1, 2) / (2.0 * _JACOBIAN_STEP_MM)  # (n, 2, 3) px/mm
-        _, d = rays_in_top_region(px[near], K, dist, T, layers)  # (n, 3) unit oil rays, going up
+        # The oil rays of each marker's pixel and of its four neighbours at +-_PIXEL_STEP in u and v.
+        pixels = (px[near][:, None, :] + _PIXEL_OFFSETS).reshape(-1, 2)
+        origins, rays = (
+            a.reshape(-1, len(_PIXEL_OFFSETS), 3) for a in rays_in_top_region(pixels, K, dist, T, layers)
+        )
+        d = rays[:, 0]  # (n, 3) unit oil rays through the markers, going up
         # Orthonormal basis (e1, e2) of the plane perpendicular to d.
         ref = np.where(np.abs(d[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
         e1 = np.cross(d, ref)
         e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
         e2 = np.cross(d, e1)
         B = np.stack([e1, e2], axis=2)  # (n, 3, 2)
-        JB = jac @ B  # (n, 2, 2)
-        A = np.linalg.inv(JB)  # du -> in-plane mm coordinates
+        # Where the neighbours' rays meet the plane through P perpendicular to d, in (e1, e2): central
+        # differences of that map give A = (J B)^-1 (du -> in-plane mm), J the projection's Jacobian.
+        rel = P[near][:, None, :] - origins
+        hit = (
+            origins
+            + (np.sum(rel * d[:, None, :], axis=2) / np.sum(rays * d[:, None, :], axis=2))[..., None] * rays
+        )
+        inplane = (hit - P[near][:, None, :]) @ B  # (n, 5, 2)
+        A = np.stack([inplane[:, 1] - inplane[:, 2], inplane[:, 3] - inplane[:, 4]], axis=2) / (
+            2.0 * _PIXEL_STEP
+        )
+        JB = np.linalg.inv(A)  # (n, 2, 2) px per in-plane mm
         r = jig.markers.diameter_mm / 2.0
         G = np.swapaxes(A, 1, 2) @ A / r**2  # |q|^2 / r^2 = du^T G du
         quad[near] = np.stack([G[:, 0, 0], G[:, 0, 1] + G[:, 1, 0], G[:, 1, 1]], axis=1)
