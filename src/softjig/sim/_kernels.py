@@ -48,7 +48,8 @@ def cast_marker_patches(
     (n, size, size) float32
         Rows ``dv``, columns ``du``.
 
-    Rows of sub-samples on which ``cos(beta)^2`` is nowhere positive are skipped.
+    Only the pixels of a row that hold a sub-sample with ``cos(beta)^2 > 0`` are evaluated (the roots of
+    that quadratic in ``du``, found in float64 and widened by a sub-sample, bound them).
     """
     n = du.shape[0]
     q = size * ss
@@ -58,33 +59,55 @@ def cast_marker_patches(
     for m in range(n):
         a0, a1, a2 = quad[m, 0], quad[m, 1], quad[m, 2]
         l0, l1 = lin[m, 0], lin[m, 1]
-        xs = du[m]
-        for r in range(q):
-            y = dv[m, r]
-            c0 = _ONE - a2 * y * y
-            c1 = -a1 * y
-            c2 = -a0
-            w0 = -l1 * y
-            # cos(beta)^2 = c0 + c1 du + c2 du^2 is nowhere positive on this row: nothing is hit
-            if c2 < _ZERO and float(c1) * float(c1) - 4.0 * float(c2) * float(c0) <= 0.0:
+        du0 = float(du[m, 0])
+        step = float(du[m, 1] - du[m, 0]) if q > 1 else 1.0
+        for py in range(size):
+            # The pixel columns [p0, p1) holding every sub-sample of this pixel row where cos(beta)^2 =
+            # c0 + c1 du + c2 du^2 > 0 (between its roots, widened by a sub-sample): nothing is hit outside.
+            lo, hi = np.inf, -np.inf
+            for r in range(py * ss, (py + 1) * ss):
+                y = float(dv[m, r])
+                c0, c1, c2 = 1.0 - float(a2) * y * y, -float(a1) * y, -float(a0)
+                if c2 >= 0.0:
+                    lo, hi = -np.inf, np.inf
+                    break
+                disc2 = c1 * c1 - 4.0 * c2 * c0
+                if disc2 > 0.0:
+                    root = math.sqrt(disc2)
+                    lo = min(lo, (-c1 + root) / (2.0 * c2))
+                    hi = max(hi, (-c1 - root) / (2.0 * c2))
+            if lo > hi:
                 continue
-            # a branch-free body over the whole row: the loop vectorises
-            if disc:
-                for k in range(q):
-                    x = xs[k]
-                    c = math.sqrt(max(c0 + c1 * x + c2 * (x * x), _ZERO))
-                    row[k] = _ONE if c > abs(w0 - l0 * x) else _ZERO
-            else:
-                for k in range(q):
-                    x = xs[k]
-                    c = math.sqrt(max(c0 + c1 * x + c2 * (x * x), _ZERO))
-                    row[k] = (_ONE + c) if c > max(w0 - l0 * x, _ZERO) else _ZERO
-            dst = out[m, r // ss]
-            for p in range(size):
-                acc = _ZERO
-                for j in range(ss):
-                    acc += row[p * ss + j]
-                dst[p] += acc
+            p0, p1 = 0, size
+            if math.isfinite(lo):
+                p0 = min(max((math.floor((lo - du0) / step) - 1) // ss, 0), size)
+                p1 = max(min((math.ceil((hi - du0) / step) + 1) // ss + 1, size), p0)
+            if p0 >= p1:
+                continue
+            xs = du[m, p0 * ss : p1 * ss]  # 1-D views indexed from 0 and a branch-free body: vectorises
+            vals = row[: xs.shape[0]]
+            dst = out[m, py, p0:p1]
+            for r in range(py * ss, (py + 1) * ss):
+                y = dv[m, r]
+                c0 = _ONE - a2 * y * y
+                c1 = -a1 * y
+                c2 = -a0
+                w0 = -l1 * y
+                if disc:
+                    for k in range(xs.shape[0]):
+                        x = xs[k]
+                        c = math.sqrt(max(c0 + c1 * x + c2 * (x * x), _ZERO))
+                        vals[k] = _ONE if c > abs(w0 - l0 * x) else _ZERO
+                else:
+                    for k in range(xs.shape[0]):
+                        x = xs[k]
+                        c = math.sqrt(max(c0 + c1 * x + c2 * (x * x), _ZERO))
+                        vals[k] = (_ONE + c) if c > max(w0 - l0 * x, _ZERO) else _ZERO
+                for p in range(p1 - p0):
+                    acc = _ZERO
+                    for j in range(ss):
+                        acc += vals[p * ss + j]
+                    dst[p] += acc
     out *= inv
     return out
 
