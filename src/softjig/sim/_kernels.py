@@ -26,8 +26,10 @@ def cast_marker_patches(
     size: int,
     ss: int,
     disc: bool,
-) -> np.ndarray:
-    """Per-pixel average of the shading factor over the ``ss x ss`` sub-samples of each patch pixel.
+    out: np.ndarray,
+) -> None:
+    """Per-pixel average of the shading factor over the ``ss x ss`` sub-samples of each patch pixel,
+    written into ``out`` ``(n, size, size)`` float32 (rows ``dv``, columns ``du``).
 
     Parameters
     ----------
@@ -43,17 +45,14 @@ def cast_marker_patches(
         Flat disc (hit iff ``cos(beta) > |w|``, value 1) instead of the hemisphere (hit iff
         ``cos(beta) > max(w, 0)``, value ``1 + cos(beta)``).
 
-    Returns
-    -------
-    (n, size, size) float32
-        Rows ``dv``, columns ``du``.
-
     Only the pixels of a row that hold a sub-sample with ``cos(beta)^2 > 0`` are evaluated (the roots of
     that quadratic in ``du``, found in float64 and widened by a sub-sample, bound them).
     """
     n = du.shape[0]
     q = size * ss
-    out = np.zeros((n, size, size), dtype=np.float32)
+    flat = out.reshape(-1)
+    for k in range(flat.shape[0]):
+        flat[k] = _ZERO
     row = np.empty(q, dtype=np.float32)
     inv = np.float32(1.0 / (ss * ss))
     for m in range(n):
@@ -108,8 +107,8 @@ def cast_marker_patches(
                     for j in range(ss):
                         acc += vals[p * ss + j]
                     dst[p] += acc
-    out *= inv
-    return out
+    for k in range(flat.shape[0]):
+        flat[k] *= inv
 
 
 @numba.njit(cache=True, nogil=True, inline="always")

@@ -126,6 +126,7 @@ and does not move it further.
 from __future__ import annotations
 
 import math
+import threading
 import time
 from dataclasses import dataclass, replace
 
@@ -288,6 +289,9 @@ class Renderer:
             side: _CameraView.build(jig, camera, side)
             for side, camera in (("left", jig.cameras.left), ("right", jig.cameras.right))
         }
+        # Scratch buffers of finished pairs, for the next pair (one per thread rendering at once).
+        self._idle_scratch: list[_Scratch] = []
+        self._scratch_lock = threading.Lock()
 
     @property
     def jig(self) -> JigConfig:
@@ -343,8 +347,14 @@ class Renderer:
             rng=rng,
         )
         timer.lap("deform")
-        left = self._views["left"].render(jig, state, self._brightness, rng, color, timer)
-        right = self._views["right"].render(jig, state, self._brightness, rng, color, timer)
+        with self._scratch_lock:
+            scratch = self._idle_scratch.pop() if self._idle_scratch else _Scratch()
+        try:
+            left = self._views["left"].render(jig, state, self._brightness, rng, color, timer, scratch)
+            right = self._views["right"].render(jig, state, self._brightness, rng, color, timer, scratch)
+        finally:
+            with self._scratch_lock:
+                self._idle_scratch.append(scratch)
         truth = MarkerTruth(
             xyz_mm=state.marker_xyz_mm,
             axis=state.marker_axis,
@@ -394,8 +404,9 @@ def render_view(
     rng = np.random.default_rng(rng)
     side = "right" if camera == jig.cameras.right and camera != jig.cameras.left else "left"
     brightness = marker_brightness(jig.imaging, len(state.marker_xyz_mm))
-    view = _CameraView.build(jig, camera, side).render(jig, state, brightness, rng, color, _Timer(None))
-    return view.image, view.px, view.visible
+    view = _CameraView.build(jig, camera, side)
+    result = view.render(jig, state, brightness, rng, color, _Timer(None), _Scratch())
+    return result.image, result.px, result.visible
 
 
 def render_pair(
@@ -496,6 +507,21 @@ def _render_pair(
     renderer = Renderer(as_built)
     timer.lap("renderer")
     return renderer.render_pair(part, pose, rng, color=color, timings=timings)
+
+
+class _Scratch:
+    """Float32 temporaries of one pair's rendering, kept for the next pair (:class:`Renderer`): a buffer
+    per name, replaced when a frame needs another shape. Used by one thread at a time."""
+
+    def __init__(self) -> None:
+        self._buffers: dict[str, np.ndarray] = {}
+
+    def get(self, name: str, shape: tuple[int, ...]) -> np.ndarray:
+        """The buffer ``name`` of ``shape`` (its content is left from its last use)."""
+        buf = self._buffers.get(name)
+        if buf is None or buf.shape != tuple(shape):
+            buf = self._buffers[name] = np.empty(shape, dtype=np.float32)
+        return buf
 
 
 @dataclass(frozen=True)
@@ -626,18 +652,21 @@ class _CameraView:
         rng: np.random.Generator,
         color: bool,
         timer: _Timer,
+        scratch: _Scratch,
     ) -> _ViewResult:
-        """Render this camera's image of the membrane in ``state`` (module docstring, steps 1-9)."""
+        """Render this camera's image of the membrane in ``state`` (module docstring, steps 1-9), its
+        temporaries in ``scratch``."""
         im = jig.imaging
         camera = self.camera
         h, w = camera.height_px, camera.width_px
         optics = _marker_optics(jig, camera, state, self.layers)
         timer.lap("geometry")
-        excess = _marker_excess(jig, camera, state, optics, brightness, self.layers, timer)
+        excess = _marker_excess(jig, camera, state, optics, brightness, self.layers, timer, scratch)
         if excess is not None:
             optics = excess[2]
         base, gain, box = self._frame_radiance(jig, state, optics, rng)
-        image = base.copy()
+        image = scratch.get("image", base.shape)
+        np.copyto(image, base)
         box_gain, bx0, by0 = np.zeros((0, 0), dtype=np.float32), 0, 0
         if box is not None:
             box_gain, bx0, by0 = box.gain, box.x0, box.y0
@@ -784,6 +813,7 @@ def _marker_excess(
     brightness: np.ndarray,
     layers: FlatLayers,
     timer: _Timer,
+    scratch: _Scratch,
 ) -> tuple[np.ndarray, np.ndarray, _MarkerOptics] | None:
     """Each marker's blurred excess radiance over the membrane, ``(patches, origin, optics)`` (module
     docstring, steps 2-3: ``(n, P, P)`` float32 patches, their top-left pixels), or None if no marker's
@@ -809,15 +839,20 @@ def _marker_excess(
     )
     idx = np.flatnonzero(on)
     origin = centre[idx] - half
+    out = scratch.get("cast", (len(optics.px), size, size))[: len(idx)]
     patches = _cast_marker_patches(
-        optics, idx, origin, size, im.supersampling, disc=im.marker_appearance == "disc"
+        optics, idx, origin, size, im.supersampling, disc=im.marker_appearance == "disc", out=out
     )
     amplitude = 0.5 * (np.float32(im.marker_level) - np.float32(im.background_level)) * brightness[idx]
     patches *= amplitude.astype(np.float32)[:, None, None]
     timer.lap("markers")
-    if pad > 0:
-        g = _gaussian_matrices(sigma_px[idx], size, pad)
-        patches = (g @ patches) @ np.ascontiguousarray(np.swapaxes(g, 1, 2))
+    if pad > 0:  # G P G^T, G (n, size + 2 pad, size)
+        n, t = len(idx), size + 2 * pad
+        g = _gaussian_matrices(sigma_px[idx], size, pad, scratch.get("blur_g", (len(optics.px), t, size))[:n])
+        g_t = scratch.get("blur_g_t", (len(optics.px), size, t))[:n]
+        np.copyto(g_t, np.swapaxes(g, 1, 2))
+        rows = np.matmul(g, patches, out=scratch.get("blur_rows", (len(optics.px), t, size))[:n])
+        patches = np.matmul(rows, g_t, out=scratch.get("blurred", (len(optics.px), t, t))[:n])
         origin = origin - pad
     timer.lap("blur")
     return patches, origin, optics
@@ -1019,14 +1054,20 @@ def _largest_singular_value(m: np.ndarray) -> np.ndarray:
 
 
 def _cast_marker_patches(
-    optics: _MarkerOptics, idx: np.ndarray, origin: np.ndarray, size: int, ss: int, disc: bool = False
+    optics: _MarkerOptics,
+    idx: np.ndarray,
+    origin: np.ndarray,
+    size: int,
+    ss: int,
+    disc: bool = False,
+    out: np.ndarray | None = None,
 ) -> np.ndarray:
     """Average shading factor ``1 + cos(beta)`` (0 off the marker) of each pixel of a ``size x size``
     patch whose top-left pixel is at ``origin`` (integer px), for the markers ``idx``; with ``disc``,
     of a flat disc of the marker's radius in the membrane's plane, ``2 cos_axis`` where it is hit.
 
-    Returns ``(len(idx), size, size)`` float32. The ``ss x ss`` sub-samples of a pixel sit at the
-    centres of its ``ss x ss`` cells (:func:`softjig.sim._kernels.cast_marker_patches`).
+    Returns ``(len(idx), size, size)`` float32 (``out`` if given). The ``ss x ss`` sub-samples of a pixel
+    sit at the centres of its ``ss x ss`` cells (:func:`softjig.sim._kernels.cast_marker_patches`).
     """
     q = size * ss
     sub = (np.arange(q) + 0.5) / ss - 0.5
@@ -1035,16 +1076,20 @@ def _cast_marker_patches(
     cos_axis = np.maximum(optics.cos_axis[idx], 1e-6)
     quad = np.ascontiguousarray(optics.quad[idx], dtype=np.float32)
     lin = np.ascontiguousarray(optics.lin[idx] / cos_axis[:, None], dtype=np.float32)
-    out = _kernels.cast_marker_patches(du, dv, quad, lin, size, ss, disc)
+    if out is None:
+        out = np.empty((len(idx), size, size), dtype=np.float32)
+    _kernels.cast_marker_patches(du, dv, quad, lin, size, ss, disc, out)
     if disc:  # Lambertian: the light from beside the camera and the view both at angle acos(cos_axis)
         out *= (2.0 * cos_axis).astype(np.float32)[:, None, None]
     return out
 
 
-def _gaussian_matrices(sigma_px: np.ndarray, size: int, pad: int) -> np.ndarray:
-    """``(N, size + 2 pad, size)`` float32: column ``j`` spreads input pixel ``j`` over output pixels
-    ``j .. j + 2 pad`` with a Gaussian of ``sigma_px`` truncated at ``pad`` and normalised to sum 1
-    (light is conserved; the kernel is symmetric, so centroids are too)."""
+def _gaussian_matrices(
+    sigma_px: np.ndarray, size: int, pad: int, out: np.ndarray | None = None
+) -> np.ndarray:
+    """``(N, size + 2 pad, size)`` float32 (``out`` if given): column ``j`` spreads input pixel ``j`` over
+    output pixels ``j .. j + 2 pad`` with a Gaussian of ``sigma_px`` truncated at ``pad`` and normalised to
+    sum 1 (light is conserved; the kernel is symmetric, so centroids are too)."""
     offsets = np.arange(-pad, pad + 1, dtype=np.float64)
     s = np.maximum(np.asarray(sigma_px, dtype=np.float64), 1e-3)[:, None]
     kernel = np.exp(-0.5 * np.minimum((offsets / s) ** 2, 200.0))
@@ -1054,7 +1099,7 @@ def _gaussian_matrices(sigma_px: np.ndarray, size: int, pad: int) -> np.ndarray:
     j = np.arange(size)[None, :]
     k = i - j  # index into the kernel: output i, input j
     valid = (k >= 0) & (k <= 2 * pad)
-    g = kernel.astype(np.float32)[:, np.clip(k, 0, 2 * pad)]
+    g = np.take(kernel.astype(np.float32), np.clip(k, 0, 2 * pad), axis=1, out=out)
     g *= valid
     return g
 
