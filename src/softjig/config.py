@@ -25,7 +25,7 @@ import tomli_w
 from pydantic import ConfigDict, TypeAdapter, ValidationError
 
 from softjig.errors import ConfigError, InputError
-from softjig.io.files import write_text_atomic
+from softjig.files import write_text_atomic
 
 # Unknown keys are refused, and so are NaN and infinities (TOML has ``nan`` and ``inf`` literals); values
 # built in Python without pydantic are checked for finiteness by :func:`validate_jig` as well.
@@ -717,7 +717,7 @@ def validate_jig(jig: JigConfig) -> None:
     _positive(f.size_mm, "fiducials.size_mm")
     if not (-p.thickness_mm - 1e-9 <= f.z_mm <= 1e-9):
         _fail("fiducials.z_mm", f"must lie on the plate (between {-p.thickness_mm} and 0), got {f.z_mm}")
-    from softjig.sensing.fiducials import aruco_dictionary_names
+    from softjig.aruco import aruco_dictionary_names
 
     if f.dictionary not in aruco_dictionary_names():
         _fail(

@@ -144,7 +144,7 @@ _CHARUCO_CACHE: dict[Board, cv2.aruco.CharucoBoard] = {}
 
 def _charuco_board(board: Board) -> cv2.aruco.CharucoBoard:
     if board not in _CHARUCO_CACHE:
-        from softjig.sensing.fiducials import aruco_dictionary, aruco_dictionary_names
+        from softjig.aruco import aruco_dictionary, aruco_dictionary_names
 
         if board.dictionary not in aruco_dictionary_names():
             raise InputError(f"unknown ArUco dictionary {board.dictionary!r}")

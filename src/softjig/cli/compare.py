@@ -36,7 +36,7 @@ def compare(
     """RMSE of the paper's method (calibrated) beside ours (uncalibrated and calibrated), held out."""
     from rich.progress import Progress
 
-    from softjig.evaluation.compare import compare_methods
+    from softjig.experiments.compare import compare_methods
     from softjig.io.dataset import Dataset
 
     data = Dataset.open(dataset)

@@ -79,7 +79,8 @@ def demo(
     """
     from rich.console import Console
 
-    from softjig.evaluation.experiment import ExperimentSettings, quick_settings, run_experiment
+    from softjig.evaluation.experiment import ExperimentSettings, quick_settings
+    from softjig.experiments.paper import run_experiment
 
     extra: dict = {
         "split": "alternate" if holdout else "none",

@@ -240,8 +240,8 @@ def estimate(
     )
     if overlay is not None:
         from softjig.evaluation.overlay import draw_overlay
+        from softjig.files import write_bytes_atomic
         from softjig.io.dataset import encode_png
-        from softjig.io.files import write_bytes_atomic
         from softjig.sensing.rectify import rectify_pair
 
         left, right, used_jig = rectify_pair(left, right, jig)  # the markers' pixels are rectified ones

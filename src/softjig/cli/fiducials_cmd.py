@@ -47,7 +47,7 @@ def sheet(
     """Write a sheet with the fiducials at exact scale (the view from the cameras) and their config."""
     from softjig.calibration.fiducial_layout import fiducial_sheet, projected_fiducials, with_fiducials
     from softjig.config import save_jig
-    from softjig.io.files import write_bytes_atomic
+    from softjig.files import write_bytes_atomic
 
     jig = load_config(config)
     jig = with_fiducials(

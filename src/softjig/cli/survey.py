@@ -113,8 +113,8 @@ def survey_cmd(
     pressed in is refused (exit 2).
     """
     from softjig.config import marker_csv_text, save_jig
+    from softjig.files import write_text_atomic
     from softjig.io.dataset import Dataset, load_image
-    from softjig.io.files import write_text_atomic
     from softjig.sensing.pipeline import observe_pair, reference_from_pair
     from softjig.sensing.survey import survey_markers
 

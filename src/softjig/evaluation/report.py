@@ -1,6 +1,6 @@
 """The experiment's report: Markdown with the figures and tables, the same as one self-contained HTML page
 (figures inline), a JSON summary, and the paper's findings checked against a grid (text making only;
-:mod:`softjig.evaluation.experiment` writes the files)."""
+:mod:`softjig.experiments.paper` writes the files)."""
 
 from __future__ import annotations
 
@@ -579,7 +579,7 @@ def experiment_report_markdown(
     stereo_pair_index: int | None = None,
     stereo_pairs: dict[str, int | None] | None = None,
 ) -> str:
-    """The Markdown report of a run of :func:`softjig.evaluation.experiment.run_experiment` (figures as
+    """The Markdown report of a run of :func:`softjig.experiments.paper.run_experiment` (figures as
     links to the PNGs beside it); ``stereo_pairs``: the example pair's frame per method."""
     pairs = {"paper": stereo_pair_index, **(stereo_pairs or {})}
     return _to_markdown(_report_blocks(result, pairs), Path(result.settings.out_dir))

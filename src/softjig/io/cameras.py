@@ -43,7 +43,7 @@ from typing import Any
 
 import numpy as np
 
-from softjig.errors import InputError
+from softjig.errors import CameraError, InputError
 
 __all__ = [
     "CameraError",
@@ -62,10 +62,6 @@ __all__ = [
 
 #: Frame rate assumed for replayed frames without ``time_s`` (a RealSense D435 colour stream), Hz.
 DEFAULT_FPS = 30.0
-
-
-class CameraError(InputError):
-    """A camera could not be opened or stopped delivering; the message names it and what to check."""
 
 
 class SourceExhausted(Exception):

@@ -19,7 +19,7 @@ optionally ``time_s``, and where known ``alpha_deg``, ``theta_deg``, ``part`` (`
 ``alpha_deg`` nor ``part``. Any other key is kept as is (:attr:`Frame.meta`).
 
 **Crash safety.** :class:`DatasetWriter` writes each image and ``.npz`` atomically
-(:mod:`softjig.io.files`) and appends the frame's line to ``frames.jsonl`` (flush + fsync) only after
+(:mod:`softjig.files`) and appends the frame's line to ``frames.jsonl`` (flush + fsync) only after
 its files exist, so a recorder killed at any moment leaves every completed frame readable. A kill in the
 middle of the append can leave a truncated last line; :meth:`Dataset.open` skips it with a warning, as it
 does any line that is not JSON. Two frames with one index are refused.
@@ -62,7 +62,7 @@ import numpy as np
 
 from softjig.config import JigConfig, Part, dumps_jig, load_jig, loads_jig, part_from_dict, save_jig
 from softjig.errors import ConfigError, InputError
-from softjig.io.files import fsync_folder, write_bytes_atomic, write_text_atomic
+from softjig.files import fsync_folder, write_bytes_atomic, write_text_atomic
 
 if TYPE_CHECKING:
     from softjig.sim.asbuilt import AsBuiltJig

@@ -1036,7 +1036,7 @@ class BagWriter:
             self._written = position
 
     def _write_metadata(self) -> None:
-        from softjig.io.files import write_text_atomic
+        from softjig.files import write_text_atomic
 
         topics = {t: (self._types[t], _qos_yaml(t in _LATCHED), self._counts[t]) for t in self._channels}
         text = _metadata_yaml(self.mcap_path.name, topics, self._t_min, self._t_max)
@@ -1230,7 +1230,7 @@ def repair_bag(src: str | os.PathLike[str], dst: str | os.PathLike[str]) -> int:
     require_bag_support()
     from mcap.writer import CompressionType, Writer
 
-    from softjig.io.files import write_text_atomic
+    from softjig.files import write_text_atomic
 
     src, dst = Path(src), Path(dst)
     mcap_file = BagReader._mcap_file(src) if src.exists() else None

@@ -4,7 +4,7 @@
 nominal jig (cameras, plate, oil, membrane, markers, image model) and a list of frames: the unloaded
 reference frame first, then loaded frames of random parts (cylinders, boxes, regular polygons) at
 random tilts, azimuths, spins, offsets and push depths. ``softjig simulate --scenario zoo`` renders each
-design with :func:`softjig.sim.scenarios.simulate_dataset` into ``DIR/NNN/``, an ordinary dataset with
+design with :func:`softjig.io.simulated.simulate_dataset` into ``DIR/NNN/``, an ordinary dataset with
 its full truth; ``benchmarks/bench_zoo.py`` renders them in memory.
 
 A design that cannot be made physically is redrawn, not returned: one whose config does not validate
@@ -17,8 +17,8 @@ not fit the membrane (:func:`softjig.config.validate_part`) or would reach into 
 
 Randomness: design ``i`` of seed ``s`` is drawn from ``SeedSequence(s, spawn_key=(i,))`` only, so the
 same seed gives the same designs whatever their number; each design carries its own dataset seed (the
-as-built jig and every frame, :func:`simulate_dataset`), bead-pack speckle seed and marker-brightness
-seed.
+as-built jig and every frame, :func:`softjig.io.simulated.simulate_dataset`), bead-pack speckle seed and
+marker-brightness seed.
 """
 
 from __future__ import annotations
@@ -172,7 +172,8 @@ class ZooDesign:
     Attributes
     ----------
     index : its number in the zoo (its folder ``NNN``).
-    seed : the dataset's seed (the as-built jig and every frame, :func:`simulate_dataset`).
+    seed : the dataset's seed (the as-built jig and every frame,
+        :func:`softjig.io.simulated.simulate_dataset`).
     family : a coarse label for grouping results: ``"<grid>-<resolution class>"`` (``sd`` below 1 Mpx,
         ``hd`` below 2 Mpx, ``fhd`` above).
     jig : the nominal jig.
