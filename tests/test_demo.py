@@ -11,6 +11,7 @@ from typer.testing import CliRunner
 from softjig.calibration.tilt import load_tilt_calibration
 from softjig.cli import app
 from softjig.errors import InputError
+from softjig.evaluation import experiment as settings_module
 from softjig.evaluation.experiment import ExperimentSettings
 from softjig.experiments import paper as experiment
 
@@ -38,7 +39,7 @@ def demo_run(tmp_path_factory):
     """The CLI with the quick settings swapped for the tiny ones (the real --quick takes ~25 s)."""
     out = tmp_path_factory.mktemp("demo") / "out"
     patch = pytest.MonkeyPatch()
-    patch.setattr(experiment, "quick_settings", lambda out_dir, seed=0, **kw: _tiny(out_dir, **kw))
+    patch.setattr(settings_module, "quick_settings", lambda out_dir, seed=0, **kw: _tiny(out_dir, **kw))
     try:
         result = runner.invoke(app, ["demo", "--quick", "--out", str(out), "--seed", "3", "--no-progress"])
     finally:
@@ -149,7 +150,7 @@ def test_a_finished_run_is_not_overwritten_without_overwrite(demo_run):
     out, _ = demo_run
     before = (out / "report.md").read_text()
     patch = pytest.MonkeyPatch()
-    patch.setattr(experiment, "quick_settings", lambda out_dir, seed=0, **kw: _tiny(out_dir, **kw))
+    patch.setattr(settings_module, "quick_settings", lambda out_dir, seed=0, **kw: _tiny(out_dir, **kw))
     try:
         result = runner.invoke(app, ["demo", "--quick", "--out", str(out), "--seed", "3", "--no-progress"])
     finally:

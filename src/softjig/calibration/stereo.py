@@ -39,6 +39,7 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from softjig.aruco import aruco_dictionary, aruco_dictionary_names
 from softjig.config import CameraConfig, JigConfig, StereoConfig
 from softjig.errors import EstimationError, InputError
 from softjig.geometry import invert_pose, pose_from_rotation_translation
@@ -59,6 +60,11 @@ OUTLIER_FLOOR_PX = 0.3  # ... and exceeds the median by more than this (sub-pixe
 
 
 # ------------------------------------------------------------------------------------------- boards
+
+#: A ChArUco marker's side as a fraction of its square's when the board does not say (OpenCV's samples).
+DEFAULT_MARKER_FRACTION = 0.75
+#: Fewest ChArUco corners a view must show to be used (OpenCV's pose from a board needs a few more than 4).
+MIN_CHARUCO_CORNERS = 6
 
 
 @dataclass(frozen=True)
@@ -100,11 +106,15 @@ class Board:
             raise InputError(f"the square size must be a positive number of mm, got {self.square_mm}")
         if self.kind == "charuco" and not 0 < self.marker_side_mm < self.square_mm:
             raise InputError(f"the ChArUco marker ({self.marker_side_mm} mm) must be smaller than a square")
+        if self.kind == "charuco" and self.dictionary not in aruco_dictionary_names():
+            raise InputError(
+                f"unknown ArUco dictionary {self.dictionary!r}; valid: {', '.join(aruco_dictionary_names())}"
+            )
 
     @property
     def marker_side_mm(self) -> float:
         """ChArUco marker side (mm)."""
-        return self.marker_mm if self.marker_mm is not None else 0.75 * self.square_mm
+        return self.marker_mm if self.marker_mm is not None else DEFAULT_MARKER_FRACTION * self.square_mm
 
     @property
     def n_corners(self) -> int:
@@ -139,23 +149,14 @@ def parse_board_size(text: str) -> tuple[int, int]:
     return cols, rows
 
 
-_CHARUCO_CACHE: dict[Board, cv2.aruco.CharucoBoard] = {}
-
-
 def _charuco_board(board: Board) -> cv2.aruco.CharucoBoard:
-    if board not in _CHARUCO_CACHE:
-        from softjig.aruco import aruco_dictionary, aruco_dictionary_names
-
-        if board.dictionary not in aruco_dictionary_names():
-            raise InputError(f"unknown ArUco dictionary {board.dictionary!r}")
-        _CHARUCO_CACHE[board] = cv2.aruco.CharucoBoard(
-            (board.cols, board.rows),
-            board.square_mm,
-            board.marker_side_mm,
-            aruco_dictionary(board.dictionary),
-        )
-        _CHARUCO_CACHE[board].setLegacyPattern(board.legacy)
-    return _CHARUCO_CACHE[board]
+    """OpenCV's ChArUco board for ``board``, built on each call: it is cheap next to a detection, and a
+    cache would be module state shared by every caller."""
+    cv_board = cv2.aruco.CharucoBoard(
+        (board.cols, board.rows), board.square_mm, board.marker_side_mm, aruco_dictionary(board.dictionary)
+    )
+    cv_board.setLegacyPattern(board.legacy)
+    return cv_board
 
 
 # ---------------------------------------------------------------------------------------- detection
@@ -201,12 +202,12 @@ def detect_board(image: np.ndarray, board: Board, *, name: str = "image") -> Boa
     -------
     BoardView or None
         ``None`` when the board is not found (a chessboard must be seen whole; a ChArUco board needs at
-        least 6 corners).
+        least :data:`MIN_CHARUCO_CORNERS` corners).
     """
     gray = _gray_u8(image, name)
     if board.kind == "charuco":
         corners, ids, _, _ = cv2.aruco.CharucoDetector(_charuco_board(board)).detectBoard(gray)
-        if ids is None or len(ids) < 6:
+        if ids is None or len(ids) < MIN_CHARUCO_CORNERS:
             return None
         # Refine again with cornerSubPix in a window that stays within the white between a corner and
         # the nearest marker (80 % of it): OpenCV 4.8-4.10's detector returns corners 0.5 px off in u and v

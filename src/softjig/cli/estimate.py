@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import time
-from enum import StrEnum
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
@@ -11,19 +10,12 @@ import typer
 from rich.console import Console
 
 from softjig.cli.app import app, handle_errors, load_config, stderr_console, warn
+from softjig.cli.choices import DEFAULT_METHOD
+from softjig.cli.options import CalibrationOption, ConfigOption, MethodOption, PartDiameterOption
 from softjig.errors import InputError
-from softjig.sensing.pipeline import DEFAULT_METHOD
 
 if TYPE_CHECKING:
     from softjig.calibration.tilt import TiltCalibration
-
-
-class Method(StrEnum):
-    refractive = "refractive"
-    paper = "paper"
-
-
-DEFAULT_METHOD_CHOICE = Method(DEFAULT_METHOD)
 
 
 def _print_estimate_table(estimate: dict) -> None:
@@ -98,31 +90,10 @@ def estimate(
             show_default=False,
         ),
     ],
-    config: Annotated[
-        Path | None,
-        typer.Option(
-            help="The nominal jig (rig.toml); required for a pair, a dataset's own rig.toml by default."
-        ),
-    ] = None,
-    part_diameter: Annotated[
-        float | None,
-        typer.Option(
-            help="Diameter of the part's base in mm: the paper's crop (--method paper needs it); the "
-            "refractive method finds the contact itself and uses it only to judge partial contact. A "
-            "dataset's frames name their part."
-        ),
-    ] = None,
-    calibration: Annotated[
-        Path | None, typer.Option(help="Tilt calibration JSON (offset_x_deg, offset_y_deg, scale) to apply.")
-    ] = None,
-    method: Annotated[
-        Method,
-        typer.Option(
-            help="refractive: ours (refraction-aware, contact found from the indentation, robust plane, "
-            "uncertainty, position; needs no tilt calibration); paper: the paper's method exactly as "
-            "published."
-        ),
-    ] = DEFAULT_METHOD_CHOICE,
+    config: ConfigOption = None,
+    part_diameter: PartDiameterOption = None,
+    calibration: CalibrationOption = None,
+    method: MethodOption = DEFAULT_METHOD,
     reference_left: Annotated[
         Path | None, typer.Option(help="PAIR: left image of the unloaded jig (a reference frame).")
     ] = None,

@@ -10,24 +10,25 @@ import typer
 
 from softjig.cli.app import EXIT_BAD_INPUT, EXIT_NO_ESTIMATE, app, error, handle_errors, load_config, warn
 from softjig.cli.choices import DEFAULT_METHOD, Method, ReplayRate
+from softjig.cli.options import (
+    DEFAULT_FPS,
+    CalibrationOption,
+    ConfigOption,
+    FpsOption,
+    MethodOption,
+    PartDiameterOption,
+    ReplayOption,
+    ReplayRateOption,
+    SourceOption,
+)
 from softjig.errors import InputError
 
 
 @app.command()
 @handle_errors
 def live(
-    replay: Annotated[
-        Path | None, typer.Option(help="Replay this dataset as if it were the cameras.", show_default=False)
-    ] = None,
-    source: Annotated[
-        str | None,
-        typer.Option(
-            help="Cameras: realsense-ir[:SERIAL] (one D4xx's infrared pair), realsense, "
-            "realsense:LEFT_SERIAL,RIGHT_SERIAL, or opencv:LEFT,RIGHT (device numbers, /dev paths or "
-            "video files).",
-            show_default=False,
-        ),
-    ] = None,
+    replay: ReplayOption = None,
+    source: SourceOption = None,
     publish: Annotated[
         str | None,
         typer.Option(
@@ -52,39 +53,12 @@ def live(
     max_frames: Annotated[
         int | None, typer.Option(min=1, help="Stop after this many captured pairs.", show_default="no limit")
     ] = None,
-    config: Annotated[
-        Path | None,
-        typer.Option(
-            help="The nominal jig (rig.toml).", show_default="the replay's rig.toml, else the default jig"
-        ),
-    ] = None,
-    part_diameter: Annotated[
-        float | None,
-        typer.Option(
-            help="Diameter of the part's base in mm (the crop).", show_default="each replayed frame's part"
-        ),
-    ] = None,
-    calibration: Annotated[
-        Path | None, typer.Option(help="Tilt calibration JSON to apply.", show_default=False)
-    ] = None,
-    method: Annotated[
-        Method | None,
-        typer.Option(
-            help="Estimation method: refractive (ours) or paper (as published).",
-            show_default=f"the estimator's default, {DEFAULT_METHOD}",
-        ),
-    ] = None,
-    rate: Annotated[
-        ReplayRate,
-        typer.Option(
-            help="Replay: 'recorded' (its own rate; busy frames are dropped, as with cameras) or "
-            "'fast' (every frame, as fast as possible)."
-        ),
-    ] = ReplayRate.recorded,
-    fps: Annotated[
-        float,
-        typer.Option(min=0.1, help="Camera frame rate; a replay's rate for frames without time_s (Hz)."),
-    ] = 30.0,
+    config: ConfigOption = None,
+    part_diameter: PartDiameterOption = None,
+    calibration: CalibrationOption = None,
+    method: MethodOption = DEFAULT_METHOD,
+    rate: ReplayRateOption = ReplayRate.recorded,
+    fps: FpsOption = DEFAULT_FPS,
     mcap: Annotated[
         Path | None,
         typer.Option(
@@ -116,7 +90,7 @@ def live(
     from softjig.io.stream import TOPIC_ESTIMATE, encode_message
     from softjig.live.loop import LiveLoop, LiveSettings, PublisherSink, Recorder
 
-    method = None if method is None else method.value
+    method = Method(method).value
     rate = rate.value
     if (replay is None) == (source is None):
         raise InputError("give either --replay DATASET or --source CAMERAS (e.g. --source opencv:0,1)")
@@ -145,10 +119,10 @@ def live(
         if config is None:
             warn("no --config: using the default (the paper's) jig; pass the rig.toml of your cameras")
         jig = load_config(config)
-        if part_diameter is None and (method or DEFAULT_METHOD) == "paper":
+        if part_diameter is None and method == "paper":
             raise InputError(
-                "the paper's method (the default --method) on live cameras needs --part-diameter MM (the "
-                "part's base diameter), or use --method refractive"
+                "the paper's method on live cameras needs --part-diameter MM (the part's base diameter), "
+                "or use --method refractive"
             )
         cam = jig.cameras.left
         cameras = open_source(source, width_px=cam.width_px, height_px=cam.height_px, fps=fps)
