@@ -156,14 +156,9 @@ def estimate(
             "--reference-right": reference_right,
             "--displacements": displacements,
         }
-        given = [name for name, value in pair_only.items() if value]
-        if given:
-            raise InputError(f"{', '.join(given)} apply to a stereo pair; a DATASET's results go to --out")
-        if not part_size and (part_diameter is not None or method_name == "paper"):
-            raise InputError(
-                "--no-part-size estimates without the part's size: it excludes --part-diameter and "
-                "--method paper (which needs the size)"
-            )
+        _check_dataset_options(
+            pair_only, part_size=part_size, part_diameter=part_diameter, method=method_name
+        )
         from softjig.io.rosbag import is_bag
 
         if is_bag(inputs[0]):  # a ROS 2 bag: its folder or its .mcap (softjig.cli.estimate_bag)
@@ -181,17 +176,9 @@ def estimate(
             inputs=(config, calibration), part_size=part_size,
         )  # fmt: skip
         return
-    if len(inputs) != 2:
-        raise InputError(f"give LEFT RIGHT (a stereo pair) or one DATASET folder, got {len(inputs)} paths")
-    if config is None:
-        raise InputError("estimating a stereo pair needs --config RIG.toml (the jig and its cameras)")
-    if (reference_left is None) != (reference_right is None):
-        raise InputError("give both --reference-left and --reference-right (one unloaded stereo pair)")
-    if out is not None or workers is not None or not part_size:
-        raise InputError(
-            "--out, --workers and --no-part-size apply to a DATASET, not to a stereo pair (whose part size "
-            "is --part-diameter, or none)"
-        )
+    _check_pair_options(
+        inputs, config, reference_left, reference_right, out=out, workers=workers, part_size=part_size
+    )
     from softjig.io.dataset import load_image
     from softjig.sensing.pipeline import estimate_pair, reference_from_pair
 
@@ -226,6 +213,44 @@ def estimate(
         typer.echo(json.dumps(data))
     else:
         _print_estimate_table(data)
+
+
+def _check_dataset_options(
+    pair_only: dict[str, object], *, part_size: bool, part_diameter: float | None, method: str
+) -> None:
+    """Refuse, for one DATASET or BAG, the options of a stereo pair and a size-less paper estimate."""
+    given = [name for name, value in pair_only.items() if value]
+    if given:
+        raise InputError(f"{', '.join(given)} apply to a stereo pair; a DATASET's results go to --out")
+    if not part_size and (part_diameter is not None or method == "paper"):
+        raise InputError(
+            "--no-part-size estimates without the part's size: it excludes --part-diameter and "
+            "--method paper (which needs the size)"
+        )
+
+
+def _check_pair_options(
+    inputs: list[Path],
+    config: Path | None,
+    reference_left: Path | None,
+    reference_right: Path | None,
+    *,
+    out: Path | None,
+    workers: int | None,
+    part_size: bool,
+) -> None:
+    """Refuse, for a stereo pair, a wrong number of paths, a missing config and the DATASET options."""
+    if len(inputs) != 2:
+        raise InputError(f"give LEFT RIGHT (a stereo pair) or one DATASET folder, got {len(inputs)} paths")
+    if config is None:
+        raise InputError("estimating a stereo pair needs --config RIG.toml (the jig and its cameras)")
+    if (reference_left is None) != (reference_right is None):
+        raise InputError("give both --reference-left and --reference-right (one unloaded stereo pair)")
+    if out is not None or workers is not None or not part_size:
+        raise InputError(
+            "--out, --workers and --no-part-size apply to a DATASET, not to a stereo pair (whose part size "
+            "is --part-diameter, or none)"
+        )
 
 
 def _estimate_dataset(
