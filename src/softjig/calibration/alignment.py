@@ -30,8 +30,8 @@ Fig. "Setup to jig coordinate calibration"). Here:
    everything finite, :func:`check_pose`). Then the circles' reprojection RMS must be at most
    ``max_reprojection_px`` (default :data:`MAX_REPROJECTION_PX` = 2 px) and each detected circle's size
    must match its projection at the pose found (area ratio within :data:`SIZE_RATIO_RANGE`).
-   *Why 2 px*: a circle's centre is fitted to its whole contour, so its noise is small: 0.04 px median,
-   0.064 px at most over 18 rendered views with noise (``tests/test_alignment.py``'s scenes, measured);
+   *Why 2 px*: a circle's centre is fitted to its whole contour, so its noise is a small fraction of a
+   pixel (``tests/test_alignment.py``'s rendered views with noise; figures in benchmarks/RESULTS.md);
    a calibrated camera's own reprojection error is typically 0.1-0.5 px, and a machining tolerance of
    0.2 mm on the circles' positions is about 0.3 px at 420 mm with f = 560 px. A credible pose thus
    reprojects within about 1 px (where a warning starts); 2 px leaves a margin of two, while wrong

@@ -1,4 +1,4 @@
-"""`softjig align-jig`: the jig's pose in the robot base frame from a hand-eye image (issue 7)."""
+"""`softjig align-jig`: the jig's pose in the robot base frame from a hand-eye image."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""`softjig calibrate`: the paper's tilt calibration (Ox, Oy, S) from a sweep dataset (issue 4)."""
+"""`softjig calibrate`: the paper's tilt calibration (Ox, Oy, S) from a sweep dataset."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""`softjig calibrate-stereo`: stereo camera calibration from chessboard/ChArUco views (issue 7)."""
+"""`softjig calibrate-stereo`: stereo camera calibration from chessboard/ChArUco views."""
 
 from __future__ import annotations
 

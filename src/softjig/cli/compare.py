@@ -1,4 +1,4 @@
-"""`softjig compare`: the paper's method and ours side by side on a tilt sweep (issue 6)."""
+"""`softjig compare`: the paper's method and ours side by side on a tilt sweep."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""`softjig demo`: the paper's experiments on the simulated jig, end to end (issue 4)."""
+"""`softjig demo`: the paper's experiments on the simulated jig, end to end."""
 
 from __future__ import annotations
 

@@ -1,5 +1,4 @@
-"""`softjig fiducials`: print the fiducial layout (`sheet`) and check it from a stereo pair (`check`)
-(issue 7)."""
+"""`softjig fiducials`: print the fiducial layout (`sheet`) and check it from a stereo pair (`check`)."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """`softjig sweep-plan`: the robot's tilt-sweep poses; `softjig align-jig`: the jig's pose in the robot
-frame from a hand-eye image of its four alignment circles (issue 7)."""
+frame from a hand-eye image of its four alignment circles."""
 
 from __future__ import annotations
 

@@ -10,7 +10,7 @@ frame when it has one (:func:`dataset_reference`).
 **Throughput and memory.** :func:`estimate_dataset` estimates the first frames in this process (until
 one loaded frame has been estimated: that loads the Numba caches and builds the per-jig tables), then
 forks the worker processes, which inherit all of it: a worker starts estimating within milliseconds
-instead of each spending 0.7-1.7 s (measured) on the same warm-up, and the warm-up is paid once, not once
+instead of each spending about a second on the same warm-up, and the warm-up is paid once, not once
 per core. The rest of the frames go to the workers in chunks whose size shrinks towards the end (guided
 scheduling: up to :data:`MAX_CHUNK_FRAMES`, down to one frame for the last ones, so no worker idles while
 another finishes a long last chunk), with a bounded number of chunks in flight, so the parent holds at
@@ -78,8 +78,8 @@ __all__ = [
 ]
 
 #: Frames per chunk handed to a worker at most (fewer for short datasets and for the last frames of any,
-#: so every worker gets some and all finish together). A chunk of 8 frames is ~0.3 s of work against ~1 ms
-#: of overhead per task (measured: 0.9 ms per one-frame task of an unloaded frame, pool start included).
+#: so every worker gets some and all finish together): enough frames that a task's overhead (about a
+#: millisecond, pool start included) is negligible against its work.
 MAX_CHUNK_FRAMES = 8
 #: Chunks in flight per worker: enough to keep every worker busy while the parent writes rows.
 CHUNKS_IN_FLIGHT_PER_WORKER = 3

@@ -71,7 +71,7 @@ class SourceExhausted(Exception):
 class BadFrame(InputError):
     """One frame of a replay cannot be read (a missing or corrupt image): the source is fine and goes on
     with the next frame, so the loop skips it at once and counts it instead of backing off as it does
-    for a failed camera (51 missing images used to stall a replay for 243 s)."""
+    for a failed camera (a back-off per missing image would stall a replay for minutes)."""
 
 
 @dataclass(frozen=True, eq=False)

@@ -436,9 +436,8 @@ class BagReader:
     def _messages(self, topics: Sequence[str]) -> Iterator[tuple[str, str, int, Any]]:
         """``(topic, msgtype, log_time_ns, raw CDR)`` of ``topics``: in log-time order through rosbags, or,
         for MCAP storage without rosbag2-level compression, in file order (the order a recorder received
-        them) through the mcap library, which decompresses zstd chunks about 3x faster than rosbags'
-        ``backports.zstd`` and skips its CRC pass (measured: 2.0 against 5.7 ms of CPU for a
-        1280x720 pair's chunk, loaded machine)."""
+        them) through the mcap library, which decompresses zstd chunks faster than rosbags'
+        ``backports.zstd`` and skips its CRC pass."""
         if self._mcap_files is not None:
             for path in self._mcap_files:
                 for kind, record in _stream_records(path, with_messages=True, topics=set(topics)):
