@@ -72,6 +72,13 @@ SIZE_RATIO_RANGE = (0.5, 2.0)
 #: Poses whose RMS is within ``max(_TIE_RMS_PX, _TIE_RMS_FACTOR * best)`` of the best one are ties (a
 #: symmetric layout): the prior rotation decides between them.
 _TIE_RMS_PX, _TIE_RMS_FACTOR = 0.5, 2.0
+#: A blob is a circle's image when its contour's area is within this range of its fitted ellipse's (a
+#: blob of another shape fills its ellipse less, or more) and the ellipse's minor axis is at least
+#: :data:`MIN_AXIS_RATIO` times its major one (a circle seen up to ~70 deg from its normal); a contour of
+#: fewer points than ``_MIN_CONTOUR_POINTS`` is too small a blob to fit an ellipse to reliably.
+ELLIPSE_FILL_RANGE = (0.8, 1.2)
+MIN_AXIS_RATIO = 0.3
+_MIN_CONTOUR_POINTS = 8
 #: Points on each circle's projected outline, and rounds of the ellipse-centre bias correction.
 _OUTLINE_POINTS, _CENTRE_BIAS_ITERATIONS = 72, 2
 #: A tie chosen this far (deg) from the prior rotation gets a warning (a square layout's orders are 90 apart).
@@ -200,14 +207,17 @@ def _ellipse_candidates(binary: np.ndarray, min_area_px: float) -> list[tuple[np
     contours, _ = cv2.findContours(binary, cv2.RETR_LIST, cv2.CHAIN_APPROX_NONE)
     out = []
     for c in contours:
-        if len(c) < 8:
+        if len(c) < _MIN_CONTOUR_POINTS:
             continue
         area = cv2.contourArea(c)
         if area < min_area_px:
             continue
         (cx, cy), (a, b), _ = cv2.fitEllipse(c)
         ellipse_area = np.pi * a * b / 4
-        if not 0.8 < area / max(ellipse_area, 1e-9) < 1.2 or min(a, b) < 0.3 * max(a, b):
+        fill_low, fill_high = ELLIPSE_FILL_RANGE
+        if not fill_low < area / max(ellipse_area, 1e-9) < fill_high or min(a, b) < MIN_AXIS_RATIO * max(
+            a, b
+        ):
             continue
         out.append((np.array([cx, cy]), float(ellipse_area)))
     return out

@@ -65,6 +65,13 @@ OUTLIER_FLOOR_PX = 0.3  # ... and exceeds the median by more than this (sub-pixe
 DEFAULT_MARKER_FRACTION = 0.75
 #: Fewest ChArUco corners a view must show to be used (OpenCV's pose from a board needs a few more than 4).
 MIN_CHARUCO_CORNERS = 6
+#: cornerSubPix's half window (px) as a fraction of a square's side in the image: a chessboard corner's
+#: saddle fills its squares; a ChArUco corner's window stays within the white between it and the nearest
+#: marker (this fraction of that inset). Clipped to :data:`SUBPIX_HALF_WINDOW_PX`.
+CHESSBOARD_WINDOW_FRACTION, CHARUCO_WINDOW_FRACTION = 0.35, 0.8
+SUBPIX_HALF_WINDOW_PX = (2, 11)
+#: cornerSubPix's stopping rule: at most 50 iterations, or a step below 1e-4 px.
+_SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-4)
 
 
 @dataclass(frozen=True)
@@ -217,9 +224,8 @@ def detect_board(image: np.ndarray, board: Board, *, name: str = "image") -> Boa
         np.fill_diagonal(gaps, np.inf)
         step = float(np.median(gaps.min(axis=1)))  # one square (px), neighbouring corners' distance
         inset = (board.square_mm - board.marker_side_mm) / 2.0 / board.square_mm
-        half = int(np.clip(round(0.8 * inset * step), 2, 11))
-        crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-4)
-        pts = cv2.cornerSubPix(gray, pts.reshape(-1, 1, 2), (half, half), (-1, -1), crit)
+        half = int(np.clip(round(CHARUCO_WINDOW_FRACTION * inset * step), *SUBPIX_HALF_WINDOW_PX))
+        pts = cv2.cornerSubPix(gray, pts.reshape(-1, 1, 2), (half, half), (-1, -1), _SUBPIX_CRITERIA)
         return BoardView(pts.reshape(-1, 2).astype(float), ids.ravel().astype(int))
     size = (board.cols, board.rows)
     ok, corners = cv2.findChessboardCornersSB(gray, size, flags=0)
@@ -235,9 +241,8 @@ def detect_board(image: np.ndarray, board: Board, *, name: str = "image") -> Boa
         np.linalg.norm(np.diff(grid, axis=0), axis=2).min(),
         np.linalg.norm(np.diff(grid, axis=1), axis=2).min(),
     )
-    half = int(np.clip(0.35 * step, 2, 11))
-    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-4)
-    corners = cv2.cornerSubPix(gray, corners.astype(np.float32), (half, half), (-1, -1), crit)
+    half = int(np.clip(CHESSBOARD_WINDOW_FRACTION * step, *SUBPIX_HALF_WINDOW_PX))
+    corners = cv2.cornerSubPix(gray, corners.astype(np.float32), (half, half), (-1, -1), _SUBPIX_CRITERIA)
     return BoardView(corners.reshape(-1, 2).astype(float), np.arange(board.n_corners))
 
 
