@@ -37,14 +37,6 @@ __all__ = ["simulate_dataset"]
 #: Frames in flight per worker process: enough queued work to absorb a stall in writing the frames.
 FRAMES_IN_FLIGHT_PER_WORKER = 8
 
-_WORKER_AS_BUILT: AsBuiltJig | None = None
-
-
-def _init_worker(as_built: AsBuiltJig) -> None:
-    global _WORKER_AS_BUILT
-    _WORKER_AS_BUILT = as_built
-
-
 def _frame_seed(seed: int, index: int) -> np.random.SeedSequence:
     return np.random.SeedSequence(seed, spawn_key=(1, index))
 
@@ -70,13 +62,6 @@ def _render_one(
         "fiducial_corners_right_px": pair.fiducial_corners_right_px,
     }
     return encode_png(pair.left), encode_png(pair.right), {k: np.asarray(v) for k, v in truth.items()}
-
-
-def _render_in_worker(
-    spec: FrameSpec, seed: int, index: int, color: bool
-) -> tuple[bytes, bytes, dict[str, np.ndarray]]:
-    assert _WORKER_AS_BUILT is not None, "worker not initialised"
-    return _render_one(_WORKER_AS_BUILT, spec, seed, index, color)
 
 
 def _warm_up() -> None:
@@ -149,7 +134,7 @@ def simulate_dataset(
         pool = None
         if n_workers > 1:
             # Workers die with this process; an exception (Ctrl-C, SIGTERM) ends them at once (io.workers).
-            pool = stack.enter_context(worker_pool(n_workers, initializer=_init_worker, initargs=(as_built,)))
+            pool = stack.enter_context(worker_pool(n_workers))
             # Start every worker before the progress bar's thread exists (workers are forked).
             for f in [pool.submit(_warm_up) for _ in range(n_workers)]:
                 f.result()
@@ -175,21 +160,22 @@ def _rendered(
     color: bool,
     first_index: int = 0,
 ) -> Iterator[tuple[bytes, bytes, dict[str, np.ndarray]]]:
-    """The rendered frames, in order; in a pool, a bounded window of frames is in flight."""
+    """The rendered frames, in order; in a pool, a bounded window of frames is in flight (each task carries
+    the as-built jig, a few kB, so the workers hold no state of their own)."""
     if pool is None:
         for index, spec in enumerate(specs, start=first_index):
             yield _render_one(as_built, spec, seed, index, color)
         return
     todo = iter(enumerate(specs, start=first_index))
     pending: deque[Future[tuple[bytes, bytes, dict[str, np.ndarray]]]] = deque(
-        pool.submit(_render_in_worker, spec, seed, index, color)
+        pool.submit(_render_one, as_built, spec, seed, index, color)
         for index, spec in itertools.islice(todo, FRAMES_IN_FLIGHT_PER_WORKER * n_workers)
     )
     try:
         while pending:
             result = pending.popleft().result()
             for index, spec in itertools.islice(todo, 1):
-                pending.append(pool.submit(_render_in_worker, spec, seed, index, color))
+                pending.append(pool.submit(_render_one, as_built, spec, seed, index, color))
             yield result
     finally:
         for f in pending:
