@@ -37,6 +37,7 @@ __all__ = ["simulate_dataset"]
 #: Frames in flight per worker process: enough queued work to absorb a stall in writing the frames.
 FRAMES_IN_FLIGHT_PER_WORKER = 8
 
+
 def _frame_seed(seed: int, index: int) -> np.random.SeedSequence:
     return np.random.SeedSequence(seed, spawn_key=(1, index))
 
