@@ -15,6 +15,7 @@ import grimp
 import importlinter.api  # noqa: F401 - configures import-linter (its readers and graph builder)
 import pytest
 from importlinter.application.use_cases import lint_imports, read_user_options
+from importlinter.contracts.forbidden import ForbiddenContract
 from importlinter.contracts.layers import LayersContract
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -57,11 +58,12 @@ def test_the_layers_contract_covers_every_package_and_forbids_cycles():
     assert contracts["acyclic_siblings"]["ancestors"] == ["softjig"]
 
 
-def _layers_check(graph: grimp.ImportGraph) -> bool:
-    """Check the layers contract of ``pyproject.toml`` on ``graph``; True when kept."""
+def _kept(graph: grimp.ImportGraph, contract_type: str) -> bool:
+    """Check the contract of ``contract_type`` in ``pyproject.toml`` on ``graph``; True when kept."""
     user_options = read_user_options(str(PYPROJECT))
-    options = next(c for c in user_options.contracts_options if c["type"] == "layers")
-    contract = LayersContract(
+    options = next(c for c in user_options.contracts_options if c["type"] == contract_type)
+    contract_class = {"layers": LayersContract, "forbidden": ForbiddenContract}[contract_type]
+    contract = contract_class(
         name=options["name"],
         session_options=user_options.session_options,
         contract_options={k: v for k, v in options.items() if k not in ("name", "type")},
@@ -75,22 +77,23 @@ def softjig_graph() -> grimp.ImportGraph:
 
 
 @pytest.mark.parametrize(
-    ("importer", "imported"),
+    ("contract_type", "importer", "imported"),
     [
-        ("softjig.sensing.pipeline", "softjig.io.dataset"),  # sensing reading datasets
-        ("softjig.config", "softjig.sensing.fiducials"),  # the core importing sensing
-        ("softjig.sim.scenarios", "softjig.io.dataset"),  # the simulator writing datasets
-        ("softjig.evaluation.metrics", "softjig.cli.app"),  # anything importing the CLI
-        ("softjig.calibration.sweep", "softjig.evaluation.tilt_sweep"),  # calibration above evaluation
+        ("layers", "softjig.sensing.pipeline", "softjig.io.dataset"),  # sensing reading datasets
+        ("layers", "softjig.config", "softjig.sensing.fiducials"),  # the core importing sensing
+        ("layers", "softjig.sim.scenarios", "softjig.io.dataset"),  # the simulator writing datasets
+        ("layers", "softjig.evaluation.metrics", "softjig.cli.app"),  # anything importing the CLI
+        ("layers", "softjig.calibration.sweep", "softjig.evaluation.tilt_sweep"),  # calibration on evaluation
+        ("forbidden", "softjig.evaluation.metrics", "softjig.sim.render"),  # judging by the simulator
     ],
 )
-def test_the_layers_contract_rejects_an_upward_import(softjig_graph, importer, imported):
+def test_the_contracts_reject_a_forbidden_import(softjig_graph, contract_type, importer, imported):
     graph = softjig_graph
     assert not graph.direct_import_exists(importer=importer, imported=imported)
-    assert _layers_check(graph)
+    assert _kept(graph, contract_type)
     graph.add_import(importer=importer, imported=imported, line_number=1, line_contents="import")
     try:
-        assert not _layers_check(graph)
+        assert not _kept(graph, contract_type)
     finally:
         graph.remove_import(importer=importer, imported=imported)
 
