@@ -23,10 +23,11 @@ Radiance is computed in float32 on ``[0, 1]`` (fraction of full scale), in this 
    ``a`` (unit, pointing into the oil, towards the cameras). A marker spans ~15 px at ~170 mm, so the
    perspective change across it is ~1 % and a *local-affine* ray model is used: with ``p0`` the exact
    projection of ``P`` (:func:`softjig.optics.project_points`), ``J`` the 2x3 projection Jacobian at
-   ``P`` (:func:`softjig.optics.projection_jacobian`) and ``d`` the unit oil ray of ``p0``
-   (:func:`softjig.optics.backproject_pixels`), the ray through the sub-pixel ``p0 + du`` is the line
-   ``P + q + s d`` with ``q = B (J B)^{-1} du`` (``B`` a 3x2 orthonormal basis of the plane
-   perpendicular to ``d``). Since ``q ⊥ d``, it meets the sphere ``|X - P| = r`` first at
+   ``P`` and ``d`` the unit oil ray of ``p0`` (:func:`softjig.optics.rays_in_top_region`), the ray
+   through the sub-pixel ``p0 + du`` is the line ``P + q + s d`` with ``q = B (J B)^{-1} du`` (``B`` a
+   3x2 orthonormal basis of the plane perpendicular to ``d``). ``(J B)^{-1}`` is found by central
+   differences of the back-projection: the oil rays of ``p0 +- 0.01 px`` in ``u`` and in ``v`` meet that
+   plane through ``P`` at ``q(du)``. Since ``q ⊥ d``, it meets the sphere ``|X - P| = r`` first at
    ``X - P = q - sqrt(r^2 - |q|^2) d``, which counts only if it lies on the half protruding into the
    oil, ``(X - P)·a >= 0`` (otherwise the ray meets the black membrane). The shading of a hit is
 
@@ -37,8 +38,8 @@ Radiance is computed in float32 on ``[0, 1]`` (fraction of full scale), in this 
    beside the cameras plus the bead pack's scattered light. Rays are cast only in a square patch of
    half-side ``ceil(radius_px)`` around each marker's rounded centre (``radius_px``: the largest
    singular value of ``J B`` times ``r``, the largest over the markers; no pixel farther out is
-   touched), for all markers at once in cache-sized chunks; the ``S x S`` sub-samples of each pixel
-   (at the centres of its ``S x S`` cells) are averaged. With ``imaging.marker_appearance = "disc"``
+   touched; within it, only the pixels of a row that can hold a hit); the ``S x S`` sub-samples of each
+   pixel (at the centres of its ``S x S`` cells) are averaged. With ``imaging.marker_appearance = "disc"``
    the marker is instead a flat painted disc of radius ``r`` in the membrane's plane at ``P`` (normal
    ``a``): the ray meets that plane at ``X - P = q + s d`` with ``s = (q.a) / cos_axis``, inside the
    disc iff ``|q|^2 + s^2 <= r^2``, lit uniformly at ``I = b + (m - b) cos_axis`` (Lambertian, light and
@@ -107,9 +108,9 @@ level) is computed once by :class:`Renderer`, built from the as-built jig; a fra
 markers, adds their blurred excess times ``(1 + s) c e F`` into a copy of that radiance, redraws the speckle
 where the part moved beads, and adds the sensor noise. This is the same image model as the steps above, in
 another order of the same float32 products: the images differ from the step-by-step order only by float
-rounding (a grey level in a few pixels of a million). A :class:`Renderer` holds only read-only arrays, so
-threads may share it. :func:`render_pair` and :func:`render_view` build one per call; reuse a
-:class:`Renderer` to render many frames of one jig.
+rounding (a grey level here and there). A :class:`Renderer`'s per-jig arrays are read-only and each pair
+being rendered at once gets its own scratch buffers, so threads may share it. :func:`render_pair` and
+:func:`render_view` build one per call; reuse a :class:`Renderer` to render many frames of one jig.
 
 Ground truth and the hemisphere's bias
 --------------------------------------
