@@ -193,6 +193,7 @@ def test_render_view_is_the_renderers_camera(small_as_built):
         np.random.default_rng(9),
         False,
         render._Timer(None),
+        render._Scratch(),
     )
     np.testing.assert_array_equal(image, result.image)
     np.testing.assert_array_equal(visible, result.visible)
