@@ -19,7 +19,7 @@ from softjig.errors import InputError
 #: rounding: they define no plane.
 DEGENERATE_PLANE_RATIO = 1e-9
 
-# The hull test under its former private name, for the compiled contact kernels that call it.
+# The hull test, for the compiled kernels of softjig.sensing.contact that call it by this name.
 _inside_hull_kernel = inside_hull
 
 # ------------------------------------------------------------------------------------------ poses

@@ -51,20 +51,15 @@ Method
    candidates (a convex hull per hypothesis would be too slow), and the scale of step 5 uses the residuals
    above the plane, which the lifted-off markers cannot reach.
 
-No M-estimator refinement follows: it is not implemented, because its benefit was not measured. The
-error that remains (see Limits) comes from lifted-off markers just below the plane, within ``t``, which
-are indistinguishable from noise by their residual alone.
+No M-estimator refinement follows (none is implemented). The error that remains comes from lifted-off
+markers just below the plane, within ``t``, which are indistinguishable from noise by their residual
+alone.
 
-Limits (measured on a simulated disc of markers on an 8 mm grid, radius 20-40 mm, tilts 5-20 deg,
-0-50 % outliers of both kinds, 300 cases per noise level; "excess" is the error beyond that of the
-least-squares fit to the true contact markers alone): noise-free, excess below 0.1 deg in 98 % of cases
-(worst 0.26 deg: lifted-off markers within the 0.125 mm minimum threshold join the fit); with 0.05 mm
-noise, below 0.1 deg in 98 % (worst 0.3 deg, 20 mm discs at 50 % outliers). The fit degrades when the
-noise approaches the lifted-off markers' gaps: at 0.2 mm noise and 50 % outliers, the excess passes 1 deg
-in 11 of 25 cases on 20 mm discs and 2 of 25 on 40 mm discs; at 0.3 mm most such cases fail. Plain SVD
-is off by 2-10 deg in all of them. Without outliers, 45 or more markers with bounded noise keep every
-marker in 94-100 % of cases (Gaussian noise loses ~1 % of markers by design, beyond 2.5 sigma); 9-13
-markers with a 0.1 mm ripple drop one or more in 6-32 % of cases (a few markers are coplanar by chance).
+Limits: the fit degrades when the triangulation noise approaches the lifted-off markers' gaps below the
+plane (small contact discs with many outliers fail first); with Gaussian noise about 1 % of the contact
+markers fall beyond 2.5 sigma and are dropped by design, and a few markers that happen to be coplanar can
+hold the automatic threshold down on small sets. The figures are in ``benchmarks/RESULTS.md`` (robust
+plane fit).
 
 References
 ----------
@@ -183,8 +178,7 @@ def fit_plane_robust(
     -----
     Distances are signed along the plane's normal ``n`` (``n_z > 0``, into the part): lifted-off markers
     have negative residuals, wall markers positive ones. The inlier threshold is symmetric; only the
-    choice between refined candidates and the final scale are one-sided. Takes about 0.3 ms for 150
-    points with a given threshold, 2 ms with the automatic one (measured).
+    choice between refined candidates and the final scale are one-sided.
 
     Examples
     --------
@@ -250,8 +244,8 @@ def _triple_source(
     ``np.random.default_rng(rng).integers(0, n, size=(count, 3))`` drawn in turn would give them.
 
     For an integer seed (the default) the whole sequence is drawn once per ``(seed, n, max_iterations)``
-    and sliced (batches drawn in turn are the rows of one draw of all of them): making or resetting a
-    seeded generator and two draws took about 50 us per fit in the pipeline (measured).
+    and sliced (batches drawn in turn are the rows of one draw of all of them), so a fit does not pay for
+    making a seeded generator.
     """
     if isinstance(rng, (int, np.integer)) and not isinstance(rng, bool):
         table = _seeded_triples(int(rng), n, max_iterations)
@@ -337,8 +331,7 @@ def _hypotheses(
         count = min(_BATCH, max_iterations - drawn)
         triples = draw(drawn, count)  # those with a repeated point are skipped
         drawn += count
-        # One compiled pass per batch: planes, their scores, the best one's inlier ratio (the NumPy
-        # version of the same steps took 0.1-0.2 ms per batch on 30 points, measured; this, 10 us).
+        # One compiled pass per batch: planes, their scores, the best one's inlier ratio.
         normals, offsets, key, ratio = score_batch(
             points, triples, t_batch, lqs_factor, h, _THRESHOLD_SIGMAS, _MIN_SCALE_MM
         )
@@ -409,8 +402,8 @@ def _student_factor(dof: int) -> float:
 
 @lru_cache(maxsize=256)
 def _student_quantile(dof: int) -> float:
-    # scipy.stats is imported here, on the first fit: at module level it took 0.8 s of every command's
-    # start-up (measured).
+    # scipy.stats is imported here, on the first fit, not at module level: it is slow to import and
+    # every command's start-up would pay for it.
     from scipy.stats import t as student_t
 
     return float(student_t.ppf(_COVERAGE_QUANTILE, dof))
