@@ -86,7 +86,7 @@ from softjig._geometry_kernels import plane_fit
 from softjig.checks import positive_float
 from softjig.errors import InputError
 from softjig.geometry import DEGENERATE_PLANE_RATIO, PlaneFit, fit_plane_svd
-from softjig.sensing._robust_kernels import best_candidate, refine, score_batch
+from softjig.sensing._robust_kernels import COLLINEAR_SINE, VERTICAL_NZ, best_candidate, refine, score_batch
 
 __all__ = ["RobustPlaneFit", "fit_plane_robust"]
 
@@ -99,7 +99,9 @@ _THRESHOLD_SIGMAS = 2.5  # inlier threshold in units of the noise scale
 _COVERAGE_QUANTILE = NormalDist().cdf(_THRESHOLD_SIGMAS)  # one-sided quantile of +-2.5 sigma
 _MIN_SCALE_MM = 0.05  # floor of the automatic noise scale (the threshold is at least 2.5 x this)
 _MAD_TO_SIGMA = 1.4826  # sigma / median(|r|) for Gaussian noise
-_MAX_REFINE_ROUNDS = 10
+_MAX_REFINE_ROUNDS = 10  # least-squares refits of one candidate's inliers, at most
+_MIN_ABOVE_FOR_SCALE = 8  # the one-sided scale needs at least this many residuals above the plane
+_MIN_INLIER_RATIO = 1e-6  # the adaptive hypothesis count's inlier ratio is at least this (no log(0))
 _MAX_SCALE_ROUNDS = 8  # re-estimations of the automatic threshold after refinement
 _SETTLED_THRESHOLD_CHANGE = 0.01  # the automatic threshold has settled when it changes by less than this
 _N_CANDIDATES = 3  # refined candidates compared at the end
@@ -292,16 +294,16 @@ def _planes_from_triples(points: np.ndarray, triples: np.ndarray) -> tuple[np.nd
     cross = np.cross(e1, e2)
     norm = np.linalg.norm(cross, axis=1)
     scale = np.linalg.norm(e1, axis=1) * np.linalg.norm(e2, axis=1)
-    ok = norm > 1e-6 * scale  # sine of the triangle's angle at p0
+    ok = norm > COLLINEAR_SINE * scale  # sine of the triangle's angle at p0
     normals = cross[ok] / norm[ok, None]
-    ok_z = np.abs(normals[:, 2]) > 1e-6  # a vertical plane has no side "into the part"
+    ok_z = np.abs(normals[:, 2]) > VERTICAL_NZ
     normals = normals[ok_z] * np.sign(normals[ok_z, 2])[:, None]
     offsets = -np.einsum("ij,ij->i", normals, p0[ok][ok_z])
     return normals, offsets
 
 
 def _required_iterations(inlier_ratio: float) -> float:
-    w3 = min(max(inlier_ratio, 1e-6), 1.0) ** 3
+    w3 = min(max(inlier_ratio, _MIN_INLIER_RATIO), 1.0) ** 3
     if w3 >= 1.0:
         return 0.0
     return math.log(1.0 - _CONFIDENCE) / math.log1p(-w3)
@@ -383,7 +385,7 @@ def _threshold_from_refined(residuals: np.ndarray, t: float, one_sided: bool) ->
     abs_r = np.abs(residuals)
     half = np.partition(abs_r, (len(abs_r) - 1) // 2)[(len(abs_r) - 1) // 2]  # the inliers are >= half
     window = abs_r <= max(_SCALE_WINDOW * t, half)
-    if one_sided and np.count_nonzero(window & (residuals > 0)) >= 8:
+    if one_sided and np.count_nonzero(window & (residuals > 0)) >= _MIN_ABOVE_FOR_SCALE:
         window &= residuals > 0
     r = np.abs(residuals[window])
     m = len(r)
