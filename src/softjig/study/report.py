@@ -405,7 +405,9 @@ def _write_figures(
     folder: Path, points: DesignPoints, ranked: list[dict[str, Any]], results: pa.Table, fronts: list[_Front]
 ) -> list[tuple[Path, str]]:
     """Every figure of the report, written under ``folder``: ``(path, caption)`` in report order."""
-    out = []
+    out: list[tuple[Path, str]] = []
+    if not np.isfinite(points.rmse_deg).any():
+        return out  # no design has an estimate: nothing to draw
     if points.values:
         path = folder / "accuracy.png"
         save_png(accuracy_plot(points), path)
