@@ -124,6 +124,15 @@ def test_report_html_is_self_contained(study):
     assert all(p.parent == out / "figures" for p in outputs.figures)
     assert page.count("<tr") >= designs.num_rows  # every row ranked (24 rows < the 50 shown)
     assert "pitch-distance-layout" in page and "best/001.toml" in page
+    # the silent design is on the marker-count front: marked in the ranking and in that front's table
+    assert (
+        len(
+            re.findall(
+                rf'<tr class="silent">(<td class="num">\d+</td>)?<td class="num">{SILENT_DESIGN:03d}', page
+            )
+        )
+        == 2
+    )
     assert f"{designs.num_rows // 2 * 8 * 2 - 8} ok" in page and "8 failed" in page
 
 

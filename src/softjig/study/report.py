@@ -469,9 +469,11 @@ def _overview(spec: StudySpec, results: pa.Table, ranked: list[dict[str, Any]]) 
     )
 
 
-def _front_table(f: _Front, rows: list[dict[str, Any]]) -> str:
+def _front_table(f: _Front, rows: list[dict[str, Any]], methods: Sequence[str]) -> str:
+    """A front's designs: per method (the study's order), by cost; rows with silent failures marked."""
+    order = {m: k for k, m in enumerate(methods)}
     picked = [(c, r) for c, r, on in zip(f.cost, rows, f.on, strict=True) if on]
-    picked.sort(key=lambda cr: (cr[1]["method"], cr[0], _rank_key(cr[1])))
+    picked.sort(key=lambda cr: (order.get(cr[1]["method"], len(order)), cr[0], _rank_key(cr[1])))
     header = ["design", "method", f.label, "RMSE (deg)", "recall", "silent", "rig"]
     body = [
         [
@@ -485,7 +487,7 @@ def _front_table(f: _Front, rows: list[dict[str, Any]]) -> str:
         ]
         for c, r in picked
     ]
-    return _html_table(header, body)
+    return _html_table(header, body, ["silent" if r["silent"] else "" for _, r in picked])
 
 
 def _report_body(
@@ -516,11 +518,12 @@ def _report_body(
             "make and track) and, when the study varies them, the camera distance (a taller jig) and the "
             "baseline (a wider one). A design is on a front when no other design of its method is as good "
             "in both and better in one; designs with no estimate are left out. Each front design's full "
-            "rig is in best/NNN.toml, ready for softjig simulate --config."
+            "rig is in best/NNN.toml, ready for softjig simulate --config; a row in red "
+            "had silent failures (error > 3 deg and > 4 sigma with quality ok): do not build it unchecked."
         )
     )
     for f in fronts:
-        body += [f"<h3>RMSE against {html.escape(f.label)}</h3>", _front_table(f, rows)]
+        body += [f"<h3>RMSE against {html.escape(f.label)}</h3>", _front_table(f, rows, spec.methods)]
     return body
 
 
