@@ -153,3 +153,15 @@ def test_a_design_table_with_no_estimates_still_reports(tmp_path):
     outputs = write_study_outputs(tmp_path, spec, results_table(spec).slice(0, 0), designs)
     assert outputs.front_design_ids == () and outputs.best_rigs == ()
     assert outputs.report_html.is_file()
+
+
+def test_other_costs_and_bad_costs(tmp_path):
+    spec = study_spec()
+    results, designs = results_table(spec), designs_table(spec)
+    outputs = write_study_outputs(tmp_path, spec, results, designs, costs=["markers.pitch_mm"])
+    assert set(outputs.front_design_ids) == expected_front(spec, designs, "markers.pitch_mm")
+    assert [p.name for p in outputs.figures if p.name.startswith("pareto")] == ["pareto-markers.pitch_mm.png"]
+    for bad, message in (("markers.layout", "not numbers"), ("plate.thickness_mm", "no cost column")):
+        with pytest.raises(InputError, match=message):
+            write_study_outputs(tmp_path / "x", spec, results, designs, costs=[bad])
+    assert not (tmp_path / "x").exists(), "a bad cost is found before anything is written"
