@@ -66,6 +66,12 @@ PROJECTED_DESIGNS = 10_000
 PROJECTED_CORES = 100
 #: The issue's default study's frames per design: diameters (40, 60) x tilts (5, 10, 20) x 12 azimuths.
 PROJECTED_FRAMES = 72
+#: An idle core's costs (issue 17, from benchmarks/bench_render.py and bench_estimate.py on two machines):
+#: a pair rendered in 34-76 ms, estimated in 2.4-4.6 ms; the upper ends are taken, and a new design's
+#: per-jig set-up of the estimator (~0.5 s, the first estimate of a task, measured by this benchmark's
+#: rows) once per task.
+IDLE_PAIR_S = 0.076 + 0.0046
+IDLE_SETUP_S = 0.5
 BACKENDS = ("local, 1 worker", "local, 2 workers", "Ray local, 2 workers")
 
 
@@ -257,6 +263,8 @@ def projection(
     compute = n_tasks * (task_s + overhead) / PROJECTED_CORES
     consolidate = n_tasks * extra["consolidate_per_task_s"]
     total = compute + extra["ray_start_s"] + consolidate
+    idle_task_s = IDLE_SETUP_S + (PROJECTED_FRAMES + 1) * IDLE_PAIR_S
+    idle_total = n_tasks * (idle_task_s + overhead) / PROJECTED_CORES + extra["ray_start_s"] + consolidate
     return [
         "",
         f"**Projection: {PROJECTED_DESIGNS:,} designs on {PROJECTED_CORES} cores (Ray): about "
@@ -273,6 +281,11 @@ def projection(
         f"consolidating the {n_tasks * PROJECTED_FRAMES:,} rows at the end takes {consolidate:.0f} s. "
         "Each worker holds a few hundred MB (one 1280 x 720 pair rendered and estimated: ~260 MB peak, "
         "config.py), so 100 workers need ~30 GB across the cluster.",
+        "",
+        f"**On idle cores: about {idle_total / 60:.0f} min**, with the same overheads and a task of "
+        f"{idle_task_s:.1f} s ({PROJECTED_FRAMES + 1} pairs at {1e3 * IDLE_PAIR_S:.0f} ms, the upper ends of "
+        "the issue's 34-76 ms render and 2.4-4.6 ms estimate, plus ~0.5 s of per-jig set-up): this machine's "
+        "cores were shared by several sessions when measured, so its per-frame time is an upper bound.",
     ]
 
 

@@ -312,7 +312,32 @@ def _ray() -> Any:
 
 
 def _ray_init(ray: Any, address: str, workers: int | None) -> None:
+    """Connect to (or start) the cluster, keeping this process's own SIGTERM and SIGINT handlers: Ray's
+    C++ core installs a failure-signal handler that aborts the process on SIGTERM (exit 134, a stack
+    dump), where softjig stops cleanly (:func:`softjig.io.workers.terminate_raises`, exit 143)."""
     env = {"env_vars": dict.fromkeys(_THREAD_VARIABLES, "1")}
+    with _signal_handlers_kept():
+        _connect(ray, address, workers, env)
+
+
+@contextlib.contextmanager
+def _signal_handlers_kept() -> Iterator[None]:
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    saved = {signum: signal.getsignal(signum) for signum in (signal.SIGTERM, signal.SIGINT)}
+    try:
+        yield
+    finally:
+        for signum, handler in saved.items():
+            if handler is not None:
+                signal.signal(signum, handler)
+
+
+def _connect(ray: Any, address: str, workers: int | None, env: dict[str, Any]) -> None:
     try:
         if address == "local":
             ray.init(num_cpus=workers, include_dashboard=False, runtime_env=env, log_to_driver=False)
