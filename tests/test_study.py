@@ -280,3 +280,16 @@ def test_a_frame_is_the_same_whatever_the_chunking():
     for name in one:
         if name != "estimate_ms":
             assert one[name] == [v for p in parts for v in p[name]], name
+
+
+@pytest.mark.parametrize(
+    ("address", "message"),
+    [("127.0.0.1:1", "nothing answers there"), ("nonsense", "give a cluster's address as host:port")],
+)
+def test_an_unreachable_ray_cluster_is_exit_2_before_the_folder_is_started(tmp_path, address, message):
+    path = tmp_path / "study.toml"
+    path.write_text(SMALL, encoding="utf-8")
+    result = runner.invoke(app, ["study", str(path), "--out", str(tmp_path / "out"), "--ray", address])
+    assert result.exit_code == 2
+    assert message in result.output
+    assert not (tmp_path / "out").exists()

@@ -15,15 +15,23 @@ from __future__ import annotations
 import contextlib
 import os
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import pyarrow as pa
 
-from softjig.study.results import StudyFolder, open_study_folder, part_table
-from softjig.study.run import Task, TaskResult, local_results, make_tasks, ray_results, task_inputs
+from softjig.study.results import StudyFolder, check_study_folder, open_study_folder, part_table
+from softjig.study.run import (
+    Task,
+    TaskResult,
+    local_results,
+    make_tasks,
+    ray_connection,
+    ray_results,
+    task_inputs,
+)
 from softjig.study.spec import Study
 
 __all__ = ["StudyRun", "run_study"]
@@ -149,16 +157,40 @@ def run_study(
     """
     t0 = time.perf_counter()
     tasks = make_tasks(study)
-    folder = open_study_folder(out_dir, study.spec, resume=resume, n_tasks=len(tasks))
-    finished = folder.finished() & {t.name for t in tasks}
+    check_study_folder(out_dir, study.spec, resume=resume)  # before a cluster is started for nothing
+    # then Ray: a cluster that cannot be reached is an error before the folder is started
+    with ray_connection(ray, workers) if ray is not None else contextlib.nullcontext():
+        folder = open_study_folder(out_dir, study.spec, resume=resume, n_tasks=len(tasks))
+        n_workers = (os.cpu_count() or 1) if workers is None else int(workers)
+        finished = folder.finished() & {t.name for t in tasks}
+        skipped = len(finished)
+        ran, compute_s = _execute(
+            study, folder, tasks, finished, lambda todo: _results(study, todo, n_workers, ray), progress
+        )
+        results, designs = folder.consolidate(study, _complete_designs(study, tasks, finished))
+    outputs = _write_report(study, folder.path, results, designs) if report else None
+    return StudyRun(
+        folder, results, designs, len(tasks), skipped, ran, time.perf_counter() - t0, compute_s, outputs
+    )
+
+
+def _execute(
+    study: Study,
+    folder: StudyFolder,
+    tasks: list[Task],
+    finished: set[str],
+    results_of: Callable[[list[Task]], Iterator[TaskResult]],
+    progress: bool,
+) -> tuple[int, float]:
+    """Run the tasks not in ``finished`` (which grows as they finish), writing each one's part at once;
+    returns the tasks run and their summed compute time (s)."""
     todo = [t for t in tasks if t.name not in finished]
-    n_workers = (os.cpu_count() or 1) if workers is None else int(workers)
     done_frames = sum(t.n_frames for t in tasks if t.name in finished)
     total_frames = sum(t.n_frames for t in tasks)
     ran, compute_s, stopped = 0, 0.0, True
     try:
         with _Progress(progress, total_frames, done_frames, len(tasks)) as bar:
-            stream = _results(study, todo, n_workers, ray) if todo else (r for r in ())
+            stream = results_of(todo) if todo else (r for r in ())
             with contextlib.closing(stream):  # an exception ends the workers (or Ray's tasks) at once
                 for result in stream:
                     values = study.designs[result.task.design_id].values
@@ -171,19 +203,7 @@ def run_study(
         # Ctrl-C, SIGTERM, an error: what has finished is consolidated before the exit, if that is quick
         if stopped and len(finished) <= MAX_PARTS_CONSOLIDATED_ON_STOP:
             folder.consolidate(study, _complete_designs(study, tasks, finished))
-    results, designs = folder.consolidate(study, _complete_designs(study, tasks, finished))
-    outputs = _write_report(study, folder.path, results, designs) if report else None
-    return StudyRun(
-        folder,
-        results,
-        designs,
-        len(tasks),
-        len(tasks) - len(todo),
-        ran,
-        time.perf_counter() - t0,
-        compute_s,
-        outputs,
-    )
+    return ran, compute_s
 
 
 def _write_report(study: Study, out: Path, results: pa.Table, designs: pa.Table) -> Any:

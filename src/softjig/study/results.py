@@ -49,6 +49,7 @@ from softjig.study.spec import Study, StudySpec, Value
 __all__ = [
     "RESULT_FIELDS",
     "StudyFolder",
+    "check_study_folder",
     "design_table",
     "open_study_folder",
     "results_schema",
@@ -210,19 +211,15 @@ def _read_stamp(path: Path) -> dict[str, Any]:
     return data
 
 
-def open_study_folder(
-    path: str | os.PathLike[str], spec: StudySpec, *, resume: bool, n_tasks: int
-) -> StudyFolder:
-    """Open (or start) the output folder of ``spec`` (see the module docstring for what is refused).
+def check_study_folder(path: str | os.PathLike[str], spec: StudySpec, *, resume: bool) -> None:
+    """Refuse an output folder (see the module docstring), writing nothing.
 
     Raises
     ------
     InputError
-        The folder holds another study's results, this study's without ``resume``, or files that are not a
-        study's; or it cannot be written.
+        The folder holds another study's results, this study's without ``resume``, or files that are not
+        a study's; or it is a file.
     """
-    import tomli_w
-
     out = Path(path)
     if out.exists() and not out.is_dir():
         raise InputError(f"--out {out} is a file: give a folder")
@@ -243,7 +240,24 @@ def open_study_folder(
         raise InputError(
             f"{out} is not empty and holds no study (no {STUDY_JSON}): choose a new or empty --out"
         )
-    else:
+
+
+def open_study_folder(
+    path: str | os.PathLike[str], spec: StudySpec, *, resume: bool, n_tasks: int
+) -> StudyFolder:
+    """Open (or start) the output folder of ``spec``: refused as :func:`check_study_folder` says; a new
+    folder gets ``study.toml`` and ``study.json``; temporary files of killed writers are removed.
+
+    Raises
+    ------
+    InputError
+        The folder is refused, or it cannot be written.
+    """
+    import tomli_w
+
+    out = Path(path)
+    check_study_folder(out, spec, resume=resume)
+    if not (out / STUDY_JSON).exists():
         out.mkdir(parents=True, exist_ok=True)
         write_text_atomic(out / STUDY_TOML, tomli_w.dumps(spec.canonical()))
         write_text_atomic(out / STUDY_JSON, json.dumps(_stamp(spec, n_tasks), indent=2) + "\n")

@@ -45,7 +45,16 @@ from softjig.config import JigConfig
 from softjig.errors import EstimationError, InputError
 from softjig.study.spec import Study
 
-__all__ = ["Task", "TaskInput", "TaskResult", "local_results", "make_tasks", "ray_results", "run_task"]
+__all__ = [
+    "Task",
+    "TaskInput",
+    "TaskResult",
+    "local_results",
+    "make_tasks",
+    "ray_connection",
+    "ray_results",
+    "run_task",
+]
 
 #: Tasks in flight per worker: one running, one queued, so no worker waits for the parent.
 IN_FLIGHT_PER_WORKER = 2
@@ -350,6 +359,52 @@ def _connect(ray: Any, address: str, workers: int | None, env: dict[str, Any]) -
         ) from None
 
 
+@contextlib.contextmanager
+def ray_connection(address: str, workers: int | None = None) -> Iterator[None]:
+    """Inside: this process is connected to the Ray cluster at ``address`` (see :func:`ray_results`);
+    disconnected after (a local cluster is shut down). A connection already open is used and left open.
+
+    Raises
+    ------
+    InputError
+        Ray is not installed, or nothing answers at ``address``.
+    """
+    ray = _ray()
+    if ray.is_initialized():
+        yield
+        return
+    _check_reachable(address)
+    _ray_init(ray, address, workers)
+    try:
+        yield
+    finally:
+        ray.shutdown()
+
+
+#: Seconds to wait for a cluster's address to answer before saying so (Ray itself retries for minutes).
+RAY_CONNECT_TIMEOUT_S = 10.0
+
+
+def _check_reachable(address: str) -> None:
+    """A ``host:port`` (or ``ray://host:port``) address must accept a TCP connection."""
+    import socket
+
+    if address in ("auto", "local"):
+        return
+    host, _, port = address.removeprefix("ray://").rpartition(":")
+    if not host or not port.isdigit():
+        raise InputError(
+            f"--ray {address!r}: give a cluster's address as host:port (or ray://host:port), auto, or local"
+        )
+    try:
+        socket.create_connection((host, int(port)), timeout=RAY_CONNECT_TIMEOUT_S).close()
+    except OSError as exc:
+        raise InputError(
+            f"--ray {address}: nothing answers there ({exc.strerror or exc}): is the cluster running "
+            "(`ray status` on its head node prints its address)?"
+        ) from None
+
+
 def ray_results(
     inputs: Iterable[TaskInput], address: str, workers: int | None = None
 ) -> Iterator[TaskResult]:
@@ -358,16 +413,11 @@ def ray_results(
     ``workers`` is the local cluster's CPUs (``address == "local"``; default: every CPU); a running
     cluster's size is its own. Tasks in flight are bounded by twice the cluster's CPUs. Closing the
     generator cancels the tasks in flight and disconnects (a local cluster is shut down). If this process
-    is connected to Ray already (a notebook, a benchmark), that connection is used and left open."""
+    is connected to Ray already (:func:`ray_connection`, a notebook, a benchmark), that connection is used
+    and left open."""
     ray = _ray()
-    owned = not ray.is_initialized()
-    if owned:
-        _ray_init(ray, address, workers)
-    try:
+    with ray_connection(address, workers):
         yield from _ray_stream(ray, inputs)
-    finally:
-        if owned:
-            ray.shutdown()
 
 
 def _ray_stream(ray: Any, inputs: Iterable[TaskInput]) -> Iterator[TaskResult]:
