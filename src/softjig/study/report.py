@@ -32,6 +32,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
+from rich import box
 from rich.table import Table
 
 from softjig.config import JigConfig
@@ -174,6 +175,12 @@ def _summary_row(rank: int, row: dict[str, Any], paths: Sequence[str]) -> list[s
     ]
 
 
+def _narrow(name: str) -> str:
+    """A header in lines, for narrow terminals: a path broken after its last dot, a unit on its own line."""
+    head, dot, tail = name.rpartition(".")
+    return (f"{head}{dot}\n{tail}" if dot and " " not in name else name).replace(" (", "\n(")
+
+
 def _header(paths: Sequence[str]) -> list[str]:
     return [*SUMMARY_HEADER[:3], *paths, *SUMMARY_HEADER[3:]]
 
@@ -193,12 +200,22 @@ def summary_table(
     paths = _varied(designs, paths)
     ranked = ranked_designs(designs)
     shown = ranked if rows is None else ranked[:rows]
-    table = Table(title="designs by RMSE (deg), best first", title_justify="left")
+    table = Table(
+        title="designs by RMSE (deg), best first",
+        title_justify="left",
+        box=box.SIMPLE_HEAD,
+        show_edge=False,
+        collapse_padding=True,
+    )
+    cells = [_summary_row(rank, row, paths) for rank, row in enumerate(shown, start=1)]
     for k, name in enumerate(_header(paths)):
-        table.add_column(name, justify="left" if k in (2,) else "right", no_wrap=True)
-    for rank, row in enumerate(shown, start=1):
-        style = "red" if row["silent"] else None
-        table.add_row(*_summary_row(rank, row, paths), style=style)
+        column = [c[k] for c in cells]
+        # a narrow terminal shrinks the text columns and the headers, never a number
+        numeric = all(_is_number_text(v) for v in column)
+        width = max(map(len, column), default=0) if numeric else None
+        table.add_column(_narrow(name), justify="right" if numeric else "left", min_width=width)
+    for row, texts in zip(shown, cells, strict=True):
+        table.add_row(*texts, style="red" if row["silent"] else None)
     if len(shown) < len(ranked):
         table.caption = f"{len(ranked) - len(shown)} more rows in designs.parquet"
     return table
@@ -432,9 +449,10 @@ def _write_figures(
     return out
 
 
-def _note(design_id: int, rows: list[dict[str, Any]], paths: Sequence[str], fronts: list[_Front]) -> str:
-    """The comment lines at the top of a front design's rig."""
-    mine = [r for r in rows if r["design_id"] == design_id]
+def _note(design_id: int, rows: list[dict[str, Any]], paths: Sequence[str], methods: Sequence[str]) -> str:
+    """The comment lines at the top of a front design's rig (its methods in the study's order)."""
+    order = {m: k for k, m in enumerate(methods)}
+    mine = sorted((r for r in rows if r["design_id"] == design_id), key=lambda r: order.get(r["method"], -1))
     lines = [f"design {design_id:03d}: " + "; ".join(f"{p} = {_value(mine[0][p])}" for p in paths)]
     for r in mine:
         lines.append(
@@ -567,7 +585,7 @@ def write_study_outputs(
         out_dir / BEST,
         front_ids,
         config_for or _spec_config_for(spec),
-        notes={i: f'study "{spec.name}"\n' + _note(i, rows, paths, fronts) for i in front_ids},
+        notes={i: f'study "{spec.name}"\n' + _note(i, rows, paths, spec.methods) for i in front_ids},
     )
     report = out_dir / "report.html"
     body = _report_body(spec, results, ranked, paths, figures, fronts, rows)
