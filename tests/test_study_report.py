@@ -177,3 +177,28 @@ def test_other_costs_and_bad_costs(tmp_path):
         with pytest.raises(InputError, match=message):
             write_study_outputs(tmp_path / "x", spec, results, designs, costs=[bad])
     assert not (tmp_path / "x").exists(), "a bad cost is found before anything is written"
+
+
+def test_on_the_study_commands_own_tables(tmp_path):
+    """The synthetic tables have the study's own schemas, and the report reads designs.parquet as the
+    study aggregates it (softjig.study.results.design_table) from synthetic estimates."""
+    from softjig.study.results import design_table, designs_schema, results_schema
+    from softjig.study.spec import Study
+    from study_tables import designs_schema as our_designs_schema
+    from study_tables import results_schema as our_results_schema
+
+    spec = study_spec()
+    assert our_results_schema(spec) == results_schema(spec)
+    assert our_designs_schema(spec) == designs_schema(spec)
+    results = results_table(spec)
+    study = Study(spec, build_designs(spec))
+    designs = design_table(study, results, set(range(spec.n_designs)))
+    outputs = write_study_outputs(tmp_path, spec, results, designs)
+    front = expected_front(spec, designs, "marker_count") | expected_front(
+        spec, designs, "cameras.distance_mm"
+    )
+    assert set(outputs.front_design_ids) == front and front
+    for path in outputs.best_rigs:
+        assert load_jig(path) == study.designs[int(path.stem)].jig
+    page = outputs.report_html.read_text()
+    assert "8 failed" in page and len(outputs.figures) == 4
