@@ -9,6 +9,8 @@ import typer
 
 from softjig.cli.app import app, handle_errors
 
+WIDE_OUTPUT_COLUMNS = 200  # the summary table's width when stdout is not a terminal
+
 
 @app.command()
 @handle_errors
@@ -53,7 +55,10 @@ def study(
 
         from softjig.study.report import summary_table
 
-        Console().print(summary_table(run.designs, paths=spec.paths))
+        console = Console()
+        if not console.is_terminal:  # a file or a pipe: the whole table, not 80 columns of it
+            console = Console(width=WIDE_OUTPUT_COLUMNS)
+        console.print(summary_table(run.designs, paths=spec.paths))
     skipped = f" ({run.skipped} already finished)" if run.skipped else ""
     typer.echo(
         f"wrote {len(run.results)} estimates of {len(run.designs)} design rows to {out} in "

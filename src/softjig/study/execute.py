@@ -151,7 +151,7 @@ def run_study(
     ran, compute_s, stopped = 0, 0.0, True
     try:
         with _Progress(progress, total_frames, done_frames, len(tasks)) as bar:
-            stream = _results(study, todo, n_workers, ray) if todo else iter(())
+            stream = _results(study, todo, n_workers, ray) if todo else (r for r in ())
             with contextlib.closing(stream):  # an exception ends the workers (or Ray's tasks) at once
                 for result in stream:
                     values = study.designs[result.task.design_id].values
