@@ -202,3 +202,16 @@ def test_on_the_study_commands_own_tables(tmp_path):
         assert load_jig(path) == study.designs[int(path.stem)].jig
     page = outputs.report_html.read_text()
     assert "8 failed" in page and len(outputs.figures) == 4
+
+
+def test_outputs_honour_the_umask(tmp_path):
+    import os
+
+    spec = study_spec()
+    old = os.umask(0o027)
+    try:
+        outputs = write_study_outputs(tmp_path, spec, results_table(spec), designs_table(spec))
+    finally:
+        os.umask(old)
+    for path in (outputs.report_html, *outputs.figures, *outputs.best_rigs):
+        assert path.stat().st_mode & 0o777 == 0o640, path
