@@ -5,6 +5,7 @@ schema (tests/study_tables.py) and a real study spec."""
 from __future__ import annotations
 
 import base64
+import os
 import re
 
 import numpy as np
@@ -205,8 +206,6 @@ def test_on_the_study_commands_own_tables(tmp_path):
 
 
 def test_outputs_honour_the_umask(tmp_path):
-    import os
-
     spec = study_spec()
     old = os.umask(0o027)
     try:

@@ -20,6 +20,7 @@ front is taken per method; every design on some front has its rig written to ``D
 
 from __future__ import annotations
 
+import base64
 import datetime as _dt
 import html
 import json
@@ -367,8 +368,6 @@ def _is_number_text(text: str) -> bool:
 
 
 def _img(path: Path, caption: str) -> str:
-    import base64
-
     data = base64.b64encode(path.read_bytes()).decode("ascii")
     alt = html.escape(caption, quote=True)
     return (
