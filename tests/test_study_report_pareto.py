@@ -72,3 +72,11 @@ def test_failed_designs_are_ignored():
 def test_bad_shapes_are_an_input_error():
     with pytest.raises(InputError, match="equal length"):
         pareto_front([1, 2], [1])
+
+
+def test_the_docstring_example_holds():
+    import doctest
+
+    from softjig.study import pareto
+
+    assert doctest.testmod(pareto).failed == 0
