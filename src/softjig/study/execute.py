@@ -5,7 +5,9 @@ The order is fixed so that nothing is lost and nothing is done twice: the study 
 validated first (:func:`softjig.study.spec.load_study`, before this), then the folder is opened
 (:func:`softjig.study.results.open_study_folder`: another study's folder is refused), the finished tasks
 are read from ``DIR/parts/``, and only the others run (:mod:`softjig.study.run`). A run stopped by
-Ctrl-C or SIGTERM consolidates what has finished before it ends; one killed outright keeps its parts.
+Ctrl-C or SIGTERM consolidates what has finished before it ends (up to
+:data:`MAX_PARTS_CONSOLIDATED_ON_STOP` tasks, so that it ends within seconds); one killed outright keeps
+its parts, which ``--resume`` consolidates.
 """
 
 from __future__ import annotations
@@ -25,6 +27,11 @@ from softjig.study.run import Task, TaskResult, local_results, make_tasks, ray_r
 from softjig.study.spec import Study
 
 __all__ = ["StudyRun", "run_study"]
+
+#: A stopped run consolidates its tables only up to this many finished tasks (reading a part takes ~1-3
+#: ms), so that Ctrl-C or SIGTERM end the command within a second or two; beyond, the parts are the record
+#: and ``--resume`` consolidates them.
+MAX_PARTS_CONSOLIDATED_ON_STOP = 500
 
 
 @dataclass(frozen=True)
@@ -161,7 +168,8 @@ def run_study(
                     bar.advance(result.task.n_frames, len(finished))
         stopped = False
     finally:
-        if stopped:  # Ctrl-C, SIGTERM, an error: what has finished is consolidated before the exit
+        # Ctrl-C, SIGTERM, an error: what has finished is consolidated before the exit, if that is quick
+        if stopped and len(finished) <= MAX_PARTS_CONSOLIDATED_ON_STOP:
             folder.consolidate(study, _complete_designs(study, tasks, finished))
     results, designs = folder.consolidate(study, _complete_designs(study, tasks, finished))
     outputs = _write_report(study, folder.path, results, designs) if report else None

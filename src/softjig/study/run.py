@@ -332,23 +332,31 @@ def ray_results(
 
     ``workers`` is the local cluster's CPUs (``address == "local"``; default: every CPU); a running
     cluster's size is its own. Tasks in flight are bounded by twice the cluster's CPUs. Closing the
-    generator cancels the tasks in flight and disconnects (a local cluster is shut down)."""
+    generator cancels the tasks in flight and disconnects (a local cluster is shut down). If this process
+    is connected to Ray already (a notebook, a benchmark), that connection is used and left open."""
     ray = _ray()
-    _ray_init(ray, address, workers)
+    owned = not ray.is_initialized()
+    if owned:
+        _ray_init(ray, address, workers)
     try:
-        remote = ray.remote(num_cpus=1, max_retries=2)(run_task)
-        cpus = max(1, int(ray.cluster_resources().get("CPU", 1)))
-        todo = iter(inputs)
-        pending = [remote.remote(inp) for inp in _take(todo, IN_FLIGHT_PER_WORKER * cpus)]
-        try:
-            while pending:
-                done, pending = ray.wait(pending, num_returns=1)
-                pending += [remote.remote(inp) for inp in _take(todo, len(done))]
-                for ref in done:
-                    yield ray.get(ref)
-        finally:
-            for ref in pending:
-                with contextlib.suppress(Exception):
-                    ray.cancel(ref, force=True)
+        yield from _ray_stream(ray, inputs)
     finally:
-        ray.shutdown()
+        if owned:
+            ray.shutdown()
+
+
+def _ray_stream(ray: Any, inputs: Iterable[TaskInput]) -> Iterator[TaskResult]:
+    remote = ray.remote(num_cpus=1, max_retries=2)(run_task)
+    cpus = max(1, int(ray.cluster_resources().get("CPU", 1)))
+    todo = iter(inputs)
+    pending = [remote.remote(inp) for inp in _take(todo, IN_FLIGHT_PER_WORKER * cpus)]
+    try:
+        while pending:
+            done, pending = ray.wait(pending, num_returns=1)
+            pending += [remote.remote(inp) for inp in _take(todo, len(done))]
+            for ref in done:
+                yield ray.get(ref)
+    finally:
+        for ref in pending:
+            with contextlib.suppress(Exception):
+                ray.cancel(ref, force=True)
