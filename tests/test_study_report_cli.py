@@ -3,6 +3,9 @@ the front design's rig, and `softjig simulate --config DIR/best/NNN.toml` render
 
 from __future__ import annotations
 
+import shlex
+
+import pytest
 from typer.testing import CliRunner
 
 from softjig.cli import app
@@ -43,22 +46,12 @@ def test_a_small_study_reports_and_its_best_rig_simulates(tmp_path):
     assert rigs and all(p.read_text().startswith(HEADER_MARK) for p in rigs)
     pitches = {load_jig(p).markers.pitch_mm for p in rigs}
     assert pitches <= {7.0, 9.0}
-    result = runner.invoke(
-        app,
-        [
-            "simulate",
-            "--scenario",
-            "single",
-            "--part-diameter",
-            "40",
-            "--config",
-            str(rigs[0]),
-            "--out",
-            str(tmp_path / "ds"),
-            "--no-progress",
-            "--workers",
-            "1",
-        ],
-    )
+    # the rig says how to render its study frames again: run that command (from the study's folder)
+    (command,) = [line[4:] for line in rigs[0].read_text().splitlines() if line.startswith("#   softjig ")]
+    args = [*shlex.split(command)[1:], "--out", str(tmp_path / "ds"), "--no-progress", "--workers", "1"]
+    args[args.index("--config") + 1] = str(out / args[args.index("--config") + 1])
+    result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
-    assert Dataset.open(tmp_path / "ds").jig == load_jig(rigs[0])
+    ds = Dataset.open(tmp_path / "ds")
+    assert ds.jig == load_jig(rigs[0]) and len(ds) == 2 and ds[0].reference
+    assert (ds[1].part.diameter_mm, ds[1].alpha_deg) == (50.0, pytest.approx(10.0))

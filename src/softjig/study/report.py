@@ -459,7 +459,18 @@ def _note(design_id: int, rows: list[dict[str, Any]], paths: Sequence[str], meth
             f"{_num(r['worst_cell_rmse_deg'])} deg), recall {_num(r['recall'])}, "
             f"{r['marker_count']} markers"
         )
-    return "\n".join([*lines, f"run it: softjig simulate --config best/{best_rig_name(design_id)}"])
+    return "\n".join(lines)
+
+
+def _simulate_command(spec: StudySpec, design_id: int) -> str:
+    """The command that renders a design's study frames again (its first seed), from ``DIR``."""
+    f = spec.frames
+    return (
+        f"softjig simulate --scenario paper-sweep --config best/{best_rig_name(design_id)} "
+        f"--diameters {','.join(f'{d:g}' for d in f.diameters_mm)} "
+        f"--alphas {','.join(f'{a:g}' for a in f.alphas_deg)} --theta-step {f.theta_step_deg:g} "
+        f"--push-depth {f.push_depth_mm:g} --seed {spec.seeds[0]}"
+    )
 
 
 def _make_fronts(designs: pa.Table, points: DesignPoints, costs: Sequence[str]) -> list[_Front]:
@@ -584,7 +595,11 @@ def write_study_outputs(
         out_dir / BEST,
         front_ids,
         config_for or _spec_config_for(spec),
-        notes={i: f'study "{spec.name}"\n' + _note(i, rows, paths, spec.methods) for i in front_ids},
+        notes={
+            i: f'study "{spec.name}"\n{_note(i, rows, paths, spec.methods)}\n'
+            f"its study frames, from the study's folder:\n  {_simulate_command(spec, i)}"
+            for i in front_ids
+        },
     )
     report = out_dir / "report.html"
     body = _report_body(spec, results, ranked, paths, figures, fronts, rows)
