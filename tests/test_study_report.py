@@ -136,7 +136,7 @@ def test_report_html_is_self_contained(study):
     }
     assert all(p.parent == out / "figures" for p in outputs.figures)
     assert page.count("<tr") >= designs.num_rows  # every row ranked (24 rows < the 50 shown)
-    assert "pitch-distance-layout" in page and "best/001.toml" in page
+    assert "pitch-distance-layout" in page and '<a href="best/001.toml">best/001.toml</a>' in page
     # the silent design is on the marker-count front: marked in the ranking and in that front's table
     assert (
         len(

@@ -25,6 +25,7 @@ import datetime as _dt
 import html
 import json
 import math
+import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -85,6 +86,7 @@ SUMMARY_ROWS = 20  # designs shown in the terminal's table
 REPORT_ROWS = 50  # designs shown in report.html's ranking
 FIGURES = "figures"
 BEST = "best"
+_RIG_LINK = re.compile(rf"{BEST}/\d{{3,}}\.toml")
 
 
 @dataclass(frozen=True)
@@ -353,10 +355,17 @@ def _html_table(header: Sequence[str], rows: Sequence[Sequence[str]], classes: S
     for k, row in enumerate(rows):
         cls = f' class="{classes[k]}"' if k < len(classes) and classes[k] else ""
         cells = "".join(
-            f'<td class="{"text" if not _is_number_text(v) else "num"}">{html.escape(v)}</td>' for v in row
+            f'<td class="{"text" if not _is_number_text(v) else "num"}">{_cell_html(v)}</td>' for v in row
         )
         body.append(f"<tr{cls}>{cells}</tr>")
     return f"<table><thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>"
+
+
+def _cell_html(text: str) -> str:
+    """A cell's text, escaped; a rig's path (``best/NNN.toml``) as a relative link to the file."""
+    if _RIG_LINK.fullmatch(text):
+        return f'<a href="{html.escape(text, quote=True)}">{html.escape(text)}</a>'
+    return html.escape(text)
 
 
 def _is_number_text(text: str) -> bool:
