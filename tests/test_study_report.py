@@ -5,6 +5,7 @@ schema (tests/study_tables.py) and a real study spec."""
 from __future__ import annotations
 
 import base64
+import os
 import re
 
 import numpy as np
@@ -62,9 +63,21 @@ def test_summary_ranks_by_rmse_with_failed_designs_last():
     assert body[0].split()[:3] == ["1", "001", "refractive"]  # pitch 6, distance 120, hex: the best
     assert "hex" in body[0] and "D40 a20 0.85" in body[0]
     assert "n/a" in body[-1] and f"{FAILED_DESIGN:03d}" in body[-1]
-    head = next(line for line in lines if "rank" in line)
-    for column in (*spec.paths, "RMSE (deg)", "worst cell", "recall", "suspect", "silent", "latency"):
-        assert column in head
+    table = summary_table(designs)
+    heads = [str(c.header).replace(".\n", ".").replace("\n", " ") for c in table.columns]
+    assert heads == [
+        "rank",
+        "design",
+        "method",
+        *spec.paths,
+        "RMSE (deg)",
+        "worst cell (deg)",
+        "recall",
+        "suspect",
+        "silent",
+        "latency (ms)",
+        "markers",
+    ]
 
 
 def test_summary_shows_the_best_rows_and_says_how_many_more():
@@ -123,7 +136,7 @@ def test_report_html_is_self_contained(study):
     }
     assert all(p.parent == out / "figures" for p in outputs.figures)
     assert page.count("<tr") >= designs.num_rows  # every row ranked (24 rows < the 50 shown)
-    assert "pitch-distance-layout" in page and "best/001.toml" in page
+    assert "pitch-distance-layout" in page and '<a href="best/001.toml">best/001.toml</a>' in page
     # the silent design is on the marker-count front: marked in the ranking and in that front's table
     assert (
         len(
@@ -165,3 +178,39 @@ def test_other_costs_and_bad_costs(tmp_path):
         with pytest.raises(InputError, match=message):
             write_study_outputs(tmp_path / "x", spec, results, designs, costs=[bad])
     assert not (tmp_path / "x").exists(), "a bad cost is found before anything is written"
+
+
+def test_on_the_study_commands_own_tables(tmp_path):
+    """The synthetic tables have the study's own schemas, and the report reads designs.parquet as the
+    study aggregates it (softjig.study.results.design_table) from synthetic estimates."""
+    from softjig.study.results import design_table, designs_schema, results_schema
+    from softjig.study.spec import Study
+    from study_tables import designs_schema as our_designs_schema
+    from study_tables import results_schema as our_results_schema
+
+    spec = study_spec()
+    assert our_results_schema(spec) == results_schema(spec)
+    assert our_designs_schema(spec) == designs_schema(spec)
+    results = results_table(spec)
+    study = Study(spec, build_designs(spec))
+    designs = design_table(study, results, set(range(spec.n_designs)))
+    outputs = write_study_outputs(tmp_path, spec, results, designs)
+    front = expected_front(spec, designs, "marker_count") | expected_front(
+        spec, designs, "cameras.distance_mm"
+    )
+    assert set(outputs.front_design_ids) == front and front
+    for path in outputs.best_rigs:
+        assert load_jig(path) == study.designs[int(path.stem)].jig
+    page = outputs.report_html.read_text()
+    assert "8 failed" in page and len(outputs.figures) == 4
+
+
+def test_outputs_honour_the_umask(tmp_path):
+    spec = study_spec()
+    old = os.umask(0o027)
+    try:
+        outputs = write_study_outputs(tmp_path, spec, results_table(spec), designs_table(spec))
+    finally:
+        os.umask(old)
+    for path in (outputs.report_html, *outputs.figures, *outputs.best_rigs):
+        assert path.stat().st_mode & 0o777 == 0o640, path

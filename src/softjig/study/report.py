@@ -20,10 +20,12 @@ front is taken per method; every design on some front has its rig written to ``D
 
 from __future__ import annotations
 
+import base64
 import datetime as _dt
 import html
 import json
 import math
+import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,6 +34,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
+from rich import box
 from rich.table import Table
 
 from softjig.config import JigConfig
@@ -83,6 +86,7 @@ SUMMARY_ROWS = 20  # designs shown in the terminal's table
 REPORT_ROWS = 50  # designs shown in report.html's ranking
 FIGURES = "figures"
 BEST = "best"
+_RIG_LINK = re.compile(rf"{BEST}/\d{{3,}}\.toml")
 
 
 @dataclass(frozen=True)
@@ -174,6 +178,12 @@ def _summary_row(rank: int, row: dict[str, Any], paths: Sequence[str]) -> list[s
     ]
 
 
+def _narrow(name: str) -> str:
+    """A header in lines, for narrow terminals: a path broken after its last dot, a unit on its own line."""
+    head, dot, tail = name.rpartition(".")
+    return (f"{head}{dot}\n{tail}" if dot and " " not in name else name).replace(" (", "\n(")
+
+
 def _header(paths: Sequence[str]) -> list[str]:
     return [*SUMMARY_HEADER[:3], *paths, *SUMMARY_HEADER[3:]]
 
@@ -193,12 +203,22 @@ def summary_table(
     paths = _varied(designs, paths)
     ranked = ranked_designs(designs)
     shown = ranked if rows is None else ranked[:rows]
-    table = Table(title="designs by RMSE (deg), best first", title_justify="left")
+    table = Table(
+        title="designs by RMSE (deg), best first",
+        title_justify="left",
+        box=box.SIMPLE_HEAD,
+        show_edge=False,
+        collapse_padding=True,
+    )
+    cells = [_summary_row(rank, row, paths) for rank, row in enumerate(shown, start=1)]
     for k, name in enumerate(_header(paths)):
-        table.add_column(name, justify="left" if k in (2,) else "right", no_wrap=True)
-    for rank, row in enumerate(shown, start=1):
-        style = "red" if row["silent"] else None
-        table.add_row(*_summary_row(rank, row, paths), style=style)
+        column = [c[k] for c in cells]
+        # a narrow terminal shrinks the text columns and the headers, never a number
+        numeric = all(_is_number_text(v) for v in column)
+        width = max(map(len, column), default=0) if numeric else None
+        table.add_column(_narrow(name), justify="right" if numeric else "left", min_width=width)
+    for row, texts in zip(shown, cells, strict=True):
+        table.add_row(*texts, style="red" if row["silent"] else None)
     if len(shown) < len(ranked):
         table.caption = f"{len(ranked) - len(shown)} more rows in designs.parquet"
     return table
@@ -335,10 +355,17 @@ def _html_table(header: Sequence[str], rows: Sequence[Sequence[str]], classes: S
     for k, row in enumerate(rows):
         cls = f' class="{classes[k]}"' if k < len(classes) and classes[k] else ""
         cells = "".join(
-            f'<td class="{"text" if not _is_number_text(v) else "num"}">{html.escape(v)}</td>' for v in row
+            f'<td class="{"text" if not _is_number_text(v) else "num"}">{_cell_html(v)}</td>' for v in row
         )
         body.append(f"<tr{cls}>{cells}</tr>")
     return f"<table><thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>"
+
+
+def _cell_html(text: str) -> str:
+    """A cell's text, escaped; a rig's path (``best/NNN.toml``) as a relative link to the file."""
+    if _RIG_LINK.fullmatch(text):
+        return f'<a href="{html.escape(text, quote=True)}">{html.escape(text)}</a>'
+    return html.escape(text)
 
 
 def _is_number_text(text: str) -> bool:
@@ -350,8 +377,6 @@ def _is_number_text(text: str) -> bool:
 
 
 def _img(path: Path, caption: str) -> str:
-    import base64
-
     data = base64.b64encode(path.read_bytes()).decode("ascii")
     alt = html.escape(caption, quote=True)
     return (
@@ -432,9 +457,10 @@ def _write_figures(
     return out
 
 
-def _note(design_id: int, rows: list[dict[str, Any]], paths: Sequence[str], fronts: list[_Front]) -> str:
-    """The comment lines at the top of a front design's rig."""
-    mine = [r for r in rows if r["design_id"] == design_id]
+def _note(design_id: int, rows: list[dict[str, Any]], paths: Sequence[str], methods: Sequence[str]) -> str:
+    """The comment lines at the top of a front design's rig (its methods in the study's order)."""
+    order = {m: k for k, m in enumerate(methods)}
+    mine = sorted((r for r in rows if r["design_id"] == design_id), key=lambda r: order.get(r["method"], -1))
     lines = [f"design {design_id:03d}: " + "; ".join(f"{p} = {_value(mine[0][p])}" for p in paths)]
     for r in mine:
         lines.append(
@@ -442,7 +468,18 @@ def _note(design_id: int, rows: list[dict[str, Any]], paths: Sequence[str], fron
             f"{_num(r['worst_cell_rmse_deg'])} deg), recall {_num(r['recall'])}, "
             f"{r['marker_count']} markers"
         )
-    return "\n".join([*lines, f"run it: softjig simulate --config best/{best_rig_name(design_id)}"])
+    return "\n".join(lines)
+
+
+def _simulate_command(spec: StudySpec, design_id: int) -> str:
+    """The command that renders a design's study frames again (its first seed), from ``DIR``."""
+    f = spec.frames
+    return (
+        f"softjig simulate --scenario paper-sweep --config best/{best_rig_name(design_id)} "
+        f"--diameters {','.join(f'{d:g}' for d in f.diameters_mm)} "
+        f"--alphas {','.join(f'{a:g}' for a in f.alphas_deg)} --theta-step {f.theta_step_deg:g} "
+        f"--push-depth {f.push_depth_mm:g} --seed {spec.seeds[0]}"
+    )
 
 
 def _make_fronts(designs: pa.Table, points: DesignPoints, costs: Sequence[str]) -> list[_Front]:
@@ -567,7 +604,11 @@ def write_study_outputs(
         out_dir / BEST,
         front_ids,
         config_for or _spec_config_for(spec),
-        notes={i: f'study "{spec.name}"\n' + _note(i, rows, paths, fronts) for i in front_ids},
+        notes={
+            i: f'study "{spec.name}"\n{_note(i, rows, paths, spec.methods)}\n'
+            f"its study frames, from the study's folder:\n  {_simulate_command(spec, i)}"
+            for i in front_ids
+        },
     )
     report = out_dir / "report.html"
     body = _report_body(spec, results, ranked, paths, figures, fronts, rows)
