@@ -207,12 +207,10 @@ def _execute(
 
 
 def _write_report(study: Study, out: Path, results: pa.Table, designs: pa.Table) -> Any:
-    """The report, figures and best rigs (:func:`softjig.study.report.write_study_outputs`), when that
-    module is there (it is developed beside this one)."""
-    try:
-        from softjig.study.report import write_study_outputs
-    except ImportError:
-        return None
+    """The report, figures and best rigs (:func:`softjig.study.report.write_study_outputs`), each front
+    design's rig the study's own jig of that design."""
+    from softjig.study.report import write_study_outputs
+
     return write_study_outputs(
         out, study.spec, results, designs, config_for=lambda design_id: study.designs[design_id].jig
     )
