@@ -293,3 +293,32 @@ def test_an_unreachable_ray_cluster_is_exit_2_before_the_folder_is_started(tmp_p
     assert result.exit_code == 2
     assert message in result.output
     assert not (tmp_path / "out").exists()
+
+
+def test_a_studys_frame_is_the_frame_softjig_simulate_renders_of_the_design(tmp_path):
+    """Frame k of design d, seed S is frame k + 1 of `simulate_dataset` of the design's jig with seed S (the
+    reference first): the same as-built jig, the same images, so the same estimate."""
+    from softjig.io.batch import dataset_reference
+    from softjig.io.dataset import Dataset
+    from softjig.sensing.pipeline import estimate_pair
+    from softjig.sim.scenarios import simulate_dataset
+
+    study = _study(SMALL.replace("theta_step_deg = 180", "theta_step_deg = 360"), tmp_path)
+    spec, design = study.spec, study.designs[1]
+    row = run_task(next(task_inputs(study, [t for t in make_tasks(study) if t.design_id == 1]))).columns
+    simulate_dataset(
+        tmp_path / "ds", spec.frame_specs(), design.jig, seed=spec.seeds[0], workers=1, progress=False
+    )
+    ds = Dataset.open(tmp_path / "ds")
+    frame = ds[1]
+    assert row["true_nx"][0] == pytest.approx(frame.truth.normal[0], abs=1e-12)
+    assert row["depth_mm"][0] == pytest.approx(frame.truth.push_depth_mm, abs=1e-12)
+    estimate = estimate_pair(
+        frame.load_left(),
+        frame.load_right(),
+        ds.jig,
+        part_diameter_mm=50.0,
+        reference=dataset_reference(ds, ds.jig),
+    ).estimate
+    k = row["method"].index("refractive")
+    assert (row["est_nx"][k], row["est_ny"][k], row["est_nz"][k]) == pytest.approx(estimate.normal, abs=1e-12)
