@@ -291,7 +291,7 @@ def projection(
 
 def write_section(path: Path, lines: Iterable[str]) -> None:
     """Replace this benchmark's section of ``path`` (up to the next ``## `` heading), or append it."""
-    from softjig.io.files import write_text_atomic
+    from softjig.files import write_text_atomic
 
     text = path.read_text() if path.exists() else "# softjig benchmark results\n"
     body = "\n".join([SECTION, "", *lines]).rstrip() + "\n"

@@ -3,7 +3,7 @@ front, ready for ``softjig simulate --config`` (and any other command's ``--conf
 
 ``NNN`` is the design's id, zero-padded to three digits (more when the study has more designs). Each file
 starts with comment lines naming the study, the design's varied values and why it is there; the rest is
-:func:`softjig.config.dumps_jig` of the design, written atomically (:mod:`softjig.io.files`, the umask's
+:func:`softjig.config.dumps_jig` of the design, written atomically (:mod:`softjig.files`, the umask's
 modes). A later report of the same folder (a resumed study) replaces the files it wrote before: a rig of
 ours that is no longer on the front is removed, recognised by its first line; any other file is left.
 """
@@ -15,7 +15,7 @@ from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 
 from softjig.config import JigConfig, dumps_jig, loads_jig, validate_jig
-from softjig.io.files import write_text_atomic
+from softjig.files import write_text_atomic
 
 __all__ = ["HEADER_MARK", "best_rig_name", "write_best_rigs"]
 

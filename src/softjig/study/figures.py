@@ -20,7 +20,7 @@ from matplotlib.figure import Figure
 
 from softjig.evaluation.figures import rmse_grid_plot
 from softjig.evaluation.metrics import RmseGrid
-from softjig.io.files import write_bytes_atomic
+from softjig.files import write_bytes_atomic
 
 __all__ = [
     "DesignPoints",
@@ -49,7 +49,7 @@ def method_colour(method: str, methods: Sequence[str]) -> str:
 
 
 def save_png(fig: Figure, path: str | os.PathLike[str], dpi: int = FIGURE_DPI) -> None:
-    """Render ``fig`` to PNG and write it atomically (:func:`softjig.io.files.write_bytes_atomic`)."""
+    """Render ``fig`` to PNG and write it atomically (:func:`softjig.files.write_bytes_atomic`)."""
     FigureCanvasAgg(fig)
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png", dpi=dpi)

@@ -40,7 +40,7 @@ from rich.table import Table
 from softjig.config import JigConfig
 from softjig.errors import InputError
 from softjig.evaluation.metrics import RmseGrid
-from softjig.io.files import write_text_atomic
+from softjig.files import write_text_atomic
 from softjig.study.best import best_rig_name, write_best_rigs
 from softjig.study.figures import DesignPoints, accuracy_plot, best_cells_plot, pareto_plot, save_png
 from softjig.study.pareto import pareto_front

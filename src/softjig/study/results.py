@@ -9,7 +9,7 @@ Layout (``DESIGN.md``'s study contract)::
     DIR/designs.parquet   one row per design and method (:func:`design_table`)
 
 **Nothing finished is lost.** Each task's rows are written to ``parts/`` the moment the task ends, as one
-Parquet file written to a temporary name and renamed (:func:`softjig.io.files.write_bytes_atomic`,
+Parquet file written to a temporary name and renamed (:func:`softjig.files.write_bytes_atomic`,
 fsynced): a kill at any moment, ``SIGKILL`` included, loses at most the tasks that were running, and a
 part that exists is complete. ``--resume`` lists ``parts/`` and runs only the tasks without a part, so
 it recomputes nothing finished. ``results.parquet`` and ``designs.parquet`` are the parts consolidated
@@ -43,7 +43,7 @@ import pyarrow.parquet as pq
 
 from softjig import __version__
 from softjig.errors import InputError
-from softjig.io.files import remove_stale_temporaries, write_bytes_atomic, write_text_atomic
+from softjig.files import remove_stale_temporaries, write_bytes_atomic, write_text_atomic
 from softjig.study.spec import Study, StudySpec, Value
 
 __all__ = [
