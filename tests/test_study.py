@@ -300,8 +300,8 @@ def test_a_studys_frame_is_the_frame_softjig_simulate_renders_of_the_design(tmp_
     reference first): the same as-built jig, the same images, so the same estimate."""
     from softjig.io.batch import dataset_reference
     from softjig.io.dataset import Dataset
+    from softjig.io.simulated import simulate_dataset
     from softjig.sensing.pipeline import estimate_pair
-    from softjig.sim.scenarios import simulate_dataset
 
     study = _study(SMALL.replace("theta_step_deg = 180", "theta_step_deg = 360"), tmp_path)
     spec, design = study.spec, study.designs[1]
