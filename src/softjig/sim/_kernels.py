@@ -84,8 +84,9 @@ def cast_marker_patches(
             if p0 >= p1:
                 continue
             xs = du[m, p0 * ss : p1 * ss]  # 1-D views indexed from 0 and a branch-free body: vectorises
-            vals = row[: xs.shape[0]]
-            dst = out[m, py, p0:p1]
+            vals = row[: xs.shape[0]]  # the pixel row's sub-sample columns, summed over its sub-rows
+            for k in range(xs.shape[0]):
+                vals[k] = _ZERO
             for r in range(py * ss, (py + 1) * ss):
                 y = dv[m, r]
                 c0 = _ONE - a2 * y * y
@@ -96,17 +97,18 @@ def cast_marker_patches(
                     for k in range(xs.shape[0]):
                         x = xs[k]
                         c = math.sqrt(max(c0 + c1 * x + c2 * (x * x), _ZERO))
-                        vals[k] = _ONE if c > abs(w0 - l0 * x) else _ZERO
+                        vals[k] += _ONE if c > abs(w0 - l0 * x) else _ZERO
                 else:
                     for k in range(xs.shape[0]):
                         x = xs[k]
                         c = math.sqrt(max(c0 + c1 * x + c2 * (x * x), _ZERO))
-                        vals[k] = (_ONE + c) if c > max(w0 - l0 * x, _ZERO) else _ZERO
-                for p in range(p1 - p0):
-                    acc = _ZERO
-                    for j in range(ss):
-                        acc += vals[p * ss + j]
-                    dst[p] += acc
+                        vals[k] += (_ONE + c) if c > max(w0 - l0 * x, _ZERO) else _ZERO
+            dst = out[m, py, p0:p1]
+            for p in range(p1 - p0):
+                acc = _ZERO
+                for j in range(ss):
+                    acc += vals[p * ss + j]
+                dst[p] = acc
     for k in range(flat.shape[0]):
         flat[k] *= inv
 
