@@ -240,13 +240,14 @@ def log_envelope(
     approx = np.empty(nc, dtype=np.float32)
     for i in range(n):
         x, y = qx[i], qy[i]
-        best = np.float32(-np.inf)
-        for c in range(nc):
+        for c in range(nc):  # no reduction in this loop: it vectorises
             dx = x - cx[c]
             dy = y - cy[c]
-            v = log_depth[c] - math.sqrt(dx * dx + dy * dy) * inv_decay[c]
-            approx[c] = v
-            best = max(best, v)
+            approx[c] = log_depth[c] - math.sqrt(dx * dx + dy * dy) * inv_decay[c]
+        best = np.float32(-np.inf)
+        for c in range(nc):
+            if approx[c] > best:
+                best = approx[c]
         exact = np.float32(-np.inf)
         floor = best - _ENVELOPE_CANDIDATE_WINDOW
         for c in range(nc):
