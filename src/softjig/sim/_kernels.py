@@ -18,6 +18,76 @@ _ZERO = np.float32(0.0)
 
 
 @numba.njit(cache=True, nogil=True)
+def marker_shapes(
+    P: np.ndarray, axis: np.ndarray, origins: np.ndarray, rays: np.ndarray, r: float, step_px: float
+) -> np.ndarray:
+    """Each marker's local-affine imaging (:mod:`softjig.sim.render`, step 2), float64 ``(n, 9)``.
+
+    Parameters
+    ----------
+    P, axis : (n, 3)
+        Base centres (mm) and unit axes in J.
+    origins, rays : (n, 5, 3)
+        Oil rays (origin on the top interface, unit direction) of each marker's pixel ``p0`` and of
+        ``p0 + step_px (1, 0), (-1, 0), (0, 1), (0, -1)``.
+    r : float
+        Marker radius (mm).
+    step_px : float
+        The pixel step of the central differences.
+
+    Returns
+    -------
+    (n, 9)
+        Columns: ``quad`` (3: ``|q|^2 / r^2 = a0 du^2 + a1 du dv + a2 dv^2``), ``lin`` (2: ``(q . axis) / r
+        = l0 du + l1 dv``), ``cos_axis`` (``-d . axis``), ``radius_px`` (largest singular value of ``J B``
+        times ``r``), ``scale_px_per_mm`` (``sqrt |det J B|``), ``oil_path_mm``. ``B = (e1, e2)`` is an
+        orthonormal basis of the plane through ``P`` perpendicular to the ray ``d`` of ``p0``; the
+        neighbours' rays meet that plane at ``q``, whose central differences give ``A = (J B)^-1``.
+    """
+    n = P.shape[0]
+    out = np.empty((n, 9))
+    inplane = np.empty((5, 2))
+    for m in range(n):
+        d0, d1, d2 = rays[m, 0, 0], rays[m, 0, 1], rays[m, 0, 2]
+        rx, ry = (1.0, 0.0) if abs(d0) < 0.9 else (0.0, 1.0)  # e1 = d x ref, normalised; e2 = d x e1
+        e10, e11, e12 = -d2 * ry, d2 * rx, d0 * ry - d1 * rx
+        norm = math.sqrt(e10 * e10 + e11 * e11 + e12 * e12)
+        e10, e11, e12 = e10 / norm, e11 / norm, e12 / norm
+        e20, e21, e22 = d1 * e12 - d2 * e11, d2 * e10 - d0 * e12, d0 * e11 - d1 * e10
+        p0, p1, p2 = P[m, 0], P[m, 1], P[m, 2]
+        for k in range(1, 5):
+            o0, o1, o2 = origins[m, k, 0], origins[m, k, 1], origins[m, k, 2]
+            v0, v1, v2 = rays[m, k, 0], rays[m, k, 1], rays[m, k, 2]
+            s = ((p0 - o0) * d0 + (p1 - o1) * d1 + (p2 - o2) * d2) / (v0 * d0 + v1 * d1 + v2 * d2)
+            h0, h1, h2 = o0 + s * v0 - p0, o1 + s * v1 - p1, o2 + s * v2 - p2
+            inplane[k, 0] = h0 * e10 + h1 * e11 + h2 * e12
+            inplane[k, 1] = h0 * e20 + h1 * e21 + h2 * e22
+        # A = d(in-plane mm) / d(du, dv): columns from the u and the v neighbours
+        a00 = (inplane[1, 0] - inplane[2, 0]) / (2.0 * step_px)
+        a10 = (inplane[1, 1] - inplane[2, 1]) / (2.0 * step_px)
+        a01 = (inplane[3, 0] - inplane[4, 0]) / (2.0 * step_px)
+        a11 = (inplane[3, 1] - inplane[4, 1]) / (2.0 * step_px)
+        det_a = a00 * a11 - a01 * a10
+        j00, j01, j10, j11 = a11 / det_a, -a01 / det_a, -a10 / det_a, a00 / det_a  # J B = A^-1
+        r2 = r * r
+        out[m, 0] = (a00 * a00 + a10 * a10) / r2  # G = A^T A / r^2
+        out[m, 1] = 2.0 * (a00 * a01 + a10 * a11) / r2
+        out[m, 2] = (a01 * a01 + a11 * a11) / r2
+        ax0, ax1, ax2 = axis[m, 0], axis[m, 1], axis[m, 2]
+        ae1 = ax0 * e10 + ax1 * e11 + ax2 * e12
+        ae2 = ax0 * e20 + ax1 * e21 + ax2 * e22
+        out[m, 3] = (ae1 * a00 + ae2 * a10) / r  # axis . (B A)
+        out[m, 4] = (ae1 * a01 + ae2 * a11) / r
+        out[m, 5] = -(d0 * ax0 + d1 * ax1 + d2 * ax2)
+        s1 = j00 * j00 + j01 * j01 + j10 * j10 + j11 * j11
+        s2 = math.hypot(j00 * j00 + j01 * j01 - j10 * j10 - j11 * j11, 2.0 * (j00 * j10 + j01 * j11))
+        out[m, 6] = r * math.sqrt(0.5 * (s1 + s2))
+        out[m, 7] = math.sqrt(abs(j00 * j11 - j01 * j10))
+        out[m, 8] = max(p2, 0.0) / max(d2, 1e-9)
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
 def cast_marker_patches(
     du: np.ndarray,
     dv: np.ndarray,

@@ -1006,33 +1006,12 @@ def _marker_optics(
         origins, rays = (
             a.reshape(-1, len(_PIXEL_OFFSETS), 3) for a in rays_in_top_region(pixels, K, dist, T, layers)
         )
-        d = rays[:, 0]  # (n, 3) unit oil rays through the markers, going up
-        # Orthonormal basis (e1, e2) of the plane perpendicular to d.
-        ref = np.where(np.abs(d[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
-        e1 = np.cross(d, ref)
-        e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
-        e2 = np.cross(d, e1)
-        B = np.stack([e1, e2], axis=2)  # (n, 3, 2)
-        # Where the neighbours' rays meet the plane through P perpendicular to d, in (e1, e2): central
-        # differences of that map give A = (J B)^-1 (du -> in-plane mm), J the projection's Jacobian.
-        rel = P[near][:, None, :] - origins
-        hit = (
-            origins
-            + (np.sum(rel * d[:, None, :], axis=2) / np.sum(rays * d[:, None, :], axis=2))[..., None] * rays
-        )
-        inplane = (hit - P[near][:, None, :]) @ B  # (n, 5, 2)
-        A = np.stack([inplane[:, 1] - inplane[:, 2], inplane[:, 3] - inplane[:, 4]], axis=2) / (
-            2.0 * _PIXEL_STEP
-        )
-        JB = np.linalg.inv(A)  # (n, 2, 2) px per in-plane mm
         r = jig.markers.diameter_mm / 2.0
-        G = np.swapaxes(A, 1, 2) @ A / r**2  # |q|^2 / r^2 = du^T G du
-        quad[near] = np.stack([G[:, 0, 0], G[:, 0, 1] + G[:, 1, 0], G[:, 1, 1]], axis=1)
-        lin[near] = np.einsum("nk,nkj->nj", axis[near], B @ A) / r
-        cos_axis[near] = -np.sum(d * axis[near], axis=1)
-        radius[near] = r * _largest_singular_value(JB)
-        scale[near] = np.sqrt(np.abs(np.linalg.det(JB)))
-        oil_path[near] = np.maximum(P[near, 2], 0.0) / np.maximum(d[:, 2], 1e-9)
+        shape = _kernels.marker_shapes(
+            np.ascontiguousarray(P[near]), np.ascontiguousarray(axis[near]), origins, rays, r, _PIXEL_STEP
+        )
+        quad[near], lin[near] = shape[:, 0:3], shape[:, 3:5]
+        cos_axis[near], radius[near], scale[near], oil_path[near] = shape[:, 5:9].T
     return _MarkerOptics(
         px=px,
         near=near,
@@ -1044,15 +1023,6 @@ def _marker_optics(
         scale_px_per_mm=scale,
         oil_path_mm=oil_path,
     )
-
-
-def _largest_singular_value(m: np.ndarray) -> np.ndarray:
-    """Largest singular value of each ``(n, 2, 2)`` matrix, in closed form: the square root of the
-    largest eigenvalue of ``M^T M``."""
-    a, b, c, d = m[:, 0, 0], m[:, 0, 1], m[:, 1, 0], m[:, 1, 1]
-    s1 = a * a + b * b + c * c + d * d
-    s2 = np.hypot(a * a + b * b - c * c - d * d, 2.0 * (a * c + b * d))
-    return np.sqrt(0.5 * (s1 + s2))
 
 
 def _cast_marker_patches(
