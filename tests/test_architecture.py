@@ -35,7 +35,6 @@ LONG_BODY_ALLOWED = {
     "softjig/sensing/_jigframe_kernels.py::gauss_newton": "numeric kernel (Numba)",
     "softjig/sensing/subpixel.py::_solve": "being split with the sub-pixel stage (issue 16)",
     "softjig/sensing/pipeline.py::_refractive_estimate": "being split into the Estimator (issue 16)",
-    "softjig/sim/render.py::_render_view": "being rewritten with the faster renderer (issue 17)",
 }
 
 
