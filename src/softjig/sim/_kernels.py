@@ -229,6 +229,26 @@ def paste_excess(
 
 
 @numba.njit(cache=True, nogil=True)
+def blur_matrices(kernel: np.ndarray, size: int, g: np.ndarray, g_t: np.ndarray) -> None:
+    """Each marker's blur matrix and its transpose from its 1-D kernel, in place (:mod:`softjig.sim.render`,
+    step 3).
+
+    ``kernel`` is ``(n, 2 pad + 1)``; ``g[m]`` (``(size + 2 pad, size)``) has ``g[m, i, j] = kernel[m, i - j]``
+    where ``0 <= i - j <= 2 pad`` and 0 elsewhere, and ``g_t[m]`` is its transpose (contiguous, for the
+    second product).
+    """
+    n, width = kernel.shape
+    t = g.shape[1]
+    for m in range(n):
+        for i in range(t):
+            for j in range(size):
+                k = i - j
+                v = kernel[m, k] if 0 <= k < width else _ZERO
+                g[m, i, j] = v
+                g_t[m, j, i] = v
+
+
+@numba.njit(cache=True, nogil=True)
 def sensor_uint8(
     image: np.ndarray,
     hi: np.ndarray,
