@@ -22,7 +22,6 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from softjig.caching import cached_by_identity
 from softjig.config import CameraConfig, JigConfig
 from softjig.errors import InputError
 from softjig.optics import (
@@ -76,6 +75,7 @@ def triangulate_refracted(
     frame: JigFrame,
     *,
     reference: bool = False,
+    constants: KernelConstants | None = None,
 ) -> RefractedPoints:
     """Triangulate matched markers through the jig's refracting layers.
 
@@ -86,6 +86,8 @@ def triangulate_refracted(
     frame : the cameras' poses in J (from the fiducials or the config).
     reference : trace each interface with :func:`softjig.optics.backproject_pixels` (the general,
         validated path, ~100x slower) instead of the closed form; both agree to ~1e-12 mm.
+    constants : :func:`kernel_constants` of ``jig`` (built here when not given: an estimator builds them
+        once).
 
     Returns
     -------
@@ -116,7 +118,7 @@ def triangulate_refracted(
         )
         points, gap = closest_points_of_rays(origin_l, direction_l, origin_r, direction_r)
         return RefractedPoints(points, gap)
-    k = _kernel_constants(jig)
+    k = constants if constants is not None else kernel_constants(jig)
     pixels = [left_xy, right_xy]
     for i, cam in enumerate(k.distorted):  # undistorted first; the kernel's intrinsics are then 1
         if cam is not None:
@@ -138,7 +140,7 @@ def triangulate_refracted(
 
 
 @dataclass(frozen=True)
-class _KernelConstants:
+class KernelConstants:
     """Per jig: each camera's ``(fx, fy, cx, cy)`` (px; ``(1, 1, 0, 0)`` for a camera with distortion,
     whose pixels are undistorted first), those cameras (or ``None``), and the layers' constants."""
 
@@ -148,9 +150,8 @@ class _KernelConstants:
     ratio: np.ndarray
 
 
-@cached_by_identity()
-def _kernel_constants(jig: JigConfig) -> _KernelConstants:
-    """The kernel's constants of this jig, built once per jig object."""
+def kernel_constants(jig: JigConfig) -> KernelConstants:
+    """The kernel's constants of this jig (an estimator builds them once)."""
     cams = jig.cameras.left, jig.cameras.right
     distorted = tuple(cam if np.any(cam.distortion) else None for cam in cams)
     intrinsics = np.array(
@@ -161,7 +162,7 @@ def _kernel_constants(jig: JigConfig) -> _KernelConstants:
     )
     intrinsics.flags.writeable = False
     z_if, ratio, _, _ = layer_constants(flat_layers(jig))
-    return _KernelConstants(intrinsics, distorted, z_if, ratio)
+    return KernelConstants(intrinsics, distorted, z_if, ratio)
 
 
 @numba.njit(cache=True, nogil=True)
