@@ -9,15 +9,14 @@ import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 from scipy.spatial import cKDTree
 
+from oracles.subpixel import refine as reference_refine
 from softjig.config import CylinderPart, default_jig
 from softjig.errors import InputError
 from softjig.evaluation.cramer_rao import centre_crb_px
 from softjig.sensing.detect import detect_markers
 from softjig.sensing.pipeline import sensing_setup
-from oracles.subpixel import refine as reference_refine
 from softjig.sensing.subpixel import (
     MarkerModel,
-    fit_tables,
     marker_profile,
     noise_covariance,
     refine_centres,

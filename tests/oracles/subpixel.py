@@ -1,4 +1,4 @@
-"""The sub-pixel model fit as :func:`softjig.sensing.subpixel.refine_centres` documents it, in float64 NumPy."""
+"""The sub-pixel model fit as `refine_centres` documents it, in float64 NumPy, one marker at a time."""
 
 from __future__ import annotations
 
