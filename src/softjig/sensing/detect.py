@@ -36,7 +36,6 @@ from dataclasses import dataclass
 from typing import Literal
 
 import cv2
-import numba
 import numpy as np
 import numpy.typing as npt
 
@@ -585,7 +584,9 @@ def _pyramid_candidates(
     smoothed = _coarse_blur(small, s_coarse)
     response = cv2.Laplacian(smoothed, cv2.CV_32F, ksize=1, scale=-gain, borderType=cv2.BORDER_REFLECT)
     exact = refine != "model"  # positions and responses from the full-resolution LoG
-    coarse_xy, peak = _coarse_peaks(
+    from softjig.sensing._detect_kernels import coarse_peaks  # Numba is imported on first use
+
+    coarse_xy, peak = coarse_peaks(
         response,
         np.float32(thr * _CANDIDATE_MARGIN if exact else thr),
         max(1, half_width // factor),
@@ -613,99 +614,11 @@ def _coarse_blur(small: np.ndarray, sigma: float) -> np.ndarray:
     return cv2.sepFilter2D(small, cv2.CV_32F, kernel, kernel, borderType=cv2.BORDER_REFLECT)
 
 
-@numba.njit(cache=True, nogil=True)
-def _inside_border(xy, w, h, border):
+def _inside_border(xy: np.ndarray, w: int, h: int, border: int) -> np.ndarray:
     """Whether the pixel nearest each ``(u, v)`` is at least ``border`` px from the image's edges."""
-    keep = np.empty(xy.shape[0], np.bool_)
-    for i in range(xy.shape[0]):
-        u, v = math.floor(xy[i, 0] + 0.5), math.floor(xy[i, 1] + 0.5)
-        keep[i] = border <= u < w - border and border <= v < h - border
-    return keep
-
-
-@numba.njit(cache=True, nogil=True)
-def _coarse_peaks(response, threshold, half_width, fit_pinv, max_offset):
-    """Peaks of the coarse response, quadratic-refined: ``(u, v)`` (M, 2) coarse px and values (M,).
-
-    In one call, what :func:`_local_maxima` and :func:`_refine_quadratic` do (border 1): a pixel
-    above ``threshold`` is a peak if no pixel within ``half_width`` (Chebyshev) is larger, nor equal
-    and earlier in row-major order (on an exact plateau the first pixel is kept). A fit that is not a
-    maximum within ``max_offset`` keeps the pixel and its value. Replaces 0.6 ms of NumPy and
-    k-d tree calls on the 320x180 level by 0.05 ms (measured). The scan (:func:`_flank_free`) and the
-    peaks' tests are separate loops: in one loop the whole took twice as long (0.2 against 0.1 ms a
-    frame on the loaded machine, measured).
-    """
-    rows, cols = _flank_free(response, threshold)
-    xy = np.empty((len(rows), 2))
-    vals = np.empty(len(rows))
-    window = np.empty(9)
-    fit = np.empty(6)
-    n = 0
-    for i in range(len(rows)):
-        r, c = rows[i], cols[i]
-        if not _is_peak(response, r, c, half_width):
-            continue
-        k = 0
-        for dr in range(-1, 2):
-            for dc in range(-1, 2):
-                window[k] = response[r + dr, c + dc]
-                k += 1
-        fit[:] = 0.0  # fit_pinv @ window, written out (a BLAS call per peak cost 1 us)
-        for a in range(6):
-            for j in range(9):
-                fit[a] += fit_pinv[a, j] * window[j]
-        x, y, peak = _quadratic_maximum(fit, float(response[r, c]), max_offset)
-        xy[n, 0], xy[n, 1], vals[n] = c + x, r + y, peak
-        n += 1
-    return xy[:n].copy(), vals[:n].copy()
-
-
-@numba.njit(cache=True, nogil=True)
-def _flank_free(response, threshold):
-    """Row-major rows and columns of the pixels above ``threshold`` with no larger 4-neighbour (border 1).
-
-    Written without short-circuits: a pixel in eight above the threshold sits on a peak's flank, and
-    the mispredicted branches of ``and``/``or`` cost 0.1 ms a frame (0.03 ms without them; measured).
-    """
-    h, w = response.shape
-    rows, cols = [], []
-    for r in range(1, h - 1):
-        up, row, down = response[r - 1], response[r], response[r + 1]
-        for c in range(1, w - 1):
-            value = row[c]
-            flank = (row[c + 1] > value) | (down[c] > value) | (row[c - 1] > value) | (up[c] > value)
-            if (value > threshold) & (not flank):
-                rows.append(r)
-                cols.append(c)
-    return rows, cols
-
-
-@numba.njit(cache=True, nogil=True)
-def _is_peak(response, r, c, half_width):
-    """Whether no pixel within ``half_width`` (Chebyshev) of ``(r, c)`` is larger, nor equal and earlier
-    in row-major order."""
-    h, w = response.shape
-    value = response[r, c]
-    for rr in range(max(r - half_width, 0), min(r + half_width + 1, h)):
-        for cc in range(max(c - half_width, 0), min(c + half_width + 1, w)):
-            other = response[rr, cc]
-            if other > value or (other == value and (rr < r or (rr == r and cc < c))):
-                return False
-    return True
-
-
-@numba.njit(cache=True, nogil=True)
-def _quadratic_maximum(fit, value, max_offset):
-    """Offset ``(x, y)`` and value of the maximum of ``a + b x + c y + d x^2 + e x y + f y^2``
-    (``fit``); ``(0, 0, value)`` if it is not a maximum within ``max_offset`` per axis."""
-    a, b, cq, d, e, f = fit[0], fit[1], fit[2], fit[3], fit[4], fit[5]
-    det = 4.0 * d * f - e * e
-    if d < 0.0 and det > 0.0:
-        xf = (e * cq - 2.0 * f * b) / det
-        yf = (e * b - 2.0 * d * cq) / det
-        if abs(xf) <= max_offset and abs(yf) <= max_offset:
-            return xf, yf, a + b * xf + cq * yf + d * xf * xf + e * xf * yf + f * yf * yf
-    return 0.0, 0.0, value
+    nearest = np.floor(xy + 0.5)
+    u, v = nearest[:, 0], nearest[:, 1]
+    return (u >= border) & (u < w - border) & (v >= border) & (v < h - border)
 
 
 def _full_resolution_peaks(
