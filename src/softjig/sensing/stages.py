@@ -169,16 +169,15 @@ class RowMatcher:
     """Markers matched along rows within ``sensing.row_tolerance_px`` and the jig's disparity window, as
     a one-to-one global assignment (:func:`~softjig.sensing.stereo.match_rectified`)."""
 
-    def __init__(self, model: JigModel, *, reference: bool = False) -> None:
+    def __init__(self, model: JigModel) -> None:
         self._kwargs = {
             "row_tolerance_px": model.jig.sensing.row_tolerance_px,
             "min_disparity_px": model.setup.min_disparity_px,
             "max_disparity_px": model.setup.max_disparity_px,
         }
-        self._reference = reference
 
     def match(self, left: Markers, right: Markers) -> StereoMatches:
-        return match_rectified(left.xy_px, right.xy_px, reference=self._reference, **self._kwargs)
+        return match_rectified(left.xy_px, right.xy_px, **self._kwargs)
 
 
 class PinholeTriangulator:
@@ -198,14 +197,13 @@ class RefractedTriangulator:
     """Each marker's two rays refracted through the plate and the oil by Snell's law, intersected
     (:func:`~softjig.sensing.refractive.triangulate_refracted`): metric depths."""
 
-    def __init__(self, model: JigModel, *, reference: bool = False) -> None:
+    def __init__(self, model: JigModel) -> None:
         self._jig = model.jig
         self._constants = model.triangulation
-        self._reference = reference
 
     def triangulate(self, left_xy_px: np.ndarray, right_xy_px: np.ndarray, frame: JigFrame) -> np.ndarray:
         return triangulate_refracted(
-            left_xy_px, right_xy_px, self._jig, frame, reference=self._reference, constants=self._constants
+            left_xy_px, right_xy_px, self._jig, frame, constants=self._constants
         ).points_J
 
 
