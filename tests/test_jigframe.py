@@ -59,7 +59,7 @@ def test_gauss_newton_reaches_the_levenberg_marquardt_optimum(pair):
         locate_fiducials_near(pair.left, JIG.fiducials, EXPECTED.fiducial_quads_left_px),
         locate_fiducials_near(pair.right, JIG.fiducials, EXPECTED.fiducial_quads_right_px),
     ]
-    corners = jigframe._corners_J_by_id(JIG)
+    corners = jigframe.frame_constants(JIG).corners_J_by_id
     obj = [np.concatenate([corners[i] for i in f]) for f in found]
     img = [np.concatenate([f[i] for i in f]) for f in found]
     T_gn, res_gn = jigframe._fit_pose_gauss_newton(obj, img, JIG)
@@ -102,21 +102,26 @@ def test_nothing_to_find():
 
 def test_a_head_far_off_takes_the_general_path_once(monkeypatch):
     """As-built draw 235 puts the fiducials ~43 px from where the config expects them: beyond the fast
-    path's capture. The first frame takes the general path; the next ones start where it found them."""
+    path's capture. The first frame takes the general path; the next ones start where it found them (kept
+    in the caller's FiducialMemory, nowhere else)."""
     pair = render_pair(draw_as_built(JIG, rng=235), rng=1)
+    constants = jigframe.frame_constants(JIG)
     fast_first = jigframe._jig_frame_fast(
-        pair.left, pair.right, JIG, jigframe._fast_constants(JIG).expected_quads
+        pair.left, pair.right, JIG, constants, constants.fast.expected_quads
     )
     assert fast_first is None
-    jigframe._FOUND_BEFORE.clear()
-    first = jig_frame_from_fiducials(pair.left, pair.right, JIG)
+    memory = jigframe.FiducialMemory()
+    first = jig_frame_from_fiducials(pair.left, pair.right, JIG, constants=constants, memory=memory)
     assert first is not None and first.fiducial_ids == tuple(JIG.fiducials.ids)
+    assert memory.quads is not None
 
     def no_detector(*args, **kwargs):
         raise AssertionError("the general path ran again")
 
     monkeypatch.setattr(jigframe, "detect_fiducials", no_detector)
-    again = jig_frame_from_fiducials(pair.left, pair.right, JIG)
+    again = jig_frame_from_fiducials(pair.left, pair.right, JIG, constants=constants, memory=memory)
+    with pytest.raises(AssertionError, match="general path ran again"):  # without the memory, it would
+        jig_frame_from_fiducials(pair.left, pair.right, JIG, constants=constants)
     mm, deg = _pose_difference(first.T_J_left, again.T_J_left)
     assert mm < 1e-3 and deg < 1e-4
 
