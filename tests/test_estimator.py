@@ -179,17 +179,7 @@ def test_no_cache_keyed_on_a_config_in_sensing():
         for name, value in vars(module).items()
         if hasattr(value, "cache_info") and getattr(value, "__module__", None) == module.__name__
     }
-    assert cached - _VALUE_KEYED - _NOT_YET <= set(), sorted(cached - _VALUE_KEYED)
-
-
-# Left to the image-side helper's modules (the sub-pixel tables are also kept on disk), for now.
-_NOT_YET = {
-    "softjig.sensing.subpixel.fit_tables",
-    "softjig.sensing.subpixel._kernel_tables",
-    "softjig.sensing.fiducials._capture_table",
-    "softjig.sensing.fiducials._cell_patterns",
-    "softjig.sensing.fiducials._detector",
-}
+    assert cached - _VALUE_KEYED == set(), sorted(cached - _VALUE_KEYED)
 
 
 def test_two_estimators_of_one_jig_share_nothing_they_derive():
