@@ -182,6 +182,33 @@ def test_no_cache_keyed_on_a_config_in_sensing():
     assert cached - _VALUE_KEYED == set(), sorted(cached - _VALUE_KEYED)
 
 
+# Constant lookup tables (never written).
+_CONSTANT_TABLES = {"softjig.sensing.detect._FULL_SCALE", "softjig.sensing.subpixel._FULL_SCALE"}
+
+
+def test_no_module_level_mutable_state_in_sensing():
+    """No module dict, list or set (such as the former jigframe._FOUND_BEFORE, keyed by id(jig)) and no
+    identity-keyed cache (a plain function wrapping another) in sensing/: what an estimator learns
+    between frames, it holds itself."""
+    import inspect
+
+    found = {
+        f"{module.__name__}.{name}"
+        for module in _sensing_modules()
+        for name, value in vars(module).items()
+        if not name.startswith("__")
+        and (
+            isinstance(value, dict | list | set)
+            or (
+                inspect.isfunction(value)
+                and hasattr(value, "__wrapped__")
+                and value.__module__ == module.__name__
+            )
+        )
+    }
+    assert found - _CONSTANT_TABLES == set(), sorted(found - _CONSTANT_TABLES)
+
+
 def test_two_estimators_of_one_jig_share_nothing_they_derive():
     a, b = Estimator(JIG), Estimator(JIG)
     assert a.model is not b.model

@@ -16,8 +16,9 @@ changes is where its frame finder last found the fiducials (which only saves tim
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from types import MappingProxyType
 
 import numpy as np
 
@@ -81,12 +82,14 @@ class Composition:
     needs_part_size: bool
 
 
-COMPOSITIONS: dict[str, Composition] = {
-    "refractive": Composition(RefractedTriangulator, ContactPlaneFitter, needs_part_size=False),
-    "paper": Composition(
-        PinholeTriangulator, lambda model, _, calibration: PaperPlaneFitter(model, calibration), True
-    ),
-}
+COMPOSITIONS: Mapping[str, Composition] = MappingProxyType(
+    {
+        "refractive": Composition(RefractedTriangulator, ContactPlaneFitter, needs_part_size=False),
+        "paper": Composition(
+            PinholeTriangulator, lambda model, _, calibration: PaperPlaneFitter(model, calibration), True
+        ),
+    }
+)
 METHODS = tuple(COMPOSITIONS)
 
 
