@@ -143,7 +143,7 @@ def locate_quads_near(
     """:func:`locate_fiducials_near` for a C-contiguous uint8 image and the expected quads as the bytes of a
     float64 (M, 4, 2) array, giving the (M, 4, 2) corners or ``None``. ``table`` (:func:`capture_table`
     of these quads and the image's shape) and ``white`` (:func:`cell_patterns` of the fiducials) are made
-    here when not given (about 0.2 ms: a frame finder makes them once)."""
+    here when not given (a frame finder makes them once)."""
     n_quads = len(expected_quads) // (8 * 8)
     table = table if table is not None else capture_table(expected_quads, n_quads, gray_u8.shape)
     if table is None:

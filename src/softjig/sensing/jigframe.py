@@ -273,7 +273,7 @@ class FrameConstants:
 
 
 def frame_constants(jig: JigConfig) -> FrameConstants:
-    """The jig-frame constants of this jig (about 1 ms to build: an estimator builds them once)."""
+    """The jig-frame constants of this jig (an estimator builds them once)."""
     expected = jig_frame_from_config(jig)
     T_left_right = invert_pose(expected.T_J_left) @ expected.T_J_right
     T_left_right.flags.writeable = False

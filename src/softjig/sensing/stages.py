@@ -108,7 +108,7 @@ class LogDetector:
             self._kwargs["threshold"] = threshold
         if model is not None:
             self._kwargs["model"] = model
-            if refine == "model":  # the model fit's weight tables, read once (from disk: about 1 ms)
+            if refine == "model":  # the model fit's weight tables, read once (from disk)
                 self._kwargs["tables"] = kernel_tables(model)
 
     @classmethod

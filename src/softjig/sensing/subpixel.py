@@ -424,7 +424,7 @@ _BLOCK_ROWS = 5  # table rows per block of the kernels' product: the 30 coeffici
 
 def kernel_tables(model: MarkerModel) -> np.ndarray:
     """:func:`fit_tables` transposed, ``(3 K, n^2)`` padded with zero rows to a multiple of 5, float32
-    (read-only): what :func:`refine_centres` takes as ``tables`` (read from disk, about 1 ms: a detector
+    (read-only): what :func:`refine_centres` takes as ``tables`` (read from disk: a detector
     makes them once).
 
     One row per coefficient, contiguous over the window's pixels: the layout of :func:`_block_product`.
