@@ -230,3 +230,20 @@ def test_the_reference_frame_is_measured_once_when_the_estimator_is_built(pairs)
     assert abs(estimator.reference.height_at_axis_mm - rest_shape.height_at_axis_mm) < 0.5
     result = estimator.estimate(pairs[0].left, pairs[0].right)
     assert result.estimate.indentation_reference == "reference frame"
+
+
+def test_the_estimate_command_refuses_an_unknown_detector_with_exit_2(pairs, tmp_path):
+    import cv2
+    from typer.testing import CliRunner
+
+    from softjig.cli import app
+    from softjig.config import dumps_jig
+
+    config = tmp_path / "rig.toml"
+    config.write_text(dumps_jig(JIG.replace(sensing=SensingConfig(detector="sift"))))
+    paths = [tmp_path / "l.png", tmp_path / "r.png"]
+    for path, image in zip(paths, (pairs[0].left, pairs[0].right), strict=True):
+        cv2.imwrite(str(path), image)
+    result = CliRunner().invoke(app, ["estimate", *map(str, paths), "--config", str(config), "--json"])
+    assert result.exit_code == 2
+    assert "sensing.detector = 'sift'" in result.output and "known: log" in result.output
