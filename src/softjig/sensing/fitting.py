@@ -18,7 +18,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from softjig.calibration.tilt import TiltCalibration
 from softjig.config import JigConfig
 from softjig.errors import EstimationError, InputError
 from softjig.geometry import PlaneFit, fit_plane_svd, normal_from_tilt_angles, tilt_angles
@@ -50,6 +49,7 @@ from softjig.sensing.uncertainty import (
     with_angle_floor,
     with_spread_between,
 )
+from softjig.tilt_calibration import TiltCalibration
 
 # Unmodelled, systematic errors of a triangulated marker (hemisphere seen obliquely, membrane ripple, the
 # as-built cameras): the residual scale used for the normal's uncertainty is at least this.
