@@ -476,7 +476,7 @@ def observe_pair(
     u8_left, u8_right = _as_u8(left, gray_left), _as_u8(right, gray_right)
     setup = sensing_setup(jig)
     clock.lap("checks")
-    frame, warnings = resolve_jig_frame(u8_left, u8_right, jig, fast=fast)
+    frame, warnings = resolve_jig_frame(u8_left, u8_right, jig)
     warnings = [*image_warnings, *warnings]
     clock.lap("frame")
     candidates = setup.candidates if fast else "full"
