@@ -274,7 +274,7 @@ def sweep_samples(frames: Iterable[Any], rows: Iterable[dict]) -> SweepSamples:
     frames : the dataset's frames (:class:`softjig.io.dataset.Frame`: ``index``, ``alpha_deg``,
         ``theta_deg``, ``part``, ``reference``). Frames without ``alpha_deg``, ``theta_deg`` or ``part``,
         and reference frames, are skipped (counted in ``n_skipped``).
-    rows : one row per frame as :mod:`softjig.sensing.batch` writes them: ``index`` and
+    rows : one row per frame as :mod:`softjig.io.batch` writes them: ``index`` and
         ``raw_tilt_x_deg``, ``raw_tilt_y_deg``, or ``index`` and ``error`` for a frame that gave none.
 
     Raises
@@ -625,7 +625,7 @@ def calibrate_dataset(
     """
     check_sweep_design(*sweep_design(dataset), selection=selection)  # before hours of estimation
     if rows is None:
-        from softjig.sensing.batch import BatchSettings, dataset_reference, estimate_dataset
+        from softjig.io.batch import BatchSettings, dataset_reference, estimate_dataset
 
         reference = dataset_reference(dataset, dataset.jig) if method == "refractive" else None
         settings = BatchSettings(jig=dataset.jig, method=method, reference=reference)

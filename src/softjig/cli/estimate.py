@@ -239,15 +239,15 @@ def estimate(
         reference=reference,
     )
     if overlay is not None:
+        from softjig.evaluation.overlay import draw_overlay
         from softjig.io.dataset import encode_png
         from softjig.io.files import write_bytes_atomic
-        from softjig.sensing.overlay import draw_overlay
         from softjig.sensing.rectify import rectify_pair
 
         left, right, used_jig = rectify_pair(left, right, jig)  # the markers' pixels are rectified ones
         write_bytes_atomic(overlay, encode_png(draw_overlay(left, right, result, used_jig)))
     if displacements is not None:
-        from softjig.sensing.export import write_displacements
+        from softjig.io.export import write_displacements
 
         write_displacements(result, displacements)
     data = result.estimate.to_dict()
@@ -275,7 +275,7 @@ def _estimate_dataset(
     This process opens the dataset (one pass over ``frames.jsonl``, only line offsets kept), computes the
     reference markers (refractive method; this also loads the Numba caches) and estimates up to the first
     loaded frame; the workers it then forks inherit that warm state and read and decode their frames
-    themselves (:func:`softjig.sensing.batch.estimate_dataset`).
+    themselves (:func:`softjig.io.batch.estimate_dataset`).
 
     Refused before any work (exit 2): a dataset without frames, an ``out`` that is one of the dataset's own
     files or one of the command's ``inputs`` (the rig, the calibration). A dataset of which no frame gave
@@ -285,8 +285,8 @@ def _estimate_dataset(
     from rich.progress import Progress
 
     from softjig.errors import EstimationError
+    from softjig.io.batch import BatchSettings, dataset_reference, estimate_dataset_to_file
     from softjig.io.dataset import Dataset, DatasetLineWarning
-    from softjig.sensing.batch import BatchSettings, dataset_reference, estimate_dataset_to_file
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DatasetLineWarning)  # shown below, once, as a warning line

@@ -1,6 +1,6 @@
 """`softjig estimate BAG`: every stereo pair of a ROS 2 bag to estimates (the bag branch of ``estimate``).
 
-The rows are those of a dataset (:mod:`softjig.sensing.batch`: the estimate contract's fields and the
+The rows are those of a dataset (:mod:`softjig.io.batch`: the estimate contract's fields and the
 frame's ``index``, or its ``error`` and ``exit_code``) plus each pair's header stamps, ``stamp_left_ns``
 and ``stamp_right_ns`` (JSON Lines; a CSV keeps the dataset's columns). A softjig bag (``/softjig/frame``)
 gives each pair its dataset index, part and reference flag, so estimating it equals estimating the
@@ -29,7 +29,7 @@ if TYPE_CHECKING:
 
 
 class _Pairs:
-    """The bag's pairs as :func:`~softjig.sensing.batch.estimate_dataset` takes them: iterable once, and
+    """The bag's pairs as :func:`~softjig.io.batch.estimate_dataset` takes them: iterable once, and
     sized by a bound no bag reaches (the number of pairs is known only once they are read, and a bag's
     message counts may be wrong: the estimation ends when the pairs do, never before). Each pair's stamps
     are queued for its row, which comes back in the same order."""
@@ -69,8 +69,8 @@ def estimate_bag(
     from rich.progress import Progress
 
     from softjig.io.bag_convert import no_pairs_error
+    from softjig.io.batch import BatchSettings, RowsWriter, estimate_dataset
     from softjig.io.rosbag import BagReader, BagTruncationWarning
-    from softjig.sensing.batch import BatchSettings, RowsWriter, estimate_dataset
     from softjig.sensing.pipeline import reference_from_pair
 
     if out is None:

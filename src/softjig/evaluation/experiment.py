@@ -276,8 +276,8 @@ def _render_and_estimate(
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+    from softjig.io.batch import BatchSettings, dataset_reference, estimate_dataset_to_file
     from softjig.io.dataset import Dataset
-    from softjig.sensing.batch import BatchSettings, dataset_reference, estimate_dataset_to_file
     from softjig.sim.scenarios import simulate_dataset
 
     root = Path(settings.out_dir) / "data" / name
@@ -505,9 +505,9 @@ def _stereo_pair_figure(
     """Overlay of the markers and the normal on the first of ``candidates`` (frame indices, best first)
     that ``samples`` has an estimate of; returns its index (``None`` if every candidate fails)."""
     from softjig.errors import EstimationError
+    from softjig.evaluation.overlay import draw_overlay
     from softjig.io.dataset import encode_png
     from softjig.io.files import write_bytes_atomic
-    from softjig.sensing.overlay import draw_overlay
     from softjig.sensing.pipeline import estimate_pair
 
     diameters = {int(i): float(d) for i, d in zip(samples.index, samples.diameter_mm, strict=True)}
@@ -573,8 +573,8 @@ def run_experiment(
     """
     from softjig.config import default_jig
     from softjig.evaluation import figures, report
+    from softjig.io.batch import dataset_reference
     from softjig.io.dataset import Dataset
-    from softjig.sensing.batch import dataset_reference
     from softjig.sim.scenarios import cube_experiment, paper_sweep
 
     if settings.split not in SPLITS:

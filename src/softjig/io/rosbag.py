@@ -250,7 +250,7 @@ class BagTopics:
 
 @dataclass(frozen=True, eq=False)
 class BagPair:
-    """One stereo pair from a bag, in the shape :func:`softjig.sensing.batch.estimate_frame` estimates
+    """One stereo pair from a bag, in the shape :func:`softjig.io.batch.estimate_frame` estimates
     (``index``, ``part``, ``reference``, :meth:`load_left`, :meth:`load_right`).
 
     Attributes
