@@ -1,10 +1,10 @@
 """Start-up of the command line: ``softjig --help`` and a single-pair ``softjig estimate``.
 
 Run: ``python benchmarks/bench_startup.py [--runs 9] [--src PATH ...]``. Each command runs as a fresh
-process ``--runs`` times, interleaved (bare, help, estimate, bare, ...), so that a busy machine slows
-all three alike; the script prints each one's median wall time and the ratios to the bare
-``python -c "import numpy, cv2, scipy.linalg"``. The goals (issue 14): ``--help`` within 2x and a
-single-pair estimate within 3x of the bare imports.
+process ``--runs`` times, interleaved (bare, then help and estimate of each source, bare, ...), so that a
+busy machine slows every command and source alike; the script prints each one's median wall time and
+the ratios to the bare ``python -c "import numpy, cv2, scipy.linalg"``. The goals (issue 14): ``--help``
+within 2x and a single-pair estimate within 3x of the bare imports.
 
 ``--src`` runs the commands with ``PYTHONPATH`` set to each given source folder in turn (for example
 ``--src src /work/main/src`` to set this tree beside another); by default, the softjig importable here.
@@ -62,25 +62,30 @@ def main() -> None:
         )
         estimate = [*SOFTJIG, "estimate", str(data / "left/000000.png"), str(data / "right/000000.png")]
         estimate += ["--config", str(data / "rig.toml"), "--part-diameter", "50", "--json"]
-        commands = {"bare imports": BARE, "softjig --help": [*SOFTJIG, "--help"], "single estimate": estimate}
+        commands = {"softjig --help": [*SOFTJIG, "--help"], "single estimate": estimate}
+        envs = {src or "the installed package": _env(src) for src in args.src}
         print(f"python {sys.version.split()[0]}, {os.cpu_count()} CPUs, {args.runs} runs each (medians, s)")
-        for src in args.src:
-            env = _env(src)
-            for argv in commands.values():  # warm-up: caches filled once per machine
+        for env in envs.values():  # warm-up: caches filled once per machine
+            for argv in commands.values():
                 _run(argv, env)
-            times: dict[str, list[float]] = {name: [] for name in commands}
-            for _ in range(args.runs):
+        bare: list[float] = []
+        times = {(src, name): [] for src in envs for name in commands}
+        for _ in range(args.runs):  # interleaved: a busy machine slows every command and source alike
+            bare.append(_run(BARE, _env(None)))
+            for src, env in envs.items():
                 for name, argv in commands.items():
-                    times[name].append(_run(argv, env))
-            medians = {name: statistics.median(values) for name, values in times.items()}
-            bare = medians["bare imports"]
-            print(f"\nsoftjig from {src or 'the installed package'}")
+                    times[src, name].append(_run(argv, env))
+        bare_s = statistics.median(bare)
+        print(f"\n  bare imports      {bare_s:6.3f} s  (range {max(bare) - min(bare):5.3f})")
+        for src in envs:
+            medians = {name: statistics.median(times[src, name]) for name in commands}
+            print(f"\nsoftjig from {src}")
             for name, value in medians.items():
-                spread = max(times[name]) - min(times[name])
-                print(f"  {name:16s} {value:6.3f} s  (range {spread:5.3f})  {value / bare:4.1f}x bare")
+                spread = max(times[src, name]) - min(times[src, name])
+                print(f"  {name:16s} {value:6.3f} s  (range {spread:5.3f})  {value / bare_s:4.1f}x bare")
             print(
-                f"  goals: --help {medians['softjig --help'] / bare:.1f}x (<= 2x), "
-                f"estimate {medians['single estimate'] / bare:.1f}x (<= 3x)"
+                f"  goals: --help {medians['softjig --help'] / bare_s:.1f}x (<= 2x), "
+                f"estimate {medians['single estimate'] / bare_s:.1f}x (<= 3x)"
             )
 
 
