@@ -10,13 +10,14 @@ from softjig.config import JigConfig
 from softjig.geometry import invert_pose, pose_from_rotvec_translation
 from softjig.optics import project_points
 from softjig.sensing.fiducials import detect_fiducials, fiducial_corners_J
+from softjig.sensing.jigframe import JigFrame
 
 
-def head_pose(left_u8: np.ndarray, right_u8: np.ndarray, jig: JigConfig):
-    """``(T_J_left, ids, rms_px)``: the left camera's pose in J minimising every fiducial corner's
-    reprojection error in both images (the right camera at its configured pose relative to the left one),
-    the ids found in both images, and the RMS error; ``None`` if fewer than two fiducials are found in
-    either image."""
+def jig_frame(left_u8: np.ndarray, right_u8: np.ndarray, jig: JigConfig) -> JigFrame | None:
+    """The cameras' poses in J minimising every fiducial corner's reprojection error in both images (the
+    right camera at its configured pose relative to the left one), with the ids found in both images and
+    the RMS error (quads in the config's order); ``None`` if fewer than two fiducials are found in either
+    image."""
     found = [detect_fiducials(image, jig.fiducials) for image in (left_u8, right_u8)]
     if min(len(f) for f in found) < 2:
         return None
@@ -38,7 +39,9 @@ def head_pose(left_u8: np.ndarray, right_u8: np.ndarray, jig: JigConfig):
     fit = least_squares(residuals, x0, xtol=1e-15, ftol=1e-15, gtol=1e-15)
     rms = float(np.sqrt(np.mean(fit.fun**2)))
     both = tuple(sorted(set(found[0]) & set(found[1])))
-    return invert_pose(pose_from_rotvec_translation(fit.x[:3], fit.x[3:])), both, rms
+    T_J_left = invert_pose(pose_from_rotvec_translation(fit.x[:3], fit.x[3:]))
+    quads = [np.array([f[i] for i in jig.fiducials.ids if i in f]).reshape(-1, 4, 2) for f in found]
+    return JigFrame(T_J_left, T_J_left @ T_left_right, "fiducials", rms, both, quads[0], quads[1])
 
 
 def inside_fiducials(xy, quads, quiet_zone=1.0 / 3.0):

@@ -508,23 +508,19 @@ def _stereo_pair_figure(
     from softjig.evaluation.overlay import draw_overlay
     from softjig.io.dataset import encode_png
     from softjig.io.files import write_bytes_atomic
-    from softjig.sensing.pipeline import estimate_pair
+    from softjig.sensing.estimator import Estimator
 
     diameters = {int(i): float(d) for i, d in zip(samples.index, samples.diameter_mm, strict=True)}
+    estimator = Estimator(
+        dataset.jig, method=method, reference=reference if method == DEFAULT_METHOD else None
+    )
     wanted = [i for i in candidates if i in diameters]
     frames = {f.index: f for f in dataset if f.index in set(wanted)}  # one pass, the candidates kept
     for index in wanted:
         frame = frames[index]
         try:
             left, right = frame.load_left(), frame.load_right()
-            result = estimate_pair(
-                left,
-                right,
-                dataset.jig,
-                part_diameter_mm=diameters[index],
-                method=method,
-                **({"reference": reference} if method == DEFAULT_METHOD else {}),
-            )
+            result = estimator.estimate(left, right, part_diameter_mm=diameters[index])
         except (EstimationError, InputError):
             continue
         write_bytes_atomic(path, encode_png(draw_overlay(left, right, result, dataset.jig)))

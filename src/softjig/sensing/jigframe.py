@@ -23,12 +23,10 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from functools import lru_cache
 
 import cv2
 import numpy as np
 
-from softjig.caching import cached_by_identity
 from softjig.config import CameraConfig, JigConfig
 from softjig.errors import EstimationError
 from softjig.geometry import invert_pose, pose_from_rotvec_translation
@@ -69,10 +67,9 @@ def _projected_quads(jig: JigConfig, camera: CameraConfig, T_J_cam: np.ndarray) 
     return _project(camera, invert_pose(T_J_cam), corners).reshape(-1, 4, 2)
 
 
-@lru_cache(maxsize=16)
 def jig_frame_from_config(jig: JigConfig) -> JigFrame:
-    """The fixed extrinsics written in the config (computed once per jig: every frame asks for them, if
-    only for where its fiducials should be; the arrays are read-only)."""
+    """The fixed extrinsics written in the config (the arrays are read-only; an estimator builds them once,
+    in :func:`frame_constants`)."""
     left, right = jig.cameras.left, jig.cameras.right
     arrays = [
         left.T_J_cam,
@@ -108,7 +105,27 @@ def _project(camera: CameraConfig, T_cam_J: np.ndarray, points_J: np.ndarray) ->
     return project_points(points_J, camera.K, camera.distortion, invert_pose(T_cam_J), None)
 
 
-def jig_frame_from_fiducials(left_u8: np.ndarray, right_u8: np.ndarray, jig: JigConfig) -> JigFrame | None:
+class FiducialMemory:
+    """Where the general path last found every fiducial of one jig (the bytes of (M, 4, 2) float64 quads
+    in each image, in the config's order), or ``None``: the fast path's second guess when the as-built
+    head is too far from the config's poses for the capture (> CAPTURE_PX), so that only the first frame
+    of such a rig takes the general path. The fast path's result does not depend on where it starts (the
+    corners and the fit are iterated to convergence): this only saves time. An estimator owns one."""
+
+    __slots__ = ("quads",)
+
+    def __init__(self) -> None:
+        self.quads: tuple[bytes, bytes] | None = None
+
+
+def jig_frame_from_fiducials(
+    left_u8: np.ndarray,
+    right_u8: np.ndarray,
+    jig: JigConfig,
+    *,
+    constants: FrameConstants | None = None,
+    memory: FiducialMemory | None = None,
+) -> JigFrame | None:
     """Measure the stereo head's pose in J from the fiducials seen in an 8-bit gray stereo pair.
 
     The fast path first (fiducials read near where they are expected, Gauss-Newton), then, if it does
@@ -119,52 +136,44 @@ def jig_frame_from_fiducials(left_u8: np.ndarray, right_u8: np.ndarray, jig: Jig
     ----------
     left_u8, right_u8 : (H, W) uint8 images.
     jig : the nominal jig: its fiducials and cameras (intrinsics, and poses to start from).
+    constants : :func:`frame_constants` of ``jig`` (built here when not given: an estimator builds them
+        once).
+    memory : where the general path last found the fiducials (read and updated), if kept.
 
     Returns ``None`` when fewer than :data:`MIN_FIDUCIALS_PER_IMAGE` configured fiducials are found in
     either image, or when the fitted pose does not explain the corners (the fit did not converge or the
     RMS reprojection error exceeds :data:`MAX_FIDUCIAL_RMS_PX`).
     """
-    frame = _jig_frame_fast(left_u8, right_u8, jig, _fast_constants(jig).expected_quads)
-    hint = _FOUND_BEFORE.get(id(jig))
-    if frame is None and hint is not None and hint[0] is jig:
-        frame = _jig_frame_fast(left_u8, right_u8, jig, hint[1])
+    k = constants if constants is not None else frame_constants(jig)
+    frame = _jig_frame_fast(left_u8, right_u8, jig, k, k.fast.expected_quads)
+    if frame is None and memory is not None and memory.quads is not None:
+        frame = _jig_frame_fast(left_u8, right_u8, jig, k, memory.quads)
     if frame is not None:
         return frame
     fid = jig.fiducials
-    expected = jig_frame_from_config(jig)
+    expected = k.config_frame
     found = [
         detect_fiducials(left_u8, fid, expected_quads_px=expected.fiducial_quads_left_px),
         detect_fiducials(right_u8, fid, expected_quads_px=expected.fiducial_quads_right_px),
     ]
     if min(len(f) for f in found) < MIN_FIDUCIALS_PER_IMAGE:
         return None
-    frame = _frame_from_corners(found, jig, _fit_pose_lm)
-    if frame is not None and all(set(f) == set(fid.ids) for f in found):
-        _remember_where_found(jig, found)
+    frame = _frame_from_corners(found, jig, _fit_pose_lm, k)
+    if memory is not None and frame is not None and all(set(f) == set(fid.ids) for f in found):
+        memory.quads = tuple(np.array([f[i] for i in fid.ids], dtype=float).tobytes() for f in found)
     return frame
 
 
-# Where the general path last found every fiducial, per jig object: the fast path's second guess when
-# the as-built head is too far from the config's poses for the capture (> CAPTURE_PX), so that only the
-# first frame of such a rig takes the general path. The fast path's result does not depend on where it
-# starts (the corners and the fit are iterated to convergence): this only saves time.
-_FOUND_BEFORE: dict[int, tuple[JigConfig, tuple[bytes, bytes]]] = {}
-
-
-def _remember_where_found(jig: JigConfig, found: list[dict[int, np.ndarray]]) -> None:
-    """Keep every fiducial's corners in each image (in the config's order) as this jig's second guess."""
-    if len(_FOUND_BEFORE) >= 16:
-        _FOUND_BEFORE.clear()
-    quads = tuple(np.array([f[i] for i in jig.fiducials.ids], dtype=float).tobytes() for f in found)
-    _FOUND_BEFORE[id(jig)] = (jig, quads)
-
-
 def _jig_frame_fast(
-    left_u8: np.ndarray, right_u8: np.ndarray, jig: JigConfig, expected_quads: tuple[bytes, bytes]
+    left_u8: np.ndarray,
+    right_u8: np.ndarray,
+    jig: JigConfig,
+    constants: FrameConstants,
+    expected_quads: tuple[bytes, bytes],
 ) -> JigFrame | None:
     """The fast path: every fiducial read near its expected place (the bytes of (M, 4, 2) float64 quads
     in each image), and a Gauss-Newton fit; ``None`` if a fiducial is not there or the fit fails."""
-    k = _fast_constants(jig)
+    k = constants.fast
     images = [np.asarray(image) for image in (left_u8, right_u8)]
     if any(image.dtype != np.uint8 or image.ndim != 2 for image in images):
         return None
@@ -176,7 +185,7 @@ def _jig_frame_fast(
         return None
     if k.distorted:  # the Gauss-Newton fit is for pinholes: SciPy's LM with OpenCV's distortion model
         found = [dict(zip(jig.fiducials.ids, c, strict=True)) for c in corners]
-        return _frame_from_corners(found, jig, _fit_pose_lm)
+        return _frame_from_corners(found, jig, _fit_pose_lm, constants)
     observed = np.concatenate([corners[0].reshape(-1, 2), corners[1].reshape(-1, 2)])
     fit = _gauss_newton(k.points_J, observed, k.n_left, k.pinhole)
     if fit is None:
@@ -208,37 +217,60 @@ class _FastConstants:
     pinhole: _PinholeConstants
 
 
-@cached_by_identity()
-def _fast_constants(jig: JigConfig) -> _FastConstants:
-    """The fast path's constants of this jig, built once per jig object."""
+@dataclass(frozen=True)
+class FrameConstants:
+    """What finding the jig frame needs of a jig, built once by :func:`frame_constants`: the config's
+    frame (the expected fiducial quads), the right camera's pose relative to the left one (read-only),
+    each fiducial's corners in J ((4, 3) mm, read-only) and the fast path's constants."""
+
+    config_frame: JigFrame
+    T_left_right: np.ndarray
+    corners_J_by_id: dict[int, np.ndarray]
+    fast: _FastConstants
+
+
+def frame_constants(jig: JigConfig) -> FrameConstants:
+    """The jig-frame constants of this jig (about 1 ms to build: an estimator builds them once)."""
     expected = jig_frame_from_config(jig)
-    corners = fiducial_corners_J(jig.fiducials).reshape(-1, 3)
+    T_left_right = invert_pose(expected.T_J_left) @ expected.T_J_right
+    T_left_right.flags.writeable = False
+    corners_by_fiducial = fiducial_corners_J(jig.fiducials)
+    corners_by_fiducial.flags.writeable = False
+    corners = corners_by_fiducial.reshape(-1, 3)
     points = np.concatenate([corners, corners])
     points.flags.writeable = False
     n = len(corners)
-    return _FastConstants(
+    fast = _FastConstants(
         expected_quads=(
             np.ascontiguousarray(expected.fiducial_quads_left_px, dtype=float).tobytes(),
             np.ascontiguousarray(expected.fiducial_quads_right_px, dtype=float).tobytes(),
         ),
         points_J=points,
         n_left=n,
-        T_left_right=_T_left_right(jig),
+        T_left_right=T_left_right,
         sorted_ids=tuple(sorted(jig.fiducials.ids)),
         distorted=bool(np.any(jig.cameras.left.distortion) or np.any(jig.cameras.right.distortion)),
-        pinhole=_pinhole_constants(jig, n, n),
+        pinhole=_pinhole_constants(jig, expected, T_left_right, n, n),
+    )
+    return FrameConstants(
+        expected, T_left_right, dict(zip(jig.fiducials.ids, corners_by_fiducial, strict=True)), fast
     )
 
 
-PoseFit = Callable[[list[np.ndarray], list[np.ndarray], JigConfig], "tuple[np.ndarray, np.ndarray] | None"]
+PoseFit = Callable[
+    [list[np.ndarray], list[np.ndarray], JigConfig, "FrameConstants | None"],
+    "tuple[np.ndarray, np.ndarray] | None",
+]
 
 
-def _frame_from_corners(found: list[dict[int, np.ndarray]], jig: JigConfig, fit: PoseFit) -> JigFrame | None:
+def _frame_from_corners(
+    found: list[dict[int, np.ndarray]], jig: JigConfig, fit: PoseFit, constants: FrameConstants
+) -> JigFrame | None:
     """The JigFrame of the corners found in both images, with the pose from ``fit`` (or ``None``)."""
-    corners_J = _corners_J_by_id(jig)
+    corners_J = constants.corners_J_by_id
     obj = [np.concatenate([corners_J[i] for i in f]) for f in found]
     img = [np.concatenate([f[i] for i in f]) for f in found]
-    result = fit(obj, img, jig)
+    result = fit(obj, img, jig, constants)
     if result is None:
         return None
     T_left_J, residuals = result
@@ -248,29 +280,11 @@ def _frame_from_corners(found: list[dict[int, np.ndarray]], jig: JigConfig, fit:
     T_J_left = invert_pose(T_left_J)
     both = tuple(sorted(set(found[0]) & set(found[1])))
     quads = [np.array(list(f.values())).reshape(-1, 4, 2) for f in found]
-    return JigFrame(T_J_left, T_J_left @ _T_left_right(jig), "fiducials", rms, both, quads[0], quads[1])
-
-
-@lru_cache(maxsize=16)
-def _T_left_right(jig: JigConfig) -> np.ndarray:
-    """The right camera's pose relative to the left one, fixed by the config (the stereo calibration;
-    read-only)."""
-    frame = jig_frame_from_config(jig)
-    T = invert_pose(frame.T_J_left) @ frame.T_J_right
-    T.flags.writeable = False
-    return T
-
-
-@lru_cache(maxsize=16)
-def _corners_J_by_id(jig: JigConfig) -> dict[int, np.ndarray]:
-    """Each fiducial's corners in J, (4, 3) mm (read-only)."""
-    corners = fiducial_corners_J(jig.fiducials)
-    corners.flags.writeable = False
-    return dict(zip(jig.fiducials.ids, corners, strict=True))
+    return JigFrame(T_J_left, T_J_left @ constants.T_left_right, "fiducials", rms, both, quads[0], quads[1])
 
 
 def _fit_pose_lm(
-    obj: list[np.ndarray], img: list[np.ndarray], jig: JigConfig
+    obj: list[np.ndarray], img: list[np.ndarray], jig: JigConfig, constants: FrameConstants | None = None
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """The left camera's pose ``T_left_J`` minimising both images' reprojection errors, and the residuals
     (px): OpenCV's IPPE PnP in the left image for the start, then SciPy's Levenberg-Marquardt."""
@@ -283,7 +297,8 @@ def _fit_pose_lm(
 
     # The residual is evaluated ~30 times per frame: OpenCV's projectPoints and composeRT work on the
     # rotation vectors directly, several times faster than optics.project_points on poses.
-    T_right_left = invert_pose(_T_left_right(jig))
+    k = constants if constants is not None else frame_constants(jig)
+    T_right_left = invert_pose(k.T_left_right)
     rvec_rl = cv2.Rodrigues(T_right_left[:3, :3])[0]
     tvec_rl = T_right_left[:3, 3].reshape(3, 1)
     dist = [np.asarray(cam.distortion, float) for cam in cams]
@@ -304,7 +319,7 @@ def _fit_pose_lm(
 
 
 def _fit_pose_gauss_newton(
-    obj: list[np.ndarray], img: list[np.ndarray], jig: JigConfig
+    obj: list[np.ndarray], img: list[np.ndarray], jig: JigConfig, constants: FrameConstants | None = None
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """As :func:`_fit_pose_lm` for distortion-free cameras, by Gauss-Newton from the config's pose.
 
@@ -314,15 +329,16 @@ def _fit_pose_gauss_newton(
     from the config's pose (~1 mm, 0.5 deg away) it converges in 3-4 steps
     (:func:`softjig.sensing._jigframe_kernels.gauss_newton`).
     """
-    k = _pinhole_constants(jig, len(obj[0]), len(obj[1]))
+    c = constants if constants is not None else frame_constants(jig)
+    k = _pinhole_constants(jig, c.config_frame, c.T_left_right, len(obj[0]), len(obj[1]))
     return _gauss_newton(np.concatenate(obj), np.concatenate(img), len(obj[0]), k)
 
 
 def _gauss_newton(
     points_J: np.ndarray, observed_px: np.ndarray, n_left: int, k: _PinholeConstants
 ) -> tuple[np.ndarray, np.ndarray] | None:
-    """``T_left_J`` and the residuals (px) of :func:`_gauss_newton_kernel`, or ``None`` if it did not
-    converge."""
+    """``T_left_J`` and the residuals (px) of the compiled Gauss-Newton steps
+    (:func:`softjig.sensing._jigframe_kernels.gauss_newton`), or ``None`` if they did not converge."""
     from softjig.sensing._jigframe_kernels import gauss_newton  # Numba is imported on first use
 
     R, t, residuals, converged = gauss_newton(
@@ -358,11 +374,11 @@ class _PinholeConstants:
     centre: np.ndarray
 
 
-@lru_cache(maxsize=16)
-def _pinhole_constants(jig: JigConfig, n_left: int, n_right: int) -> _PinholeConstants:
-    frame = jig_frame_from_config(jig)
-    T_left_J = invert_pose(frame.T_J_left)
-    T_rl = invert_pose(_T_left_right(jig))
+def _pinhole_constants(
+    jig: JigConfig, config_frame: JigFrame, T_left_right: np.ndarray, n_left: int, n_right: int
+) -> _PinholeConstants:
+    T_left_J = invert_pose(config_frame.T_J_left)
+    T_rl = invert_pose(T_left_right)
     left, right = jig.cameras.left, jig.cameras.right
     counts = [n_left, n_right]
     focal = np.repeat([[left.fx_px, left.fy_px], [right.fx_px, right.fy_px]], counts, axis=0)
@@ -374,12 +390,18 @@ def _pinhole_constants(jig: JigConfig, n_left: int, n_right: int) -> _PinholeCon
 
 
 def resolve_jig_frame(
-    left_u8: np.ndarray, right_u8: np.ndarray, jig: JigConfig
+    left_u8: np.ndarray,
+    right_u8: np.ndarray,
+    jig: JigConfig,
+    *,
+    constants: FrameConstants | None = None,
+    memory: FiducialMemory | None = None,
 ) -> tuple[JigFrame, list[str]]:
     """The jig frame as ``sensing.extrinsics`` asks, with any warning to report.
 
-    ``"fiducials"`` requires them (:func:`jig_frame_from_fiducials`); ``"config"`` uses the fixed
-    extrinsics; ``"auto"`` measures them when found and falls back to the config with a warning.
+    ``"fiducials"`` requires them; ``"config"`` uses the fixed extrinsics; ``"auto"`` measures them when
+    found and falls back to the config with a warning. See :func:`jig_frame_from_fiducials`, which also
+    says what ``constants`` and ``memory`` are.
 
     Raises
     ------
@@ -387,9 +409,10 @@ def resolve_jig_frame(
         ``sensing.extrinsics == "fiducials"`` and the fiducials were not found.
     """
     mode = jig.sensing.extrinsics
+    k = constants if constants is not None else frame_constants(jig)
     if mode == "config":
-        return jig_frame_from_config(jig), []
-    frame = jig_frame_from_fiducials(left_u8, right_u8, jig)
+        return k.config_frame, []
+    frame = jig_frame_from_fiducials(left_u8, right_u8, jig, constants=k, memory=memory)
     if frame is not None:
         return frame, []
     message = (
@@ -401,4 +424,4 @@ def resolve_jig_frame(
             f"{message} and sensing.extrinsics is 'fiducials': make them visible, or set "
             "sensing.extrinsics = 'config' to use the calibrated camera poses in the config"
         )
-    return jig_frame_from_config(jig), [f"{message}: used the camera poses in the config instead"]
+    return k.config_frame, [f"{message}: used the camera poses in the config instead"]
