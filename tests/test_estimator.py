@@ -10,9 +10,7 @@ import numpy as np
 import pytest
 
 import softjig.sensing
-from oracles.jigframe import jig_frame as oracle_jig_frame
-from oracles.refracted_rays import traced_triangulation
-from oracles.stereo_assignment import dense_assignment
+from oracles.stages import straightforward_estimator
 from softjig.config import CylinderPart, SensingConfig, default_jig
 from softjig.errors import ConfigError, EstimationError, InputError
 from softjig.geometry import angle_between
@@ -20,8 +18,7 @@ from softjig.sensing import stages
 from softjig.sensing.estimator import COMPOSITIONS, Estimator
 from softjig.sensing.pipeline import Estimate, Markers, SensingResult, estimate_pair
 from softjig.sensing.results import Refusal
-from softjig.sensing.stages import LogDetector, RowMatcher
-from softjig.sensing.stereo import StereoMatches
+from softjig.sensing.stages import LogDetector
 from softjig.sim.asbuilt import draw_as_built
 from softjig.sim.parts import PartPose
 from softjig.sim.render import render_pair
@@ -74,42 +71,6 @@ def test_one_estimator_over_many_frames_equals_a_fresh_one_per_frame(pairs, meth
         assert kept == fresh.estimate.to_dict()
 
 
-class _FullArucoFrameFinder:
-    """The straightforward jig frame: ArUco's detector on the whole images, SciPy's least squares
-    (tests/oracles)."""
-
-    def __init__(self, jig):
-        self.jig = jig
-
-    def find(self, left_u8, right_u8):
-        return oracle_jig_frame(left_u8, right_u8, self.jig), []
-
-
-class _DenseMatcher:
-    """The matching's definition: one dense max-cardinality min-cost assignment (tests/oracles)."""
-
-    def __init__(self, estimator):
-        row = RowMatcher(estimator.model)._kwargs
-        self.args = (row["row_tolerance_px"], row["min_disparity_px"], row["max_disparity_px"])
-
-    def match(self, left, right):
-        li, rj, _ = dense_assignment(left.xy_px, right.xy_px, *self.args)
-        lx, rx = left.xy_px[li], right.xy_px[rj]
-        return StereoMatches(li, rj, lx[:, 1] - rx[:, 1], lx[:, 0] - rx[:, 0])
-
-
-class _TracedTriangulator:
-    """Each ray traced interface by interface (tests/oracles)."""
-
-    def __init__(self, jig):
-        self.jig = jig
-
-    def triangulate(self, left_xy_px, right_xy_px, frame):
-        if len(left_xy_px) == 0:
-            return np.zeros((0, 3))
-        return traced_triangulation(left_xy_px, right_xy_px, self.jig, frame).points_J
-
-
 @pytest.mark.parametrize("method", ["refractive", "paper"])
 def test_the_straightforward_stages_find_the_same_markers_and_normal(pairs, method):
     """The standard stages (pyramid candidates, fiducials read near their expected place, the sparse
@@ -119,15 +80,7 @@ def test_the_straightforward_stages_find_the_same_markers_and_normal(pairs, meth
     little differently: 0.03 mm at most on this pair), the same normal within 0.05 deg."""
     pair = pairs[0]
     standard = Estimator(JIG, method=method)
-    oracle = Estimator(
-        JIG,
-        method=method,
-        model=standard.model,
-        detector=LogDetector.from_model(standard.model, candidates="full"),
-        frame_finder=_FullArucoFrameFinder(standard.jig),
-        matcher=_DenseMatcher(standard),
-        triangulator=_TracedTriangulator(standard.jig) if method == "refractive" else None,
-    )
+    oracle = straightforward_estimator(standard)
     fast = standard.estimate(pair.left, pair.right, part_diameter_mm=60)
     slow = oracle.estimate(pair.left, pair.right, part_diameter_mm=60)
     distance, _ = _nearest(fast.points_J, slow.points_J)
