@@ -42,6 +42,9 @@ def fiducial_corners_J(fiducials: FiducialConfig) -> np.ndarray:
     return np.concatenate([xy, z], axis=2)
 
 
+MIN_SEARCH_WINDOW_PX = 8  # a search window narrower than this (cut by the image's edge) is skipped
+
+
 def detect_fiducials(
     gray_u8: np.ndarray, fiducials: FiducialConfig, *, expected_quads_px: np.ndarray | None = None
 ) -> dict[int, np.ndarray]:
@@ -68,7 +71,7 @@ def detect_fiducials(
             side = float(np.ptp(quad, axis=0).max())
             lo = np.floor(quad.min(axis=0) - side).astype(int).clip(0, [w, h])
             hi = np.ceil(quad.max(axis=0) + side).astype(int).clip(0, [w, h])
-            if np.any(hi - lo < 8):
+            if np.any(hi - lo < MIN_SEARCH_WINDOW_PX):
                 continue
             window = np.ascontiguousarray(gray_u8[lo[1] : hi[1], lo[0] : hi[0]])
             for marker_id, corners in _detect(window, fiducials).items():
