@@ -10,12 +10,15 @@ within 2x and a single-pair estimate within 3x of the bare imports.
 ``--src src /work/main/src`` to set this tree beside another); by default, the softjig importable here.
 The stereo pair is one simulated default frame (``softjig simulate --scenario single``), rendered once
 into a temporary folder. Each source gets one untimed warm-up run of every command first, which fills
-the caches a first run builds once per machine (Numba's compiled kernels, the sub-pixel tables).
+the caches a first run builds once per machine (Numba's compiled kernels, the sub-pixel tables). Then, per
+source, the estimate's Numba share in one process (medians of a few runs): ``import numba``, the first
+kernel's load from the cache (which initialises Numba's CPU target), the other kernels' loads.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import statistics
 import subprocess
@@ -26,6 +29,34 @@ from pathlib import Path
 
 BARE = [sys.executable, "-c", "import numpy, cv2, scipy.linalg"]
 SOFTJIG = [sys.executable, "-c", "from softjig.cli import main; main()"]
+# The estimate in one process with Numba's share timed: its import, then every compiled kernel loaded from
+# the cache (the first load also initialises Numba's CPU target). Prints one JSON line on stderr.
+BREAKDOWN = """
+import json, sys, time
+t0 = time.perf_counter()
+import numba
+import numba.core.caching as caching
+t1 = time.perf_counter()
+loads = []
+original = caching.Cache.load_overload
+def load_overload(self, sig, target_context):
+    start = time.perf_counter()
+    try:
+        return original(self, sig, target_context)
+    finally:
+        loads.append(time.perf_counter() - start)
+caching.Cache.load_overload = load_overload
+from softjig.cli import main
+sys.argv = ["softjig", *sys.argv[1:]]
+try:
+    main()
+except SystemExit:
+    pass
+figures = {"numba import": t1 - t0, "first kernel (target init)": loads[0] if loads else 0.0}
+figures.update({"other kernel loads": sum(loads[1:]), "kernels": len(loads)})
+figures["in-process total"] = time.perf_counter() - t0
+sys.stderr.write(json.dumps(figures))
+"""
 
 
 def _env(src: str | None) -> dict[str, str]:
@@ -42,6 +73,18 @@ def _run(argv: list[str], env: dict[str, str]) -> float:
     if done.returncode != 0:
         raise SystemExit(f"{' '.join(argv[3:]) or argv}: exit {done.returncode}\n{done.stderr}")
     return seconds
+
+
+def _breakdown(argv: list[str], env: dict[str, str], runs: int) -> dict[str, float]:
+    """Medians over ``runs`` of the :data:`BREAKDOWN` figures for ``softjig`` arguments ``argv``."""
+    rows = []
+    for _ in range(runs):
+        argv_breakdown = [sys.executable, "-c", BREAKDOWN, *argv]
+        done = subprocess.run(
+            argv_breakdown, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, check=True
+        )
+        rows.append(json.loads(done.stderr.strip().splitlines()[-1]))
+    return {key: statistics.median(row[key] for row in rows) for key in rows[0]}
 
 
 def main() -> None:
@@ -87,6 +130,11 @@ def main() -> None:
                 f"  goals: --help {medians['softjig --help'] / bare_s:.1f}x (<= 2x), "
                 f"estimate {medians['single estimate'] / bare_s:.1f}x (<= 3x)"
             )
+            parts = _breakdown(estimate[3:], envs[src], max(3, args.runs // 3))
+            kernels = int(parts.pop("kernels"))
+            print(f"  the estimate in one process ({kernels} compiled kernels loaded):")
+            for name, value in parts.items():
+                print(f"    {name:28s} {value:6.3f} s")
 
 
 if __name__ == "__main__":
