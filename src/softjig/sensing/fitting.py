@@ -294,6 +294,11 @@ class NoiseScales:
     plane_sigma_mm: float
     face_depth_sigma_mm: float
 
+    @property
+    def inlier_mm(self) -> float:
+        """The contact plane's inlier distance: :data:`CONTACT_INLIER_SIGMAS` plane sigmas (mm)."""
+        return CONTACT_INLIER_SIGMAS * self.plane_sigma_mm
+
 
 def noise_scales(
     points_J: np.ndarray, dent: Indentation, reference: ReferenceModel, jig: JigConfig
@@ -365,6 +370,8 @@ class ContactPlaneFitter:
     def fit(
         self, observation: Observation, points_J: np.ndarray, part_diameter_mm: float | None
     ) -> SensingResult | Refusal:
+        """Identify the markers, measure their indentation, find the contact (in the reference markers'
+        order, :func:`canonical_order`), drop the lifted-off markers, and describe the result."""
         identities = identify_markers(
             points_J, self._reference.markers, max_lateral_mm=IDENTITY_REACH_PITCHES * self._pitch
         )
@@ -378,13 +385,8 @@ class ContactPlaneFitter:
             )
         noise = noise_scales(points_J, dent, self._reference, self._jig)
         order = canonical_order(identities.ids, points_J)
-        ordered = Dent(
-            points_J[order],
-            Indentation(dent.depth_mm[order], dent.zero_mm, dent.noise_mm),
-            candidates[order],
-            noise,
-            CONTACT_INLIER_SIGMAS * noise.plane_sigma_mm,
-        )
+        in_order = Indentation(dent.depth_mm[order], dent.zero_mm, dent.noise_mm)
+        ordered = Dent(points_J[order], in_order, candidates[order], noise, noise.inlier_mm)
         found = self._contact(ordered, part_diameter_mm)
         if not found:
             return found
@@ -544,8 +546,8 @@ class ContactPlaneFitter:
     def _size_free_cut(
         self, dent: Dent, radius_mm: float, size_free: Callable[[], Contact], *, checked: bool
     ) -> Contact | Refusal:
-        """The size-free contact (made only when needed: it costs about 0.7 ms) cut to the face: the face
-        placed where that contact puts it (:func:`~softjig.sensing.contact.face_centre_xy`), and that
+        """The size-free contact (made only when needed: it costs more than a search) cut to the face: the
+        face placed where that contact puts it (:func:`~softjig.sensing.contact.face_centre_xy`), and that
         contact's markers under it. With ``checked`` (a search found a contact too small to check), it is
         taken only when it has enough markers to check and passes the checks (no violations, halves that
         agree)."""
