@@ -799,7 +799,9 @@ def _contact_under_known_face(
     if len(searches) > 1:  # the one whose plane fewer markers contradict, then the larger contact
         scores = [
             (
-                contact_violations(points_J, used, plane, threshold_mm=threshold_mm, pitch_mm=pitch),
+                contact_violations(
+                    points_J, used, plane, threshold_mm=threshold_mm, pitch_mm=pitch, dent=dent
+                ),
                 -used.sum(),
             )
             for used, plane in searches
@@ -830,7 +832,9 @@ def _contact_under_known_face(
                 point_sigma_mm=threshold_mm / CONTACT_INLIER_SIGMAS,
                 noise_factor=MODEL_ERROR_FACTOR,
             )
-            violations = contact_violations(points_J, *cut, threshold_mm=threshold_mm, pitch_mm=pitch)
+            violations = contact_violations(
+                points_J, *cut, threshold_mm=threshold_mm, pitch_mm=pitch, dent=dent
+            )
             if check is not None and not check.suspect and violations == 0:
                 ways.insert(0, cut)  # a larger contact that passes the self-check
     if not ways:
@@ -1082,7 +1086,9 @@ def _refractive_estimate(
         )
     suspect = _suspicions(
         split,
-        contact_violations(points_J, used, plane, threshold_mm=threshold, pitch_mm=jig.markers.pitch_mm),
+        contact_violations(
+            points_J, used, plane, threshold_mm=threshold, pitch_mm=jig.markers.pitch_mm, dent=dent
+        ),
         plane,
         contact,
         part_diameter_mm,
@@ -1158,8 +1164,8 @@ def _suspicions(
         )
     if violations > 0:
         reasons.append(
-            f"suspect: {violations} markers inside the contact lie above the fitted face or far below it, "
-            "beyond what the noise explains: the plane may not be the part's face"
+            f"suspect: {violations} markers in or beside the contact lie above the fitted face or far below "
+            "it, beyond what the noise explains: the plane may not be the part's face"
         )
     if plane.normal[2] < np.cos(np.radians(MAX_PLAUSIBLE_TILT_DEG)):
         reasons.append(
