@@ -95,7 +95,7 @@ from softjig.sensing.jigframe import JigFrame, inside_fiducials, resolve_jig_fra
 from softjig.sensing.rectify import rectify_pair
 from softjig.sensing.refractive import triangulate_refracted
 from softjig.sensing.robust import fit_plane_robust
-from softjig.sensing.selfcheck import SplitCheck, split_halves
+from softjig.sensing.selfcheck import SplitCheck, agreement, split_halves
 from softjig.sensing.stereo import StereoMatches, match_rectified, triangulate_rectified
 from softjig.sensing.subpixel import MIN_MODEL_BLUR_PX, MarkerModel
 from softjig.sensing.uncertainty import (
@@ -768,8 +768,10 @@ def _contact_under_known_face(
     noise_mm: float,
     threshold_mm: float,
     size_free: Callable[[], tuple[np.ndarray, PlaneFit]] | None = None,
-) -> tuple[np.ndarray, PlaneFit]:
-    """The contact when the part's base radius is known, wherever the part stands on the jig.
+) -> tuple[np.ndarray, PlaneFit, SplitCheck | None]:
+    """The contact when the part's base radius is known, wherever the part stands on the jig, and the
+    agreement with a rival contact that no marker contradicts either but whose normal is far from it
+    (``None`` when there is none: the estimate is suspect when there is).
 
     - **The face searched from the indentation** (:func:`_search_face`): from the jig axis (the paper's
       setting) and, when the dent's centroid lies :data:`OFF_AXIS_DENT_RADII` radii or more off the
@@ -787,6 +789,7 @@ def _contact_under_known_face(
     pitch = jig.markers.pitch_mm
     ways = []
     searches = []
+    rival = None
     dent_centre = points_J[candidates, :2].mean(axis=0) if candidates.any() else np.zeros(2)
     starts = [None] if np.hypot(*dent_centre) < OFF_AXIS_DENT_RADII * radius_mm else [None, dent_centre]
     for start in starts:  # from the jig axis and, for a dent off the axis, from the dent's centroid
@@ -806,7 +809,13 @@ def _contact_under_known_face(
             )
             for used, plane in searches
         ]
-        searches = [searches[min(range(len(scores)), key=scores.__getitem__)]]
+        best = min(range(len(scores)), key=scores.__getitem__)
+        rival = (
+            _rival(points_J, searches[best], searches[1 - best], threshold_mm)
+            if scores[1 - best][0] == 0
+            else None
+        )
+        searches = [searches[best]]
     ways.extend(searches)
     grown = None
     few = not ways or ways[0][0].sum() < SELF_CHECK_MIN_POINTS
@@ -835,14 +844,31 @@ def _contact_under_known_face(
             violations = contact_violations(
                 points_J, *cut, threshold_mm=threshold_mm, pitch_mm=pitch, dent=dent
             )
-            if check is not None and not check.suspect and violations == 0:
-                ways.insert(0, cut)  # a larger contact that passes the self-check
+            # A larger contact that passes the self-check, unless it contradicts the search's face (which
+            # is then kept: too few markers to check, so suspect).
+            passes = check is not None and not check.suspect and violations == 0
+            if passes and _rival(points_J, ways[0], cut, threshold_mm) is None:
+                ways.insert(0, cut)
     if not ways:
         raise EstimationError(
             f"no {2 * radius_mm:g} mm face was found in the contact: fewer than {minimum} pushed-in markers "
             "lie under it (sensing.min_points); is the part's size right?"
         )
-    return ways[0]
+    return (*ways[0], rival)
+
+
+def _rival(points_J: np.ndarray, chosen, other, threshold_mm: float) -> SplitCheck | None:
+    """``other``'s agreement with the ``chosen`` contact (each ``(used, plane)``) when it contradicts it
+    (:func:`~softjig.sensing.selfcheck.agreement`), else ``None``."""
+    check = agreement(
+        points_J[chosen[0]],
+        chosen[1].normal,
+        points_J[other[0]],
+        other[1].normal,
+        point_sigma_mm=threshold_mm / CONTACT_INLIER_SIGMAS,
+        noise_factor=MODEL_ERROR_FACTOR,
+    )
+    return check if check is not None and check.suspect else None
 
 
 def _search_face(
@@ -992,7 +1018,7 @@ def _refractive_estimate(
         )
 
     if part_diameter_mm is not None:
-        used_in_order, plane = _contact_under_known_face(
+        used_in_order, plane, rival = _contact_under_known_face(
             points_J[order],
             in_order,
             candidates[order],
@@ -1005,7 +1031,7 @@ def _refractive_estimate(
             size_free_contact,
         )
     else:
-        used_in_order, plane = size_free_contact()
+        (used_in_order, plane), rival = size_free_contact(), None
     used = np.empty_like(used_in_order)
     used[order] = used_in_order
     if used.sum() < minimum:
@@ -1096,6 +1122,12 @@ def _refractive_estimate(
         n_used,
         minimum,
     )
+    if rival is not None:
+        suspect.append(
+            f"suspect: another contact fits the frame as well, its normal "
+            f"{np.degrees(rival.angle_rad):.1f} deg from this one's ({rival.sigmas:.0f} times their noise): "
+            "the frame may show the membrane's wall beside a small contact"
+        )
     n_candidates = int(candidates.sum())
     if part_diameter_mm is None and n_used < MIN_CANDIDATE_SHARE * n_candidates:  # size-free only:
         suspect.append(
