@@ -31,7 +31,9 @@ def _estimate(design_index: int, frame: int, *, with_size: bool, with_reference:
     """Render a zoo design's reference frame and one loaded frame as ``bench_zoo.evaluate_design`` does,
     and estimate it: ``(error_deg, estimate)``."""
     design = _draw_design(design_index, ZOO_SEED, ZOO_FRAMES, ZooRanges())
-    as_built = draw_as_built(design.jig, np.random.default_rng(np.random.SeedSequence(design.seed, spawn_key=(0,))))
+    as_built = draw_as_built(
+        design.jig, np.random.default_rng(np.random.SeedSequence(design.seed, spawn_key=(0,)))
+    )
 
     def rendered(index):
         spec = design.specs[index]
@@ -58,6 +60,7 @@ def _estimate(design_index: int, frame: int, *, with_size: bool, with_reference:
 # (design, frame, with the part's size, with the reference frame): the silent failures of the zoo
 # (seed 0) before the holes beside the contact were checked, and the error each had (deg).
 CASES = [
+    pytest.param(2, 15, True, True, id="d2f15-size-reference-33.8deg"),
     pytest.param(4, 7, True, True, id="d4f7-size-reference-15.7deg"),
     pytest.param(11, 3, False, True, id="d11f3-nosize-reference-19.7deg"),
     pytest.param(15, 10, True, True, id="d15f10-size-reference-13.0deg"),
