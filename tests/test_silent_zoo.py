@@ -57,6 +57,14 @@ def _estimate(design_index: int, frame: int, *, with_size: bool, with_reference:
     return math.degrees(math.acos(min(1.0, max(-1.0, cosine)))), estimate
 
 
+# Still silent (strict: a fix makes them pass, and the mark must go). Without the size, the wall beside
+# the lowered edge of a small contact and the face meet in a V at the deepest markers: the deep seed's
+# robust fit takes the side with more markers, and neither side contradicts the other.
+WALL_V = "size-free: a wall strip meeting a small face at its deepest markers, as plausible as the face"
+# With the size, a part less than one radius off the axis and tilted little is searched from the axis
+# only, and kept there: the face's disc on the axis takes in the wall on the axis side.
+ON_AXIS = "sized: a slightly tilted part 15-17 mm off the axis, searched from the axis only"
+
 # (design, frame, with the part's size, with the reference frame): the silent failures of the zoo
 # (seed 0) before the holes beside the contact were checked, and the error each had (deg).
 CASES = [
@@ -66,9 +74,40 @@ CASES = [
     pytest.param(15, 10, True, True, id="d15f10-size-reference-13.0deg"),
     pytest.param(16, 8, False, True, id="d16f8-nosize-reference-24.5deg"),
     pytest.param(18, 19, True, False, id="d18f19-size-rest-29.2deg"),
-    pytest.param(18, 19, False, False, id="d18f19-nosize-rest-29.1deg"),
+    pytest.param(
+        18,
+        19,
+        False,
+        False,
+        id="d18f19-nosize-rest-29.1deg",
+        marks=pytest.mark.xfail(strict=True, reason=WALL_V),
+    ),
     pytest.param(29, 18, False, True, id="d29f18-nosize-reference-12.8deg"),
     pytest.param(42, 4, False, False, id="d42f4-nosize-rest-15.9deg"),
+    pytest.param(
+        42,
+        4,
+        False,
+        True,
+        id="d42f4-nosize-reference-16.6deg",
+        marks=pytest.mark.xfail(strict=True, reason=WALL_V),
+    ),
+    pytest.param(
+        11,
+        4,
+        True,
+        True,
+        id="d11f4-size-reference-9.1deg",
+        marks=pytest.mark.xfail(strict=True, reason=ON_AXIS),
+    ),
+    pytest.param(
+        14,
+        14,
+        True,
+        False,
+        id="d14f14-size-rest-8.8deg",
+        marks=pytest.mark.xfail(strict=True, reason=ON_AXIS),
+    ),
 ]
 
 
