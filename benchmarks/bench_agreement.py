@@ -19,8 +19,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from softjig.geometry import angle_between
+from softjig.io.batch import dataset_reference
 from softjig.io.dataset import Dataset, Frame
-from softjig.sensing.batch import dataset_reference
 from softjig.sensing.pipeline import estimate_pair
 
 LIMIT_DEG = 0.05

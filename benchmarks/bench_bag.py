@@ -63,10 +63,11 @@ def main() -> None:
     cv2.setNumThreads(1)
     from softjig.config import default_jig
     from softjig.io.bag_convert import dataset_to_bag
+    from softjig.io.batch import dataset_reference
     from softjig.io.dataset import Dataset
     from softjig.io.rosbag import BagReader
-    from softjig.sensing.batch import dataset_reference
-    from softjig.sim.scenarios import paper_sweep, simulate_dataset
+    from softjig.io.simulated import simulate_dataset
+    from softjig.sim.scenarios import paper_sweep
 
     root = args.out or Path(tempfile.mkdtemp(prefix="bench_bag_"))
     ds_path, bag_path = root / "dataset", root / "bag"

@@ -19,7 +19,7 @@ in a subprocess, except the steady state (below). It prints:
    one frame, exit) and the speed-up that start-up allows at best (Amdahl, from CPU times: the start-up
    serial, the rest divided by the cores), so what is lost to start-up and what to the parallel part can
    be told apart.
-3. **Steady state**: frames per second of :func:`softjig.sensing.batch.estimate_dataset` in this process,
+3. **Steady state**: frames per second of :func:`softjig.io.batch.estimate_dataset` in this process,
    rows of the first and last 10 % excluded (start-up and the tail do not count), 1 vs. ``cpu_count()``
    workers, interleaved, medians.
 4. **Memory**: ``softjig estimate --workers cpu_count()`` on each of ``--frames`` while this process samples
@@ -53,7 +53,8 @@ import numpy as np
 
 from softjig.config import default_jig
 from softjig.io.dataset import FRAMES_NAME, RIG_NAME, Dataset
-from softjig.sim.scenarios import paper_sweep, simulate_dataset
+from softjig.io.simulated import simulate_dataset
+from softjig.sim.scenarios import paper_sweep
 
 THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS")
 SOFTJIG = str(Path(sys.executable).with_name("softjig"))
@@ -203,7 +204,7 @@ def run_estimate(dataset: Dataset, workers: int, out: Path, method: str = "refra
 def steady_rate(dataset: Dataset, workers: int, method: str) -> float:
     """Frames per second in steady state: :func:`estimate_dataset` in this process, timed between the
     rows of the first and the last 10 % of the dataset (worker start-up and Numba cache loading excluded)."""
-    from softjig.sensing.batch import BatchSettings, dataset_reference, estimate_dataset
+    from softjig.io.batch import BatchSettings, dataset_reference, estimate_dataset
 
     reference = dataset_reference(dataset, dataset.jig) if method == "refractive" else None
     settings = BatchSettings(jig=dataset.jig, method=method, reference=reference)
@@ -216,7 +217,7 @@ def frame_breakdown(dataset: Dataset, n: int = 12, method: str = "refractive") -
     """Median ms per loaded frame in one process: PNG decoding (both images) and each estimate stage."""
     import cv2
 
-    from softjig.sensing.batch import dataset_reference
+    from softjig.io.batch import dataset_reference
     from softjig.sensing.pipeline import estimate_pair
 
     cv2.setNumThreads(1)

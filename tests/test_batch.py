@@ -8,12 +8,11 @@ import os
 
 import pytest
 
+import softjig.io.batch as batch
 import softjig.io.dataset as dataset_module
-import softjig.sensing.batch as batch
 from softjig.config import default_jig
 from softjig.errors import InputError
-from softjig.io.dataset import Dataset, Frame
-from softjig.sensing.batch import (
+from softjig.io.batch import (
     BatchSettings,
     RowsWriter,
     dataset_reference,
@@ -22,7 +21,9 @@ from softjig.sensing.batch import (
     rows_to_text,
     write_rows,
 )
-from softjig.sim.scenarios import paper_sweep, simulate_dataset
+from softjig.io.dataset import Dataset, Frame
+from softjig.io.simulated import simulate_dataset
+from softjig.sim.scenarios import paper_sweep
 
 
 @pytest.fixture(scope="module")

@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from softjig.calibration.fiducial_layout import check_fiducials, fiducial_sheet, with_fiducials
 from softjig.cli import app
 from softjig.config import default_jig, load_jig
 from softjig.errors import ConfigError
-from softjig.sensing.fiducial_layout import check_fiducials, fiducial_sheet, with_fiducials
 from softjig.sensing.fiducials import detect_fiducials
 from softjig.sim.asbuilt import draw_as_built
 from softjig.sim.render import render_pair

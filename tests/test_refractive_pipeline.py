@@ -8,7 +8,7 @@ import pytest
 from softjig.config import CylinderPart, default_jig
 from softjig.errors import EstimationError
 from softjig.geometry import angle_between
-from softjig.sensing.export import DISPLACEMENT_COLUMNS, write_displacements
+from softjig.io.export import DISPLACEMENT_COLUMNS, write_displacements
 from softjig.sensing.pipeline import estimate_pair, reference_from_pair
 from softjig.sim.asbuilt import draw_as_built
 from softjig.sim.parts import PartPose

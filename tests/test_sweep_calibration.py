@@ -21,8 +21,8 @@ from softjig.calibration.tilt import load_tilt_calibration
 from softjig.cli import app
 from softjig.config import CylinderPart, default_jig, part_to_dict
 from softjig.errors import InputError
+from softjig.io.batch import write_rows
 from softjig.io.dataset import DatasetWriter
-from softjig.sensing.batch import write_rows
 
 runner = CliRunner()
 GAIN = {30.0: 1.3, 50.0: 1.6, 80.0: 2.1}  # the sensor reads alpha / gain

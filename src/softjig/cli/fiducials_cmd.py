@@ -1,5 +1,4 @@
-"""`softjig fiducials`: print the fiducial layout (`sheet`) and check it from a stereo pair (`check`)
-(issue 7)."""
+"""`softjig fiducials`: print the fiducial layout (`sheet`) and check it from a stereo pair (`check`)."""
 
 from __future__ import annotations
 
@@ -45,9 +44,9 @@ def sheet(
     dpi: Annotated[int, typer.Option(min=72, max=2400, help="PNG resolution.")] = 600,
 ) -> None:
     """Write a sheet with the fiducials at exact scale (the view from the cameras) and their config."""
+    from softjig.calibration.fiducial_layout import fiducial_sheet, projected_fiducials, with_fiducials
     from softjig.config import save_jig
-    from softjig.io.files import write_bytes_atomic
-    from softjig.sensing.fiducial_layout import fiducial_sheet, projected_fiducials, with_fiducials
+    from softjig.files import write_bytes_atomic
 
     jig = load_config(config)
     jig = with_fiducials(
@@ -88,8 +87,8 @@ def check(
     json_output: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
     """Check that the fiducials are found in a stereo pair and sit where the config says (exit 3 if not)."""
+    from softjig.calibration.fiducial_layout import check_fiducials
     from softjig.io.dataset import load_image
-    from softjig.sensing.fiducial_layout import check_fiducials
 
     jig = load_config(config)
     images = {"left": load_image(left), "right": load_image(right)}

@@ -1,5 +1,5 @@
 """`softjig mocap`: a dataset's estimates against an OptiTrack Motive CSV export (the paper's cube
-experiment, on its own; issue 14)."""
+experiment, on its own)."""
 
 from __future__ import annotations
 
@@ -88,7 +88,7 @@ def mocap(
                 f"{sorted(used)[0]}"
             )
     else:
-        from softjig.sensing.batch import BatchSettings, dataset_reference, estimate_dataset
+        from softjig.io.batch import BatchSettings, dataset_reference, estimate_dataset
 
         reference = dataset_reference(ds, ds.jig) if method == "refractive" else None
         settings = BatchSettings(jig=ds.jig, method=method, reference=reference)

@@ -121,7 +121,7 @@ def dataset_to_bag(
     A bag folder that exists but is incomplete is never left behind on an error before the first frame;
     on an error later, the frames written so far stay a readable bag.
     """
-    from softjig.sensing.batch import BatchSettings, dataset_reference, frame_part_diameter_mm
+    from softjig.io.batch import BatchSettings, dataset_reference, frame_part_diameter_mm
     from softjig.sensing.pipeline import DEFAULT_METHOD, estimate_pair
 
     dataset = dataset if isinstance(dataset, Dataset) else Dataset.open(dataset)

@@ -46,7 +46,6 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from softjig.caching import cached_by_identity
-from softjig.calibration.tilt import TiltCalibration
 from softjig.config import JigConfig
 from softjig.errors import EstimationError, InputError
 from softjig.geometry import (
@@ -105,6 +104,7 @@ from softjig.sensing.uncertainty import (
     with_angle_floor,
     with_spread_between,
 )
+from softjig.tilt_calibration import TiltCalibration
 
 METHODS = ("refractive", "paper")
 # The best we have (DESIGN.md): on the paper's simulated sweep, uncalibrated, it beats the paper's method

@@ -21,8 +21,8 @@ from softjig.calibration.tilt import TiltCalibration
 from softjig.evaluation.metrics import RmseGrid, commanded_tilt_angles_deg
 from softjig.evaluation.tilt_sweep import evaluate_sweep
 from softjig.geometry import fit_plane_svd
+from softjig.io.batch import BatchSettings, dataset_reference, estimate_dataset
 from softjig.io.dataset import Dataset
-from softjig.sensing.batch import BatchSettings, dataset_reference, estimate_dataset
 from softjig.sensing.contact import describe_contact
 
 
