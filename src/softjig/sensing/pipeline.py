@@ -844,10 +844,14 @@ def _contact_under_known_face(
             violations = contact_violations(
                 points_J, *cut, threshold_mm=threshold_mm, pitch_mm=pitch, dent=dent
             )
-            # A larger contact that passes the self-check, unless it contradicts the search's face (which
-            # is then kept: too few markers to check, so suspect).
-            passes = check is not None and not check.suspect and violations == 0
-            if passes and _rival(points_J, ways[0], cut, threshold_mm) is None:
+            # A larger contact that passes the self-check, unless it contradicts a search's face that no
+            # marker contradicts either (which is then kept: too few markers to check, so suspect).
+            if (
+                check is not None
+                and not check.suspect
+                and violations == 0
+                and not _plausible_rivals(points_J, ways[0], cut, threshold_mm, pitch, dent)
+            ):
                 ways.insert(0, cut)
     if not ways:
         raise EstimationError(
@@ -855,6 +859,14 @@ def _contact_under_known_face(
             "lie under it (sensing.min_points); is the part's size right?"
         )
     return (*ways[0], rival)
+
+
+def _plausible_rivals(points_J, search, cut, threshold_mm: float, pitch_mm: float, dent) -> bool:
+    """Whether the ``search``'s face, which no marker contradicts, and the ``cut`` disagree."""
+    used, plane = search
+    if contact_violations(points_J, used, plane, threshold_mm=threshold_mm, pitch_mm=pitch_mm, dent=dent):
+        return False
+    return _rival(points_J, search, cut, threshold_mm) is not None
 
 
 def _rival(points_J: np.ndarray, chosen, other, threshold_mm: float) -> SplitCheck | None:
