@@ -8,6 +8,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from oracles.nearest_identities import kd_tree_identities
+from oracles.refracted_rays import traced_triangulation
 from softjig.config import default_jig, exact_jig
 from softjig.errors import InputError
 from softjig.geometry import fit_plane_svd, normal_from_tilt
@@ -59,7 +61,7 @@ def test_refraction_matters():
 
 
 def test_closed_form_and_traced_triangulation_agree():
-    """The fast path (closed-form rays, fused closest approach) against backproject_pixels, for a head
+    """The closed-form rays against the oracle tracing every interface (backproject_pixels), for a head
     that is off its nominal pose and a camera with distortion."""
     rng = np.random.default_rng(3)
     jig = default_jig()
@@ -73,7 +75,7 @@ def test_closed_form_and_traced_triangulation_agree():
     left = rng.uniform([0, 0], [1280, 720], (400, 2))
     right = left - [rng.uniform(120, 190), 0] + rng.normal(0, 1.0, (400, 2))
     fast = triangulate_refracted(left, right, jig, frame)
-    traced = triangulate_refracted(left, right, jig, frame, reference=True)
+    traced = traced_triangulation(left, right, jig, frame)
     np.testing.assert_allclose(fast.points_J, traced.points_J, rtol=0, atol=1e-9)
     np.testing.assert_allclose(fast.ray_gap_mm, traced.ray_gap_mm, rtol=0, atol=1e-9)
     assert np.all(fast.ray_gap_mm > 0)  # noisy matches: skew rays
@@ -174,23 +176,14 @@ def test_triangulate_refracted_says_why_rays_cannot_be_traced():
 
 
 def test_identities_match_a_kd_tree_resolved_nearest_first():
-    from scipy.spatial import cKDTree
-
     reference = rest_shape_reference(default_jig())
     rng = np.random.default_rng(6)
     for _ in range(10):
         points = reference.xyz_mm[rng.permutation(len(reference))[:250]].copy()
         points[:, :2] += rng.normal(0, 2.5, (len(points), 2))  # some claim the same marker, some none
-        distance, nearest = cKDTree(reference.xyz_mm[:, :2]).query(points[:, :2], distance_upper_bound=4.0)
-        expected = np.full(len(points), -1)
-        taken = set()
-        for k in np.argsort(distance, kind="stable"):
-            if np.isfinite(distance[k]) and nearest[k] not in taken:
-                taken.add(nearest[k])
-                expected[k] = nearest[k]
+        expected, moved = kd_tree_identities(points, reference.xyz_mm, 4.0)
         found = identify_markers(points, reference, max_lateral_mm=4.0)
         assert np.array_equal(found.ids, expected)
         assert (found.ids == -1).any() and len(set(found.ids[found.ids >= 0])) == (found.ids >= 0).sum()
-        known = expected >= 0
-        assert np.array_equal(found.displacement_mm[known], points[known] - reference.xyz_mm[expected[known]])
-        assert np.isnan(found.displacement_mm[~known]).all()
+        assert np.array_equal(found.displacement_mm, moved, equal_nan=True)
+        assert np.isnan(found.displacement_mm[found.ids == -1]).all()

@@ -2,15 +2,14 @@
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
-from scipy.optimize import linear_sum_assignment
 
+from oracles.stereo_assignment import admissible_pairs, component_labels, dense_assignment
 from softjig.errors import InputError
 from softjig.sensing import stereo
+from softjig.sensing._stereo_kernels import pairs_and_components
 from softjig.sensing.stereo import (
     StereoMatches,
     disparity_window_px,
@@ -161,19 +160,6 @@ def test_global_assignment_beats_greedy_nearest_row(left_rows, right_rows):
     check_matches(match_rectified(left, right, **window), truth)
 
 
-def reference_assignment(left, right, tol, d_min, d_max, weight=0.01):
-    """Number of pairs and total cost of one dense max-cardinality min-cost assignment."""
-    dv = left[:, None, 1] - right[None, :, 1]
-    d = left[:, None, 0] - right[None, :, 0]
-    ok = (np.abs(dv) <= tol) & (d >= d_min) & (d <= d_max)
-    half = (d_max - d_min) / 2
-    cost = (dv / tol) ** 2 + weight * ((d - d_min - half) / half) ** 2
-    big = (min(len(left), len(right)) + 1) * (1 + weight) + 1
-    rows, cols = linear_sum_assignment(np.where(ok, cost, big))
-    good = ok[rows, cols]
-    return int(good.sum()), float(cost[rows, cols][good].sum())
-
-
 @pytest.mark.parametrize("batch_edges", [4, 512])
 @pytest.mark.parametrize("seed", range(5))
 def test_matching_is_the_optimal_assignment(seed, batch_edges, monkeypatch):
@@ -188,8 +174,8 @@ def test_matching_is_the_optimal_assignment(seed, batch_edges, monkeypatch):
     assert len(np.unique(matches.right_index)) == len(matches)
     half = 25.0
     cost = (matches.row_difference_px / 1.0) ** 2 + 0.01 * ((matches.disparity_px - 35.0) / half) ** 2
-    n_ref, cost_ref = reference_assignment(left, right, 1.0, 10.0, 60.0)
-    assert len(matches) == n_ref
+    li_ref, _, cost_ref = dense_assignment(left, right, 1.0, 10.0, 60.0)
+    assert len(matches) == len(li_ref)
     assert_allclose(cost.sum(), cost_ref, rtol=1e-9)
 
 
@@ -217,7 +203,9 @@ def test_empty_inputs_and_no_candidates():
     assert len(match_rectified(points, points, **window)) == 0  # disparity 0
 
 
-def test_matching_timing_400_markers():
+def test_matching_400_markers_is_the_dense_assignment():
+    """A 416-marker grid (20 px window) and a 400-point random cloud (120 px window): the same pairs as one
+    dense assignment over all markers."""
     rng = np.random.default_rng(3)
     points = marker_surface(seed=3, half_size_mm=(100.0, 60.0))  # 416 markers
     left, right = project(points)
@@ -227,20 +215,15 @@ def test_matching_timing_400_markers():
     cloud = rng.uniform([-70, -40, 150], [70, 40, 250], (400, 3))
     cloud_left, cloud_right = project(cloud)
     cloud_min, cloud_max = disparity_window_px(FX, BASELINE, 150.0, 250.0)
-    cases = {
-        "marker grid, 20 px window": (left, right, 2.5, d_min, d_max),
-        "random cloud, 120 px window": (cloud_left, cloud_right, 2.5, cloud_min, cloud_max),
-    }
-    for name, (a, b, tol, lo, hi) in cases.items():
-        kwargs = {"row_tolerance_px": tol, "min_disparity_px": lo, "max_disparity_px": hi}
-        match_rectified(a, b, **kwargs)
-        repeats = 50
-        start = time.perf_counter()
-        for _ in range(repeats):
-            matches = match_rectified(a, b, **kwargs)
-        elapsed_ms = (time.perf_counter() - start) / repeats * 1e3
-        print(f"match_rectified {len(a)} x {len(b)} ({name}): {elapsed_ms:.2f} ms")
+    for a, b, tol, lo, hi in (
+        (left, right, 2.5, d_min, d_max),
+        (cloud_left, cloud_right, 2.5, cloud_min, cloud_max),
+    ):
+        matches = match_rectified(a, b, row_tolerance_px=tol, min_disparity_px=lo, max_disparity_px=hi)
         assert len(matches) == len(a)
+        li_ref, rj_ref, _ = dense_assignment(a, b, tol, lo, hi)
+        assert_array_equal(matches.left_index, li_ref)
+        assert_array_equal(matches.right_index, rj_ref)
 
 
 # ---------------------------------------------------------------------------------------
@@ -303,7 +286,8 @@ GOOD = np.array([[500.0, 100.0]])
         (np.zeros((3, 3)), GOOD, {}, r"left_xy must be an \(N, 2\) array"),
         (GOOD, np.zeros(4), {}, r"right_xy must be an \(N, 2\) array"),
         (GOOD, [["a", "b"]], {}, "right_xy must be"),
-        ([[np.nan, 1.0]], GOOD, {}, "NaN or infinite"),
+        ([[np.nan, 1.0]], GOOD, {}, "left_xy contains NaN or infinite"),
+        (GOOD, [[500.0, 100.0], [350.0, np.inf]], {}, "right_xy contains NaN or infinite"),
         (GOOD, GOOD, {"row_tolerance_px": 0.0}, "row_tolerance_px must be > 0"),
         (GOOD, GOOD, {"min_disparity_px": 200.0}, "must be smaller than max_disparity_px"),
         (GOOD, GOOD, {"max_disparity_px": float("inf")}, "max_disparity_px must be finite"),
@@ -347,11 +331,12 @@ def test_stereo_matches_is_immutable():
 
 
 # ---------------------------------------------------------------------------------------
-# The fast path (degrees, then a small union-find) against the sparse-graph search
+# The compiled row sweep and union-find against the oracles (NumPy sweep, SciPy graph search, dense
+# assignment)
 
 
 @pytest.mark.parametrize("seed", range(6))
-def test_fast_matching_equals_the_graph_search(seed):
+def test_matching_equals_the_dense_assignment(seed):
     """Grids with row jitter, spurious detections and wide windows: few to hundreds of conflicts."""
     rng = np.random.default_rng(seed)
     left, right = project(marker_surface(seed))
@@ -361,18 +346,18 @@ def test_fast_matching_equals_the_graph_search(seed):
     right = right[rng.permutation(len(right))]
     conflicts = []
     for tol, lo, hi in ((2.5, 140.0, 161.0), (3.0, 120.0, 200.0), (6.0, 60.0, 260.0)):
-        kwargs = {"row_tolerance_px": tol, "min_disparity_px": lo, "max_disparity_px": hi}
-        fast = match_rectified(left, right, **kwargs)
-        graph = match_rectified(left, right, **kwargs, reference=True)
-        assert_array_equal(fast.left_index, graph.left_index)
-        assert_array_equal(fast.right_index, graph.right_index)
-        li, rj = stereo._admissible_pairs(left, right, tol, lo, hi)
+        matches = match_rectified(left, right, row_tolerance_px=tol, min_disparity_px=lo, max_disparity_px=hi)
+        li_ref, rj_ref, _ = dense_assignment(left, right, tol, lo, hi)
+        assert_array_equal(matches.left_index, li_ref)
+        assert_array_equal(matches.right_index, rj_ref)
+        assert_array_equal(matches.disparity_px, left[li_ref, 0] - right[rj_ref, 0])
+        li, rj = admissible_pairs(left, right, tol, lo, hi)
         alone = (np.bincount(li, minlength=len(left))[li] == 1) & (np.bincount(rj)[rj] == 1)
         conflicts.append(int((~alone).sum()))
     assert 0 < conflicts[0] < 50 < 200 < conflicts[-1]  # a few conflicts to hundreds
 
 
-def test_pairs_and_components_of_the_numba_loop_match_numpy_and_scipy():
+def test_pairs_and_components_of_the_compiled_loop_match_numpy_and_scipy():
     rng = np.random.default_rng(7)
     for _ in range(50):
         n_left, n_right = rng.integers(1, 40, 2)
@@ -381,16 +366,16 @@ def test_pairs_and_components_of_the_numba_loop_match_numpy_and_scipy():
         right[rng.integers(0, n_right, 3), 1] = right[0, 1]  # equal rows: the sort must be stable
         window = (rng.uniform(0.5, 8.0), -20.0, rng.uniform(0.0, 150.0))
         order = np.argsort(right[:, 1], kind="stable")
-        li, rj, row_diff, disparity, component, n_conflicts = stereo._pairs_and_components(
+        li, rj, row_diff, disparity, component, n_conflicts = pairs_and_components(
             left, right, order, *window
         )
         assert_array_equal(row_diff, left[li, 1] - right[rj, 1])
         assert_array_equal(disparity, left[li, 0] - right[rj, 0])
-        li_ref, rj_ref = stereo._admissible_pairs(left, right, *window)
+        li_ref, rj_ref = admissible_pairs(left, right, *window)
         assert_array_equal(li, li_ref)
         assert_array_equal(rj, rj_ref)
         conflicts = component >= 0
         assert n_conflicts == conflicts.sum()
         if n_conflicts:
-            graph = stereo._component_labels(li[conflicts], rj[conflicts], n_left, n_right)
+            graph = component_labels(li[conflicts], rj[conflicts], n_left, n_right)
             assert_array_equal(component[conflicts], graph)

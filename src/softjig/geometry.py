@@ -10,10 +10,20 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 
+from softjig._geometry_kernels import inside_hull, plane_fit
 from softjig.errors import InputError
+
+#: Points whose second singular value is below this ratio of the first lie on a line or a point, to
+#: rounding: they define no plane.
+DEGENERATE_PLANE_RATIO = 1e-9
+
+#: Below this angle (rad) a rotation vector's matrix is taken from the Taylor series of Rodrigues' formula.
+ROTVEC_TAYLOR_BELOW_RAD = 1e-4
+
+# The hull test, for the compiled kernels of softjig.sensing.contact that call it by this name.
+_inside_hull_kernel = inside_hull
 
 # ------------------------------------------------------------------------------------------ poses
 
@@ -35,11 +45,11 @@ def pose_from_rotvec_translation(rotvec_rad, translation_mm) -> np.ndarray:
 def rotation_from_rotvec(rotvec_rad) -> np.ndarray:
     """The 3x3 rotation of a rotation vector (axis times angle, rad): Rodrigues' formula
     ``R = I + sin(t) K + (1 - cos(t)) K^2`` (``K`` the cross-product matrix of the unit axis), with its
-    Taylor series below 1e-4 rad (no division by a small angle)."""
+    Taylor series below :data:`ROTVEC_TAYLOR_BELOW_RAD` (no division by a small angle)."""
     r = np.asarray(rotvec_rad, dtype=float).reshape(3)
     theta = float(np.sqrt(r @ r))
     k = np.array([[0.0, -r[2], r[1]], [r[2], 0.0, -r[0]], [-r[1], r[0], 0.0]])
-    if theta < 1e-4:
+    if theta < ROTVEC_TAYLOR_BELOW_RAD:
         a, b = 1.0 - theta**2 / 6.0, 0.5 - theta**2 / 24.0
     else:
         a, b = np.sin(theta) / theta, (1.0 - np.cos(theta)) / theta**2
@@ -133,34 +143,30 @@ class PlaneFit:
 
 
 def fit_plane_svd(points_mm: np.ndarray, *, min_points: int = 3) -> PlaneFit:
-    """Least-squares plane through ``(N, 3)`` points by SVD of the centred points (the paper's fit).
+    """Least-squares plane through ``(N, 3)`` points (the paper's fit: the SVD of the centred points).
 
-    The normal is the right singular vector of the smallest singular value, oriented so ``n_z > 0``.
-    It is computed as the eigenvector of the smallest eigenvalue of the 3x3 scatter matrix (the same
-    vector; the singular values are the square roots of the eigenvalues), in one compiled pass: 8 us
-    instead of 70 us for 150 points (measured), which matters because the contact search fits many
-    planes per frame. Nearly degenerate points (second singular value below 1e-6 of the first, where
-    the squared values lose precision) fall back to the SVD itself.
+    The normal is the right singular vector of the smallest singular value, oriented so ``n_z > 0``
+    (:func:`softjig._geometry_kernels.plane_fit`, one compiled pass over the 3x3 scatter matrix: the
+    contact search fits many planes per frame).
 
     Raises
     ------
     InputError
-        Fewer than ``min_points`` (at least 3) finite points, or points that do not span a plane
-        (all on one line or one point): the second singular value is below 1e-9 of the first.
+        Fewer than ``min_points`` (at least 3) points, non-finite points, or points that do not span a
+        plane (all on one line or one point: the second singular value is below
+        :data:`DEGENERATE_PLANE_RATIO` of the first), or a vertical plane.
     """
     pts = np.asarray(points_mm, dtype=float)
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise InputError(f"plane fit needs (N, 3) points, got shape {pts.shape}")
+    if not np.isfinite(pts).all():
+        raise InputError("plane fit got non-finite points (NaN or inf)")
     need = max(3, min_points)
     if len(pts) < need:
-        if not np.all(np.isfinite(pts)):
-            raise InputError("plane fit got non-finite points (NaN or inf)")
         raise InputError(f"plane fit needs at least {need} points, got {len(pts)}")
-    centroid, s, normal, rms, finite = _plane_moments(np.ascontiguousarray(pts))
-    if not finite:
-        raise InputError("plane fit got non-finite points (NaN or inf)")
-    if s[0] == 0 or s[1] <= 1e-6 * s[0]:
-        return _fit_plane_by_svd(pts, centroid)
+    centroid, s, normal, rms = plane_fit(np.ascontiguousarray(pts), np.ones(len(pts), dtype=bool))
+    if s[0] == 0 or s[1] <= DEGENERATE_PLANE_RATIO * s[0]:
+        raise InputError(f"the {len(pts)} points lie on a line or a point and do not define a plane")
     if normal[2] == 0:
         raise InputError("the fitted plane is vertical: its normal cannot point into the part")
     return PlaneFit(
@@ -173,68 +179,6 @@ def fit_plane_svd(points_mm: np.ndarray, *, min_points: int = 3) -> PlaneFit:
     )
 
 
-def _fit_plane_by_svd(pts: np.ndarray, centroid: np.ndarray) -> PlaneFit:
-    """:func:`fit_plane_svd` by the SVD of the ``(N, 3)`` centred points, for nearly degenerate points."""
-    centred = pts - centroid
-    _, s, vt = np.linalg.svd(centred, full_matrices=False)
-    if s[0] == 0 or s[1] <= 1e-9 * s[0]:
-        raise InputError(f"the {len(pts)} points lie on a line or a point and do not define a plane")
-    normal = vt[2]
-    if normal[2] < 0:
-        normal = -normal
-    if normal[2] == 0:
-        raise InputError("the fitted plane is vertical: its normal cannot point into the part")
-    offset = -float(normal @ centroid)
-    residuals = centred @ normal
-    return PlaneFit(
-        normal=normal,
-        offset_mm=offset,
-        centroid_mm=centroid,
-        rms_residual_mm=float(np.sqrt(np.mean(residuals**2))),
-        n_points=len(pts),
-        singular_values=s,
-    )
-
-
-@numba.njit(cache=True)
-def _plane_moments(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, bool]:
-    """Centroid, singular values (descending, the square roots of the scatter's eigenvalues), unit
-    normal (the smallest's eigenvector, ``n_z >= 0``) and RMS distance to the plane of ``(N, 3)``
-    points, and whether all are finite (the rest is meaningless when not)."""
-    n = pts.shape[0]
-    centroid = np.zeros(3)
-    for i in range(n):
-        for k in range(3):
-            centroid[k] += pts[i, k]
-    if not (np.isfinite(centroid[0]) and np.isfinite(centroid[1]) and np.isfinite(centroid[2])):
-        return centroid, np.zeros(3), np.zeros(3), 0.0, False
-    centroid /= n
-    scatter = np.zeros((3, 3))
-    for i in range(n):
-        d0, d1, d2 = pts[i, 0] - centroid[0], pts[i, 1] - centroid[1], pts[i, 2] - centroid[2]
-        scatter[0, 0] += d0 * d0
-        scatter[0, 1] += d0 * d1
-        scatter[0, 2] += d0 * d2
-        scatter[1, 1] += d1 * d1
-        scatter[1, 2] += d1 * d2
-        scatter[2, 2] += d2 * d2
-    scatter[1, 0], scatter[2, 0], scatter[2, 1] = scatter[0, 1], scatter[0, 2], scatter[1, 2]
-    eigval, eigvec = np.linalg.eigh(scatter)
-    singular = np.sqrt(np.maximum(eigval[::-1], 0.0))
-    normal = eigvec[:, 0].copy()
-    if normal[2] < 0:
-        normal = -normal
-    total = 0.0
-    for i in range(n):
-        r = (
-            (pts[i, 0] - centroid[0]) * normal[0]
-            + (pts[i, 1] - centroid[1]) * normal[1]
-            + (pts[i, 2] - centroid[2]) * normal[2]
-        )
-        total += r * r
-    return centroid, singular, normal, np.sqrt(total / n), True
-
-
 # ---------------------------------------------------------------------------------------- polygons
 
 
@@ -242,74 +186,10 @@ def inside_convex_hull_xy(hull_of_xy: np.ndarray, xy: np.ndarray, tolerance_mm: 
     """Which ``(x, y)`` lie inside the convex hull of ``hull_of_xy`` (or within ``tolerance_mm`` outside
     it), as booleans; none when the hull has no area (fewer than 3 points, or all on a line).
 
-    Andrew's monotone chain and one edge test per point, compiled: 10-20 us for 100 hull points and 300
-    queries, where Qhull (``ConvexHull``, ``Delaunay.find_simplex``) took 0.2-7 ms (measured).
+    Andrew's monotone chain and one edge test per point, compiled
+    (:func:`softjig._geometry_kernels.inside_hull`): Qhull's ``ConvexHull`` or ``Delaunay.find_simplex``
+    cost far more for the few hundred points of a contact.
     """
     members = np.ascontiguousarray(hull_of_xy, dtype=float).reshape(-1, 2)
     query = np.ascontiguousarray(xy, dtype=float).reshape(-1, 2)
-    return _inside_hull_kernel(members, query, float(tolerance_mm))
-
-
-@numba.njit(cache=True)
-def _cross(o0: float, o1: float, a0: float, a1: float, b0: float, b1: float) -> float:
-    return (a0 - o0) * (b1 - o1) - (a1 - o1) * (b0 - o0)
-
-
-@numba.njit(cache=True)
-def _hull_ccw(points: np.ndarray) -> np.ndarray:
-    """Indices of the strictly convex hull's vertices, counter-clockwise (monotone chain)."""
-    m = points.shape[0]
-    order = np.argsort(points[:, 0], kind="mergesort")
-    for i in range(1, m):  # ties in x by y (insertion: the order is nearly sorted)
-        j = i
-        while j > 0:
-            a, b = order[j - 1], order[j]
-            if points[a, 0] == points[b, 0] and points[a, 1] > points[b, 1]:
-                order[j - 1], order[j] = b, a
-                j -= 1
-            else:
-                break
-    hull = np.empty(2 * m + 1, dtype=np.int64)
-    k = 0
-    for step in range(2):
-        start = k
-        for s in range(m):
-            i = order[s] if step == 0 else order[m - 1 - s]
-            while k >= start + 2 and (
-                _cross(
-                    points[hull[k - 2], 0],
-                    points[hull[k - 2], 1],
-                    points[hull[k - 1], 0],
-                    points[hull[k - 1], 1],
-                    points[i, 0],
-                    points[i, 1],
-                )
-                <= 0.0
-            ):
-                k -= 1
-            hull[k] = i
-            k += 1
-        k -= 1  # the last point of each chain starts the other
-    return hull[:k]
-
-
-@numba.njit(cache=True)
-def _inside_hull_kernel(members: np.ndarray, query: np.ndarray, tolerance: float) -> np.ndarray:
-    inside = np.zeros(query.shape[0], dtype=np.bool_)
-    if members.shape[0] < 3:
-        return inside
-    hull = _hull_ccw(members)
-    h = hull.shape[0]
-    if h < 3:
-        return inside
-    for q in range(query.shape[0]):
-        ok = True
-        for e in range(h):
-            a, b = hull[e], hull[(e + 1) % h]
-            ex, ey = members[b, 0] - members[a, 0], members[b, 1] - members[a, 1]
-            cross = ex * (query[q, 1] - members[a, 1]) - ey * (query[q, 0] - members[a, 0])
-            if -cross > tolerance * np.sqrt(ex * ex + ey * ey):
-                ok = False
-                break
-        inside[q] = ok
-    return inside
+    return inside_hull(members, query, float(tolerance_mm))

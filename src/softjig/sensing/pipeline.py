@@ -494,7 +494,6 @@ def observe_pair(
         row_tolerance_px=jig.sensing.row_tolerance_px,
         min_disparity_px=setup.min_disparity_px,
         max_disparity_px=setup.max_disparity_px,
-        reference=not fast,
     )
     if len(matches) < 0.5 * min(len(markers_left), len(markers_right)):
         _refuse_swapped(markers_left, markers_right, matches, setup, jig)
@@ -977,7 +976,7 @@ def _refractive_estimate(
 ) -> SensingResult:
     matches = observation.matches
     triangulated = triangulate_refracted(
-        observation.left_xy_px, observation.right_xy_px, jig, observation.frame, reference=not fast
+        observation.left_xy_px, observation.right_xy_px, jig, observation.frame
     )
     points_J = triangulated.points_J
     clock.lap("triangulate")

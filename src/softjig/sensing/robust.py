@@ -51,20 +51,15 @@ Method
    candidates (a convex hull per hypothesis would be too slow), and the scale of step 5 uses the residuals
    above the plane, which the lifted-off markers cannot reach.
 
-No M-estimator refinement follows: it is not implemented, because its benefit was not measured. The
-error that remains (see Limits) comes from lifted-off markers just below the plane, within ``t``, which
-are indistinguishable from noise by their residual alone.
+No M-estimator refinement follows (none is implemented). The error that remains comes from lifted-off
+markers just below the plane, within ``t``, which are indistinguishable from noise by their residual
+alone.
 
-Limits (measured on a simulated disc of markers on an 8 mm grid, radius 20-40 mm, tilts 5-20 deg,
-0-50 % outliers of both kinds, 300 cases per noise level; "excess" is the error beyond that of the
-least-squares fit to the true contact markers alone): noise-free, excess below 0.1 deg in 98 % of cases
-(worst 0.26 deg: lifted-off markers within the 0.125 mm minimum threshold join the fit); with 0.05 mm
-noise, below 0.1 deg in 98 % (worst 0.3 deg, 20 mm discs at 50 % outliers). The fit degrades when the
-noise approaches the lifted-off markers' gaps: at 0.2 mm noise and 50 % outliers, the excess passes 1 deg
-in 11 of 25 cases on 20 mm discs and 2 of 25 on 40 mm discs; at 0.3 mm most such cases fail. Plain SVD
-is off by 2-10 deg in all of them. Without outliers, 45 or more markers with bounded noise keep every
-marker in 94-100 % of cases (Gaussian noise loses ~1 % of markers by design, beyond 2.5 sigma); 9-13
-markers with a 0.1 mm ripple drop one or more in 6-32 % of cases (a few markers are coplanar by chance).
+Limits: the fit degrades when the triangulation noise approaches the lifted-off markers' gaps below the
+plane (small contact discs with many outliers fail first); with Gaussian noise about 1 % of the contact
+markers fall beyond 2.5 sigma and are dropped by design, and a few markers that happen to be coplanar can
+hold the automatic threshold down on small sets. The figures are in ``benchmarks/RESULTS.md`` (robust
+plane fit).
 
 References
 ----------
@@ -85,12 +80,13 @@ from dataclasses import dataclass
 from functools import lru_cache
 from statistics import NormalDist
 
-import numba
 import numpy as np
 
+from softjig._geometry_kernels import plane_fit
 from softjig.checks import positive_float
 from softjig.errors import InputError
-from softjig.geometry import PlaneFit, _inside_hull_kernel, fit_plane_svd
+from softjig.geometry import DEGENERATE_PLANE_RATIO, PlaneFit, fit_plane_svd
+from softjig.sensing._robust_kernels import COLLINEAR_SINE, VERTICAL_NZ, best_candidate, refine, score_batch
 
 __all__ = ["RobustPlaneFit", "fit_plane_robust"]
 
@@ -103,9 +99,13 @@ _THRESHOLD_SIGMAS = 2.5  # inlier threshold in units of the noise scale
 _COVERAGE_QUANTILE = NormalDist().cdf(_THRESHOLD_SIGMAS)  # one-sided quantile of +-2.5 sigma
 _MIN_SCALE_MM = 0.05  # floor of the automatic noise scale (the threshold is at least 2.5 x this)
 _MAD_TO_SIGMA = 1.4826  # sigma / median(|r|) for Gaussian noise
-_MAX_REFINE_ROUNDS = 10
+_MAX_REFINE_ROUNDS = 10  # least-squares refits of one candidate's inliers, at most
+_MIN_ABOVE_FOR_SCALE = 8  # the one-sided scale needs at least this many residuals above the plane
+_MIN_INLIER_RATIO = 1e-6  # the adaptive hypothesis count's inlier ratio is at least this (no log(0))
 _MAX_SCALE_ROUNDS = 8  # re-estimations of the automatic threshold after refinement
+_SETTLED_THRESHOLD_CHANGE = 0.01  # the automatic threshold has settled when it changes by less than this
 _N_CANDIDATES = 3  # refined candidates compared at the end
+_CANDIDATE_POOL = 50 * _N_CANDIDATES  # the candidates are drawn from this many lowest-cost hypotheses
 _SAME_SET_JACCARD = 0.8  # inlier sets this similar count as one candidate
 _SCALE_WINDOW = 2.0  # the scale is re-estimated from the residuals within this many thresholds
 _ABOVE_PENALTY = 1.0  # extra cost, in t^2, of a point above the plane inside its inliers' footprint
@@ -180,8 +180,7 @@ def fit_plane_robust(
     -----
     Distances are signed along the plane's normal ``n`` (``n_z > 0``, into the part): lifted-off markers
     have negative residuals, wall markers positive ones. The inlier threshold is symmetric; only the
-    choice between refined candidates and the final scale are one-sided. Takes about 0.3 ms for 150
-    points with a given threshold, 2 ms with the automatic one (measured).
+    choice between refined candidates and the final scale are one-sided.
 
     Examples
     --------
@@ -213,7 +212,7 @@ def fit_plane_robust(
         threshold_mm = _threshold_from_lqs(centred, normals @ centred.T + offsets[:, None])
     t = float(threshold_mm)
 
-    best = _best_candidate(centred, _diverse_inlier_sets_of(centred, normals, offsets, t), t, one_sided)
+    best = _best_candidate(centred, normals, offsets, t, one_sided)
     if best is None:
         raise InputError(f"no hypothesis plane's inliers among the {n} points define a plane.")
     if auto:  # re-estimate the scale about the chosen plane and refine again, until t settles
@@ -247,8 +246,8 @@ def _triple_source(
     ``np.random.default_rng(rng).integers(0, n, size=(count, 3))`` drawn in turn would give them.
 
     For an integer seed (the default) the whole sequence is drawn once per ``(seed, n, max_iterations)``
-    and sliced (batches drawn in turn are the rows of one draw of all of them): making or resetting a
-    seeded generator and two draws took about 50 us per fit in the pipeline (measured).
+    and sliced (batches drawn in turn are the rows of one draw of all of them), so a fit does not pay for
+    making a seeded generator.
     """
     if isinstance(rng, (int, np.integer)) and not isinstance(rng, bool):
         table = _seeded_triples(int(rng), n, max_iterations)
@@ -295,81 +294,16 @@ def _planes_from_triples(points: np.ndarray, triples: np.ndarray) -> tuple[np.nd
     cross = np.cross(e1, e2)
     norm = np.linalg.norm(cross, axis=1)
     scale = np.linalg.norm(e1, axis=1) * np.linalg.norm(e2, axis=1)
-    ok = norm > 1e-6 * scale  # sine of the triangle's angle at p0
+    ok = norm > COLLINEAR_SINE * scale  # sine of the triangle's angle at p0
     normals = cross[ok] / norm[ok, None]
-    ok_z = np.abs(normals[:, 2]) > 1e-6  # a vertical plane has no side "into the part"
+    ok_z = np.abs(normals[:, 2]) > VERTICAL_NZ
     normals = normals[ok_z] * np.sign(normals[ok_z, 2])[:, None]
     offsets = -np.einsum("ij,ij->i", normals, p0[ok][ok_z])
     return normals, offsets
 
 
-@numba.njit(cache=True)
-def _score_batch(
-    points: np.ndarray, triples: np.ndarray, threshold_mm: float, lqs_factor: float, h: int
-) -> tuple[np.ndarray, np.ndarray, float, float]:
-    """The planes through ``triples`` (as :func:`_planes_from_triples`, skipping triples with a repeated
-    point) and the best one's score.
-
-    Returns ``(normals, offsets, key, ratio)``: the least key of the batch (the MSAC cost
-    ``sum min(r^2, t^2)`` when ``threshold_mm > 0``, else the LQS key, the ``h``-th smallest ``|r|``)
-    and the share of points within the threshold of that plane (``2.5 max(lqs_factor key, 0.05 mm)``
-    for LQS); ``key = inf`` when no triple gives a plane.
-    """
-    m, n = triples.shape[0], points.shape[0]
-    normals = np.empty((m, 3))
-    offsets = np.empty(m)
-    k = 0
-    for j in range(m):
-        a, b, c = triples[j, 0], triples[j, 1], triples[j, 2]
-        if (a - b) * (a - c) * (b - c) == 0:  # a repeated point
-            continue
-        e10, e11, e12 = points[b, 0] - points[a, 0], points[b, 1] - points[a, 1], points[b, 2] - points[a, 2]
-        e20, e21, e22 = points[c, 0] - points[a, 0], points[c, 1] - points[a, 1], points[c, 2] - points[a, 2]
-        c0 = e11 * e22 - e12 * e21
-        c1 = e12 * e20 - e10 * e22
-        c2 = e10 * e21 - e11 * e20
-        norm = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
-        scale = np.sqrt(e10 * e10 + e11 * e11 + e12 * e12) * np.sqrt(e20 * e20 + e21 * e21 + e22 * e22)
-        if not norm > 1e-6 * scale:
-            continue
-        n0, n1, n2 = c0 / norm, c1 / norm, c2 / norm
-        if not abs(n2) > 1e-6:
-            continue
-        if n2 < 0:
-            n0, n1, n2 = -n0, -n1, -n2
-        normals[k, 0], normals[k, 1], normals[k, 2] = n0, n1, n2
-        offsets[k] = -(n0 * points[a, 0] + n1 * points[a, 1] + n2 * points[a, 2])
-        k += 1
-    best_key, best_ratio = np.inf, 0.0
-    abs_r = np.empty(n)
-    for j in range(k):
-        for i in range(n):
-            abs_r[i] = abs(
-                normals[j, 0] * points[i, 0]
-                + normals[j, 1] * points[i, 1]
-                + normals[j, 2] * points[i, 2]
-                + offsets[j]
-            )
-        if threshold_mm > 0:
-            t2 = threshold_mm * threshold_mm
-            key = 0.0
-            for i in range(n):
-                key += min(abs_r[i] * abs_r[i], t2)
-            limit = threshold_mm
-        else:
-            key = np.sort(abs_r)[h - 1]
-            limit = _THRESHOLD_SIGMAS * max(lqs_factor * key, _MIN_SCALE_MM)
-        if key < best_key:
-            best_key = key
-            inside = 0
-            for i in range(n):
-                inside += abs_r[i] <= limit
-            best_ratio = inside / n
-    return normals[:k], offsets[:k], best_key, best_ratio
-
-
 def _required_iterations(inlier_ratio: float) -> float:
-    w3 = min(max(inlier_ratio, 1e-6), 1.0) ** 3
+    w3 = min(max(inlier_ratio, _MIN_INLIER_RATIO), 1.0) ** 3
     if w3 >= 1.0:
         return 0.0
     return math.log(1.0 - _CONFIDENCE) / math.log1p(-w3)
@@ -399,9 +333,10 @@ def _hypotheses(
         count = min(_BATCH, max_iterations - drawn)
         triples = draw(drawn, count)  # those with a repeated point are skipped
         drawn += count
-        # One compiled pass per batch: planes, their scores, the best one's inlier ratio (the NumPy
-        # version of the same steps took 0.1-0.2 ms per batch on 30 points, measured; this, 10 us).
-        normals, offsets, key, ratio = _score_batch(points, triples, t_batch, lqs_factor, h)
+        # One compiled pass per batch: planes, their scores, the best one's inlier ratio.
+        normals, offsets, key, ratio = score_batch(
+            points, triples, t_batch, lqs_factor, h, _THRESHOLD_SIGMAS, _MIN_SCALE_MM
+        )
         if len(normals):
             all_normals.append(normals)
             all_offsets.append(offsets)
@@ -429,7 +364,7 @@ def _threshold_from_lqs(points: np.ndarray, residuals: np.ndarray) -> float:
     best = abs_r[int(np.argmin(key))]
     closest = np.zeros(n, dtype=bool)
     closest[np.argsort(best, kind="stable")[:h]] = True
-    plane = _lsq_plane(points[closest])
+    plane = _lsq_plane(np.ascontiguousarray(points), closest)
     if plane is not None:
         best = np.abs(points @ plane[0] + plane[1])
     s0 = float(_lqs_scale(float(np.partition(best, h - 1)[h - 1]), n))
@@ -450,7 +385,7 @@ def _threshold_from_refined(residuals: np.ndarray, t: float, one_sided: bool) ->
     abs_r = np.abs(residuals)
     half = np.partition(abs_r, (len(abs_r) - 1) // 2)[(len(abs_r) - 1) // 2]  # the inliers are >= half
     window = abs_r <= max(_SCALE_WINDOW * t, half)
-    if one_sided and np.count_nonzero(window & (residuals > 0)) >= 8:
+    if one_sided and np.count_nonzero(window & (residuals > 0)) >= _MIN_ABOVE_FOR_SCALE:
         window &= residuals > 0
     r = np.abs(residuals[window])
     m = len(r)
@@ -469,252 +404,69 @@ def _student_factor(dof: int) -> float:
 
 @lru_cache(maxsize=256)
 def _student_quantile(dof: int) -> float:
-    # scipy.stats is imported here, on the first fit: at module level it took 0.8 s of every command's
-    # start-up (measured).
+    # scipy.stats is imported here, on the first fit, not at module level: it is slow to import and
+    # every command's start-up would pay for it.
     from scipy.stats import t as student_t
 
     return float(student_t.ppf(_COVERAGE_QUANTILE, dof))
 
 
-def _diverse_inlier_sets_of(
-    points: np.ndarray, normals: np.ndarray, offsets: np.ndarray, t: float
-) -> list[np.ndarray]:
-    """Inlier sets (``|r| <= t``) of the lowest-MSAC-cost hypotheses, skipping sets too like one already
-    taken (Jaccard index at least 0.8), at most :data:`_N_CANDIDATES`; among the 150 cheapest, those of
-    at least 3 points. Compiled (:func:`_diverse_kernel`): the ``(H, N)`` residuals, costs and a
-    vectorised NumPy loop took 0.1-0.2 ms per fit on 30 points, measured; this, 10 us."""
-    chosen = _diverse_kernel(
-        np.ascontiguousarray(points),
-        normals,
-        offsets,
-        t,
-        50 * _N_CANDIDATES,
-        _N_CANDIDATES,
-        _SAME_SET_JACCARD,
-    )
-    return list(chosen)
-
-
-@numba.njit(cache=True)
-def _diverse_kernel(
-    points: np.ndarray,
-    normals: np.ndarray,
-    offsets: np.ndarray,
-    t: float,
-    pool_size: int,
-    n_candidates: int,
-    same_set_jaccard: float,
-) -> np.ndarray:
-    """The steps of :func:`_diverse_inlier_sets_of` from the planes; ``(K, N)`` inlier masks."""
-    h, n = normals.shape[0], points.shape[0]
-    masks = np.empty((h, n), dtype=np.bool_)
-    cost = np.empty(h)
-    t2 = t * t
-    for j in range(h):
-        total = 0.0
-        for i in range(n):
-            r = (
-                normals[j, 0] * points[i, 0]
-                + normals[j, 1] * points[i, 1]
-                + normals[j, 2] * points[i, 2]
-                + offsets[j]
-            )
-            masks[j, i] = abs(r) <= t
-            total += min(r * r, t2)
-        cost[j] = total
-    order = np.argsort(cost, kind="mergesort")[:pool_size]
-    alive = np.zeros(order.shape[0], dtype=np.bool_)
-    for q in range(order.shape[0]):
-        alive[q] = masks[order[q]].sum() >= 3
-    chosen = np.empty((n_candidates, n), dtype=np.bool_)
-    k = 0
-    for q in range(order.shape[0]):
-        if k >= n_candidates:
-            break
-        if not alive[q]:
-            continue
-        taken = masks[order[q]]
-        chosen[k] = taken
-        k += 1
-        for other in range(q, order.shape[0]):  # rule out the sets too like it (itself included)
-            if alive[other]:
-                row = masks[order[other]]
-                both, either = 0, 0
-                for i in range(n):
-                    both += row[i] and taken[i]
-                    either += row[i] or taken[i]
-                if not both < same_set_jaccard * either:
-                    alive[other] = False
-    return chosen[:k]
-
-
-def _lsq_plane(points: np.ndarray) -> tuple[np.ndarray, float] | None:
-    """Least-squares plane (unit normal, offset) of ``(M, 3)`` points from the 3x3 scatter matrix.
-
-    The same plane as :func:`~softjig.geometry.fit_plane_svd` (the eigenvector of the smallest eigenvalue
-    of the scatter is the last right singular vector), without the ``(M, 3)`` SVD: this runs in the loop.
-    """
-    centroid = points.mean(axis=0)
-    q = points - centroid
-    eigval, eigvec = np.linalg.eigh(q.T @ q)  # ascending
-    if eigval[2] <= 0 or eigval[1] <= 1e-18 * eigval[2]:
-        return None  # a line or a point
-    normal = eigvec[:, 0]
-    if normal[2] < 0:
-        normal = -normal
-    if normal[2] == 0:
+def _lsq_plane(points: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, float] | None:
+    """Least-squares plane (unit normal, offset) of the ``mask``-ed ``(M, 3)`` points, ``None`` for a
+    line, a point or a vertical plane (:func:`softjig._geometry_kernels.plane_fit`)."""
+    centroid, singular, normal, _ = plane_fit(points, mask)
+    if singular[0] <= 0 or singular[1] <= DEGENERATE_PLANE_RATIO * singular[0] or normal[2] == 0:
         return None
     return normal, -float(normal @ centroid)
 
 
 def _refine(points: np.ndarray, mask: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray] | None:
-    """Alternate least-squares refit and inlier re-selection until stable; ``(mask, residuals)``.
-
-    Compiled (:func:`_refine_kernel`): the NumPy loop of :func:`_lsq_plane` fits took 0.1-0.2 ms per
-    candidate on 30 points, measured.
-    """
-    ok, mask, residuals = _refine_kernel(points, mask, float(t), _MAX_REFINE_ROUNDS)
-    return (mask, residuals) if ok else None
-
-
-@numba.njit(cache=True)
-def _refine_kernel(
-    points: np.ndarray, mask: np.ndarray, t: float, max_rounds: int
-) -> tuple[bool, np.ndarray, np.ndarray]:
-    """:func:`_refine`'s loop: ``(ok, mask, residuals)``, the planes as :func:`_lsq_plane`'s."""
-    n = points.shape[0]
-    residuals = np.zeros(n)
-    mask = mask.copy()
-    for _ in range(max_rounds):
-        m = 0
-        centroid = np.zeros(3)
-        for i in range(n):
-            if mask[i]:
-                m += 1
-                for k in range(3):
-                    centroid[k] += points[i, k]
-        if m < 3:
-            return False, mask, residuals
-        centroid /= m
-        scatter = np.zeros((3, 3))
-        for i in range(n):
-            if mask[i]:
-                d0, d1, d2 = (
-                    points[i, 0] - centroid[0],
-                    points[i, 1] - centroid[1],
-                    points[i, 2] - centroid[2],
-                )
-                scatter[0, 0] += d0 * d0
-                scatter[0, 1] += d0 * d1
-                scatter[0, 2] += d0 * d2
-                scatter[1, 1] += d1 * d1
-                scatter[1, 2] += d1 * d2
-                scatter[2, 2] += d2 * d2
-        scatter[1, 0], scatter[2, 0], scatter[2, 1] = scatter[0, 1], scatter[0, 2], scatter[1, 2]
-        eigval, eigvec = np.linalg.eigh(scatter)
-        if eigval[2] <= 0 or eigval[1] <= 1e-18 * eigval[2]:
-            return False, mask, residuals  # a line or a point
-        n0, n1, n2 = eigvec[0, 0], eigvec[1, 0], eigvec[2, 0]
-        if n2 < 0:
-            n0, n1, n2 = -n0, -n1, -n2
-        if n2 == 0:
-            return False, mask, residuals
-        offset = -(n0 * centroid[0] + n1 * centroid[1] + n2 * centroid[2])
-        same = True
-        for i in range(n):
-            residuals[i] = points[i, 0] * n0 + points[i, 1] * n1 + points[i, 2] * n2 + offset
-            inside = abs(residuals[i]) <= t
-            if inside != mask[i]:
-                same = False
-                mask[i] = inside
-        if same:
-            break
-    m = 0
-    for i in range(n):
-        m += mask[i]
-    return m >= 3, mask, residuals
+    """Alternate least-squares refit and inlier re-selection until stable; ``(mask, residuals)``, or
+    ``None`` if the set falls onto a line or below 3 points."""
+    refined, mask, residuals = refine(points, mask, float(t), _MAX_REFINE_ROUNDS)
+    return (mask, residuals) if refined else None
 
 
 def _settle_scale(
     points: np.ndarray, refined: tuple[np.ndarray, np.ndarray], t: float, one_sided: bool
 ) -> tuple[tuple[np.ndarray, np.ndarray], float] | None:
-    """Alternate the scale re-estimation and the refinement of one candidate until its threshold settles."""
+    """Alternate the scale re-estimation and the refinement of one candidate until its threshold settles
+    (changes by less than :data:`_SETTLED_THRESHOLD_CHANGE`)."""
     for _ in range(_MAX_SCALE_ROUNDS):
         t_new = _threshold_from_refined(refined[1], t, one_sided)
         again = _refine(points, refined[0], t_new)
         if again is None:
             return None
         refined, t_old, t = again, t, t_new
-        if abs(t - t_old) <= 0.01 * t_old:
+        if abs(t - t_old) <= _SETTLED_THRESHOLD_CHANGE * t_old:
             break
     return refined, t
 
 
 def _best_candidate(
-    points: np.ndarray, masks: list[np.ndarray], t: float, one_sided: bool
+    points: np.ndarray, normals: np.ndarray, offsets: np.ndarray, t: float, one_sided: bool
 ) -> tuple[np.ndarray, np.ndarray] | None:
-    """Refine each inlier set (:func:`_refine`), drop repeated results, and return the ``(mask,
-    residuals)`` of the lowest selection cost (the first of equals), or ``None`` if none refines. The
-    selection cost is the MSAC cost plus, with ``one_sided``, ``t^2`` per point more than ``t`` above the
-    plane inside the ``(x, y)`` hull of its inliers (it would penetrate the part).
+    """The ``(mask, residuals)`` of the best refined candidate (the module's Method, steps 4 and 6), or
+    ``None`` if none refines.
 
-    Compiled (:func:`_best_candidate_kernel`): the same steps in NumPy took 50 us per fit, measured.
+    The candidates are the inlier sets (``|r| <= t``) of the lowest-MSAC-cost hypotheses, among the
+    :data:`_CANDIDATE_POOL` cheapest those of at least 3 points, skipping sets too like one already taken
+    (Jaccard index at least :data:`_SAME_SET_JACCARD`), at most :data:`_N_CANDIDATES`. Each is refined
+    (:func:`_refine`), repeated results dropped; the winner has the lowest MSAC cost plus, with
+    ``one_sided``, :data:`_ABOVE_PENALTY` ``t^2`` per point more than ``t`` above the plane inside the
+    ``(x, y)`` hull of its inliers (it would penetrate the part). One compiled pass
+    (:func:`softjig.sensing._robust_kernels.best_candidate`).
     """
-    if not masks:
-        return None
-    ok, mask, residuals = _best_candidate_kernel(
-        np.ascontiguousarray(points), np.stack(masks), float(t), one_sided, _MAX_REFINE_ROUNDS, _ABOVE_PENALTY
+    found, mask, residuals = best_candidate(
+        np.ascontiguousarray(points),
+        normals,
+        offsets,
+        float(t),
+        _CANDIDATE_POOL,
+        _N_CANDIDATES,
+        _SAME_SET_JACCARD,
+        one_sided,
+        _MAX_REFINE_ROUNDS,
+        _ABOVE_PENALTY,
     )
-    return (mask, residuals) if ok else None
-
-
-@numba.njit(cache=True)
-def _best_candidate_kernel(
-    points: np.ndarray,
-    masks: np.ndarray,
-    t: float,
-    one_sided: bool,
-    max_rounds: int,
-    above_penalty: float,
-) -> tuple[bool, np.ndarray, np.ndarray]:
-    n = points.shape[0]
-    kept_masks = np.zeros((masks.shape[0], n), dtype=np.bool_)
-    n_kept = 0
-    best_cost = np.inf
-    best_mask = np.zeros(n, dtype=np.bool_)
-    best_residuals = np.zeros(n)
-    for q in range(masks.shape[0]):
-        ok, mask, residuals = _refine_kernel(points, masks[q], t, max_rounds)
-        if not ok:
-            continue
-        repeated = False
-        for other in range(n_kept):
-            if np.array_equal(kept_masks[other], mask):
-                repeated = True
-                break
-        if repeated:
-            continue
-        kept_masks[n_kept] = mask
-        n_kept += 1
-        # The selection cost: MSAC plus t^2 per point above the plane inside the (x, y) hull of the
-        # inliers (none when the inliers lie on a line).
-        cost = 0.0
-        n_above = 0
-        for i in range(n):
-            cost += min(residuals[i] * residuals[i], t * t)
-            n_above += residuals[i] > t
-        if one_sided and n_above > 0:
-            above = np.empty((n_above, 2))
-            inliers = np.empty((mask.sum(), 2))
-            a, b = 0, 0
-            for i in range(n):
-                if residuals[i] > t:
-                    above[a, 0], above[a, 1] = points[i, 0], points[i, 1]
-                    a += 1
-                if mask[i]:
-                    inliers[b, 0], inliers[b, 1] = points[i, 0], points[i, 1]
-                    b += 1
-            cost += above_penalty * t * t * _inside_hull_kernel(inliers, above, 1e-9).sum()
-        if cost < best_cost:
-            best_cost, best_mask, best_residuals = cost, mask, residuals
-    return n_kept > 0, best_mask, best_residuals
+    return (mask, residuals) if found else None

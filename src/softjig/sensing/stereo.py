@@ -15,12 +15,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 import numpy.typing as npt
 
 from softjig.checks import finite_float, positive_float
 from softjig.errors import InputError
+from softjig.sensing._stereo_kernels import pairs_and_components
 
 __all__ = [
     "StereoMatches",
@@ -29,7 +29,10 @@ __all__ = [
     "triangulate_rectified",
 ]
 
-_BATCH_EDGES = 512  # admissible pairs per assignment problem (whole components)
+#: Admissible pairs per assignment problem: the components of the pairs' graph that share markers are
+#: solved together, whole, in block-diagonal problems of about this many pairs (few solver calls, bounded
+#: memory).
+_BATCH_EDGES = 512
 
 
 @dataclass(frozen=True, eq=False)
@@ -160,7 +163,6 @@ def match_rectified(
     min_disparity_px: float,
     max_disparity_px: float,
     disparity_weight: float = 0.01,
-    reference: bool = False,
 ) -> StereoMatches:
     """Match marker detections of a rectified pair by a one-to-one global assignment.
 
@@ -177,9 +179,6 @@ def match_rectified(
     disparity_weight : float, optional
         Weight (>= 0) of the disparity term of the cost, see Notes. The default 0.01 only
         breaks near-ties of the row term.
-    reference : find the admissible pairs with NumPy and the connected components of their graph
-        with SciPy's sparse graph routines (the straightforward path, kept to check the fast one
-        against: both give the same matches).
 
     Returns
     -------
@@ -215,15 +214,12 @@ def match_rectified(
     most one candidate per row.
 
     Connected components of the admissibility graph are independent: components with a
-    single pair are taken directly, the others are solved in batches of whole
-    components. The admissible pairs and the components are found in one Numba loop (a
-    row sweep, node degrees, then a union-find over the pairs whose markers have other
-    candidates); ``reference=True`` finds them with NumPy and SciPy's sparse graph
-    search instead. Matching 290 x 290 markers of the default jig takes ~0.1 ms (0.6 ms
-    with the reference), a random point cloud of 400 markers with a 120 px window ~2 ms.
+    single pair are taken directly, the others are solved in batches of whole components.
+    The admissible pairs and the components are found in one compiled loop
+    (:func:`softjig.sensing._stereo_kernels.pairs_and_components`).
     """
-    left = _as_points(left_xy, "left_xy", check_finite=reference)
-    right = _as_points(right_xy, "right_xy", check_finite=reference)
+    left = _as_points(left_xy, "left_xy")
+    right = _as_points(right_xy, "right_xy")
     tol = positive_float(row_tolerance_px, "row_tolerance_px")
     d_min = finite_float(min_disparity_px, "min_disparity_px")
     d_max = finite_float(max_disparity_px, "max_disparity_px")
@@ -236,35 +232,18 @@ def match_rectified(
     if weight < 0.0:
         raise InputError(f"disparity_weight must be >= 0, got {weight}.")
 
-    n_left, n_right = len(left), len(right)
-    if reference:
-        li, rj = _admissible_pairs(left, right, tol, d_min, d_max)
-        if len(li) == 0:
-            return _matches(left, right, li, rj)
-        component = _component_labels(li, rj, n_left, n_right)
-        edges_in_component = np.bincount(component)[component]
-    else:
-        order = np.argsort(right[:, 1], kind="stable")
-        li, rj, row_diff, disparity, component, n_conflicts = _pairs_and_components(
-            left, right, order, tol, d_min, d_max
-        )
-        if n_conflicts < 0:  # a coordinate is not finite: say which array
-            _as_points(left, "left_xy")
-            _as_points(right, "right_xy")
-        if n_conflicts == 0:  # every admissible pair is the only candidate of both its markers
-            return StereoMatches._trusted(li, rj, row_diff, disparity)
-        conflicts = np.flatnonzero(component >= 0)
-        edges_in_component = np.ones(len(li), np.intp)
-        edges_in_component[conflicts] = np.bincount(component[conflicts])[component[conflicts]]
-    row_diff = left[li, 1] - right[rj, 1]
-    disparity = left[li, 0] - right[rj, 0]
+    order = np.argsort(right[:, 1], kind="stable")
+    li, rj, row_diff, disparity, component, n_conflicts = pairs_and_components(
+        left, right, order, tol, d_min, d_max
+    )
+    if n_conflicts == 0:  # every admissible pair is the only candidate of both its markers
+        return StereoMatches._trusted(li, rj, row_diff, disparity)
+    conflicts = np.flatnonzero(component >= 0)
+    edges_in_component = np.ones(len(li), np.intp)
+    edges_in_component[conflicts] = np.bincount(component[conflicts])[component[conflicts]]
     half_window = 0.5 * (d_max - d_min)
     cost = (row_diff / tol) ** 2 + weight * ((disparity - (d_min + half_window)) / half_window) ** 2
     chosen = [np.flatnonzero(edges_in_component == 1)]  # one left, one right marker
-
-    # The other components are solved together in batches of about _BATCH_EDGES pairs
-    # (block-diagonal cost matrices): far fewer solver calls than one per component, and
-    # bounded memory.
     multi = np.flatnonzero(edges_in_component > 1)
     multi = multi[np.argsort(component[multi], kind="stable")]
     starts = np.flatnonzero(np.diff(component[multi], prepend=-1))
@@ -343,126 +322,6 @@ def triangulate_rectified(
     return np.column_stack([x, y, z])
 
 
-def _admissible_pairs(
-    left: np.ndarray, right: np.ndarray, tol: float, d_min: float, d_max: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """All admissible ``(left, right)`` index pairs, by a sweep over rows (no N x K array)."""
-    order = np.argsort(right[:, 1], kind="stable")
-    right_rows = right[order, 1]
-    lo = np.searchsorted(right_rows, left[:, 1] - tol, side="left")
-    hi = np.searchsorted(right_rows, left[:, 1] + tol, side="right")
-    counts = hi - lo
-    li = np.repeat(np.arange(len(left)), counts)
-    within = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
-    rj = order[np.repeat(lo, counts) + within]
-    row_diff = left[li, 1] - right[rj, 1]
-    disparity = left[li, 0] - right[rj, 0]
-    ok = (np.abs(row_diff) <= tol) & (disparity >= d_min) & (disparity <= d_max)
-    return li[ok], rj[ok]
-
-
-def _component_labels(li: np.ndarray, rj: np.ndarray, n_left: int, n_right: int) -> np.ndarray:
-    """Connected component of each edge ``(li[k], rj[k])`` of a bipartite graph (SciPy's sparse graph
-    search), numbered in order of the component's smallest left index."""
-    from scipy.sparse import coo_matrix  # on first use (as below): slow imports, rarely needed
-    from scipy.sparse.csgraph import connected_components
-
-    graph = coo_matrix((np.ones(len(li), np.int8), (li, n_left + rj)), shape=(n_left + n_right,) * 2)
-    _, labels = connected_components(graph, directed=False)
-    _, first = np.unique(labels[li], return_inverse=True)
-    return first.reshape(-1)
-
-
-@numba.njit(cache=True, nogil=True)
-def _pairs_and_components(left, right, order, tol, d_min, d_max):
-    """Admissible pairs ``(li, rj)`` (as :func:`_admissible_pairs` orders them, ``order`` sorting the right
-    markers by row, stably), their row differences and disparities (px), the connected component
-    of each pair that shares a marker with another pair (numbered by smallest left index, as
-    :func:`_component_labels`), -1 for the others, and how many pairs share a marker (-1 if a
-    coordinate is not finite).
-
-    A Numba loop: the row sweep, degrees and a union-find cost ~10 us for 290 markers, against ~0.3 ms
-    for the same with NumPy and SciPy's sparse graph search (measured; mostly call overhead).
-    """
-    n_left, n_right = left.shape[0], right.shape[0]
-    empty = np.empty(0, np.int64)
-    for points in (left, right):
-        for i in range(points.shape[0]):
-            if not (np.isfinite(points[i, 0]) and np.isfinite(points[i, 1])):
-                return empty, empty, np.empty(0), np.empty(0), empty, -1
-    right_rows = np.empty(n_right)  # sorted by ``order`` (NumPy's stable argsort: here it would cost
-    for k in range(n_right):  # seconds of compilation)
-        right_rows[k] = right[order[k], 1]
-    lo = np.empty(n_left, np.int64)
-    hi = np.empty(n_left, np.int64)
-    total = 0
-    for i in range(n_left):  # the row band [v - tol, v + tol] in the sorted right rows
-        below, above = left[i, 1] - tol, left[i, 1] + tol
-        a, b = 0, n_right
-        while a < b:
-            m = (a + b) // 2
-            if right_rows[m] < below:
-                a = m + 1
-            else:
-                b = m
-        lo[i] = a
-        b = n_right
-        while a < b:
-            m = (a + b) // 2
-            if right_rows[m] <= above:
-                a = m + 1
-            else:
-                b = m
-        hi[i] = a
-        total += hi[i] - lo[i]
-    li = np.empty(total, np.int64)
-    rj = np.empty(total, np.int64)
-    row_diff = np.empty(total)
-    disparity = np.empty(total)
-    n = 0
-    for i in range(n_left):
-        for k in range(lo[i], hi[i]):
-            j = order[k]
-            d = left[i, 0] - right[j, 0]
-            r = left[i, 1] - right[j, 1]
-            if abs(r) <= tol and d >= d_min and d <= d_max:
-                li[n], rj[n], row_diff[n], disparity[n] = i, j, r, d
-                n += 1
-    li, rj, row_diff, disparity = li[:n].copy(), rj[:n].copy(), row_diff[:n].copy(), disparity[:n].copy()
-    degree = np.zeros(n_left + n_right, np.int64)
-    for e in range(n):
-        degree[li[e]] += 1
-        degree[n_left + rj[e]] += 1
-    parent = np.arange(n_left + n_right)
-    n_conflicts = 0
-    for e in range(n):
-        if degree[li[e]] > 1 or degree[n_left + rj[e]] > 1:
-            n_conflicts += 1
-            a, b = _root(parent, li[e]), _root(parent, n_left + rj[e])
-            if a != b:
-                parent[max(a, b)] = min(a, b)
-    component = np.full(n, -1, np.int64)
-    number = np.full(n_left + n_right, -1, np.int64)
-    count = 0
-    for e in range(n):
-        if degree[li[e]] > 1 or degree[n_left + rj[e]] > 1:
-            r = _root(parent, li[e])
-            if number[r] < 0:
-                number[r] = count
-                count += 1
-            component[e] = number[r]
-    return li, rj, row_diff, disparity, component, n_conflicts
-
-
-@numba.njit(cache=True, nogil=True)
-def _root(parent, node):
-    """The root of ``node`` in a union-find forest, halving the path on the way."""
-    while parent[node] != node:
-        parent[node] = parent[parent[node]]
-        node = parent[node]
-    return node
-
-
 def _assign(li: np.ndarray, rj: np.ndarray, cost: np.ndarray, max_cost: float) -> np.ndarray:
     """Edges (positions into ``li``/``rj``) chosen by a max-cardinality min-cost assignment."""
     left_nodes, row = np.unique(li, return_inverse=True)
@@ -489,9 +348,8 @@ def _matches(left: np.ndarray, right: np.ndarray, li: np.ndarray, rj: np.ndarray
     )
 
 
-def _as_points(points: npt.ArrayLike, name: str, *, check_finite: bool = True) -> np.ndarray:
-    """``points`` as a finite float64 (N, 2) array, or an InputError naming the argument (finiteness
-    left to the caller if not ``check_finite``)."""
+def _as_points(points: npt.ArrayLike, name: str) -> np.ndarray:
+    """``points`` as a finite float64 (N, 2) array, or an InputError naming the argument."""
     try:
         arr = np.asarray(points, dtype=np.float64)
     except (TypeError, ValueError):
@@ -502,6 +360,6 @@ def _as_points(points: npt.ArrayLike, name: str, *, check_finite: bool = True) -
         raise InputError(
             f"{name} must be an (N, 2) array of pixel coordinates (u, v), got shape {arr.shape}."
         )
-    if check_finite and not np.isfinite(arr).all():
+    if not np.isfinite(arr).all():
         raise InputError(f"{name} contains NaN or infinite coordinates; remove them first.")
     return arr
