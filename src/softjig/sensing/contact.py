@@ -9,6 +9,11 @@ Markers indented beyond the noise are *candidates*; the contact is grown from th
 the neighbours on their plane (:func:`grow_contact`, robust fits from :mod:`softjig.sensing.robust`),
 rejecting the membrane that the indentation drags down around it.
 
+A plane is the face of its contact only if no marker contradicts it (:func:`contact_violations`): none
+penetrates it inside the contact, none lies far below it inside the contact's hull (:func:`holes`), and
+none beside the contact lies deep below it where it would still press into the membrane, deeper than the
+contact next to it (:func:`holes_beside`: the part's real face beside a strip of wall fitted instead).
+
 The **footprint** of the contact is the convex hull of the contact markers dilated by half a marker pitch
 (each marker stands for one cell of the grid; by Steiner's formula the area grows by
 ``perimeter * p / 2 + pi (p / 2)^2``). Contact is **partial** when, on some side, the fitted plane rises to

@@ -784,6 +784,10 @@ def _contact_under_known_face(
       where that contact puts it (:func:`~softjig.sensing.contact.face_centre_xy`), and that contact's
       markers under it; taken over a small search's contact only when it has enough markers to check and
       passes the checks (no violations, halves that agree).
+    - **Rivals** (:func:`_rival`): two searched faces, or a search's face and the cut, that no marker
+      contradicts but whose normals disagree beyond their noise (:func:`~softjig.sensing.selfcheck.
+      agreement`): the frame holds two plausible faces (the part's and a strip of the membrane's wall
+      beside a small contact), and the estimate is suspect whichever is reported.
     """
     pitch = jig.markers.pitch_mm
     ways = []
