@@ -448,7 +448,7 @@ def holes_beside(
     strip of the membrane's wall, and the part's real, deeper face lies beside it. On the design zoo
     (seed 0, 5 frames per design, the four ways), such a wall fitted beside a small or off-centre contact,
     10-30 deg off, passed every check of the contact's own markers in 14 estimates; 7 had a hole beside,
-    none of 887 estimates within 3 deg did.
+    none of the other 887 estimates reported "ok" did.
     """
     height = (points_J - plane.centroid_mm) @ plane.normal
     return _holes_beside(points_J, dent, contact, plane, height, threshold_mm, pitch_mm)
