@@ -157,6 +157,9 @@ FACE_CENTRE_TOLERANCE_PITCHES = 0.25
 # searched from there too (a centred face covers its own dent's centroid: a small part steeply tilted
 # drags the membrane down mostly beside its lowered edge, 0.5-1 radius off).
 OFF_AXIS_DENT_RADII = 1.0
+# A dent whose centroid lies this many pitches or more off the axis (but under a radius) is also searched
+# from there, as a rival only: a face searched from the axis that it contradicts makes the estimate suspect.
+RIVAL_SEARCH_PITCHES = 1.0
 # The search starts on the jig axis and stays there when the contact found puts the face's centre within
 # this share of the part's radius of it.
 CENTRED_SHARE = 0.5
@@ -819,6 +822,20 @@ def _contact_under_known_face(
             else None
         )
         searches = [searches[best]]
+    elif len(searches) == 1 and np.hypot(*dent_centre) >= RIVAL_SEARCH_PITCHES * pitch:
+        rival = _rival_search(
+            points_J,
+            dent,
+            candidates,
+            radius_mm,
+            fit,
+            minimum,
+            jig,
+            noise_mm,
+            threshold_mm,
+            searches[0],
+            dent_centre,
+        )
     ways.extend(searches)
     grown = None
     few = not ways or ways[0][0].sum() < SELF_CHECK_MIN_POINTS
@@ -859,6 +876,20 @@ def _contact_under_known_face(
             "lie under it (sensing.min_points); is the part's size right?"
         )
     return (*ways[0], rival)
+
+
+def _rival_search(
+    points_J, dent, candidates, radius_mm, fit, minimum, jig, noise_mm, threshold_mm, search, start
+):
+    """The face searched from ``start`` as a rival of ``search`` (:func:`_plausible_rival`), or ``None``."""
+    try:
+        other = _search_face(points_J, dent, candidates, radius_mm, fit, minimum, jig, noise_mm, start)
+    except EstimationError:
+        return None
+    pitch = jig.markers.pitch_mm
+    if contact_violations(points_J, *other, threshold_mm=threshold_mm, pitch_mm=pitch, dent=dent):
+        return None
+    return _plausible_rival(points_J, search, other, threshold_mm, pitch, dent)
 
 
 def _plausible_rival(points_J, search, cut, threshold_mm: float, pitch_mm: float, dent) -> SplitCheck | None:
