@@ -322,3 +322,96 @@ def test_a_studys_frame_is_the_frame_softjig_simulate_renders_of_the_design(tmp_
     ).estimate
     k = row["method"].index("refractive")
     assert (row["est_nx"][k], row["est_ny"][k], row["est_nz"][k]) == pytest.approx(estimate.normal, abs=1e-12)
+
+
+def _one_design(study: Study) -> Study:
+    return Study(replace(study.spec, vary=(("markers.pitch_mm", (7.0,)),)), study.designs[:1])
+
+
+def test_a_tasks_rows_are_the_one_shot_estimates_of_its_frames(tmp_path):
+    """One Estimator per method and task gives every frame the estimate `estimate_pair` gives it alone (the
+    old per-frame path): the same normals, sigmas, qualities and markers; only the timings differ."""
+    from softjig.sensing.pipeline import estimate_pair, reference_from_pair
+    from softjig.sim.asbuilt import draw_as_built
+    from softjig.sim.render import render_pair
+
+    study = _one_design(_study(SMALL, tmp_path))
+    inp = next(task_inputs(study, make_tasks(study)))
+    columns = run_task(inp).columns
+    seed, jig = inp.task.seed, inp.jig
+    as_built = draw_as_built(jig, np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(0,))))
+
+    def pair(index):
+        rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(1, index)))
+        return render_pair(as_built, inp.frames[index].part, inp.frames[index].pose, rng)
+
+    unloaded = pair(0)
+    reference = reference_from_pair(unloaded.left, unloaded.right, jig)
+    i = 0
+    for k in range(1, len(inp.frames)):
+        p = pair(k)
+        for method in inp.methods:
+            old = estimate_pair(
+                p.left,
+                p.right,
+                jig,
+                part_diameter_mm=50.0,
+                method=method,
+                reference=reference if method == "refractive" else None,
+            ).estimate
+            assert (columns["method"][i], columns["frame"][i]) == (method, k - 1)
+            new = (columns["est_nx"][i], columns["est_ny"][i], columns["est_nz"][i])
+            assert new == pytest.approx(tuple(old.normal), abs=1e-12)
+            assert columns["sigma_deg"][i] == pytest.approx(old.tilt_sigma_deg, abs=1e-12)
+            assert columns["quality"][i] == old.quality
+            assert columns["markers_under_part"][i] == old.n_points
+            i += 1
+    assert i == len(columns["method"])
+
+
+def test_a_designs_latency_is_the_warm_estimate_alone(tmp_path):
+    """`latency_ms_median` is one more frame's cost to a running estimator (bench_estimate's per-pair time),
+    not the estimator's build (~0.5 s) nor its first call's warm-up: within a few times the warm
+    estimate of one of the study's frames timed here, in the same process under the same load."""
+    import time
+
+    from softjig.sensing.estimator import Estimator
+    from softjig.sim.asbuilt import draw_as_built
+    from softjig.sim.render import render_pair
+
+    study = _one_design(_study(SMALL.replace('"refractive", "paper"', '"refractive"'), tmp_path))
+    run = run_study(study, tmp_path / "out", workers=1, progress=False, report=False)
+    latency = run.designs.column("latency_ms_median").to_pylist()[0]
+    inp = next(task_inputs(study, make_tasks(study)))
+    as_built = draw_as_built(inp.jig, np.random.default_rng(1))
+    unloaded = render_pair(as_built, inp.frames[0].part, inp.frames[0].pose, np.random.default_rng(2))
+    loaded = render_pair(as_built, inp.frames[1].part, inp.frames[1].pose, np.random.default_rng(3))
+    estimator = Estimator(inp.jig)
+    estimator = estimator.with_reference(estimator.reference_from_pair(unloaded.left, unloaded.right))
+    warm_ms = []
+    for _ in range(4):
+        t0 = time.perf_counter()
+        estimator.estimate(loaded.left, loaded.right, part_diameter_mm=50.0)
+        warm_ms.append(1e3 * (time.perf_counter() - t0))
+    per_pair = float(np.median(warm_ms[1:]))
+    assert 0 < latency < 3 * per_pair + 5.0, (latency, per_pair)
+
+
+def test_a_task_builds_its_jigs_model_once_for_every_frame_and_method(tmp_path, monkeypatch):
+    """The per-jig set-up (:class:`JigModel`) is built once per task and shared by the methods' estimators,
+    not once per frame and method (the real build, counted)."""
+    from softjig.sensing.setup import JigModel
+
+    built = []
+    real = JigModel.build.__func__
+
+    def counted(cls, jig):
+        built.append(jig)
+        return real(cls, jig)
+
+    monkeypatch.setattr(JigModel, "build", classmethod(counted))
+    study = _one_design(_study(SMALL, tmp_path))
+    columns = run_task(next(task_inputs(study, make_tasks(study)))).columns
+    assert len(columns["method"]) == 4  # 2 frames x 2 methods, every one estimated
+    assert all(q != "failed" for q in columns["quality"])
+    assert len(built) == 1
