@@ -415,3 +415,88 @@ def test_a_task_builds_its_jigs_model_once_for_every_frame_and_method(tmp_path, 
     assert len(columns["method"]) == 4  # 2 frames x 2 methods, every one estimated
     assert all(q != "failed" for q in columns["quality"])
     assert len(built) == 1
+
+
+# ------------------------------------------------------------------------------------------ explicit poses
+
+POSES = """
+[study]
+name = "poses"
+seeds = [2]
+[vary]
+"markers.pitch_mm" = [8.0]
+[[frames.poses]]
+diameter_mm = 50
+alpha_deg = 12
+theta_deg = 45
+push_depth_mm = 2.5
+[[frames.poses]]
+diameter_mm = 40
+alpha_deg = 0
+[estimate]
+methods = ["refractive"]
+"""
+
+
+def test_explicit_poses_are_the_frames_in_their_order(tmp_path):
+    study = _study(POSES, tmp_path)
+    specs = study.spec.frame_specs()
+    assert len(specs) == 3 and specs[0].part is None  # the reference first
+    assert [(s.part.diameter_mm, round(math.degrees(s.pose.alpha_rad), 9)) for s in specs[1:]] == [
+        (50.0, 12.0),
+        (40.0, 0.0),
+    ]
+    assert (math.degrees(specs[1].pose.theta_rad), specs[1].pose.push_depth_mm) == pytest.approx((45.0, 2.5))
+    assert specs[2].pose.push_depth_mm == 3.0  # the default, as the sweep's
+    columns = run_task(next(task_inputs(study, make_tasks(study)))).columns
+    poses = zip(columns["diameter_mm"], columns["alpha_deg"], columns["theta_deg"], strict=True)
+    got = [v for pose in poses for v in pose]
+    assert got == pytest.approx([50.0, 12.0, 45.0, 40.0, 0.0, 0.0])
+    assert columns["depth_mm"][0] == pytest.approx(2.5, abs=0.3)  # the true depth, on the as-built jig
+    assert all(q != "failed" for q in columns["quality"])
+    assert columns["error_deg"][0] < 2.0
+    # a sweep's identity is what it was before poses existed (its folders still resume)
+    sweep = _study(SMALL, tmp_path, "sweep.toml").spec.canonical()["frames"]
+    assert set(sweep) == {"diameters_mm", "alphas_deg", "theta_step_deg", "push_depth_mm"}
+    assert study.spec.canonical()["frames"] == {
+        "poses": [
+            {"diameter_mm": 50.0, "alpha_deg": 12.0, "theta_deg": 45.0, "push_depth_mm": 2.5},
+            {"diameter_mm": 40.0, "alpha_deg": 0.0, "theta_deg": 0.0, "push_depth_mm": 3.0},
+        ]
+    }
+
+
+_ONE_POSE = {"diameter_mm": 50, "alpha_deg": 10}
+
+
+@pytest.mark.parametrize(
+    ("frames", "message"),
+    [
+        ({"poses": [_ONE_POSE], "alphas_deg": [5]}, "frames: give either poses or the paper sweep's"),
+        ({"poses": []}, "frames.poses: an empty list gives no frame"),
+        (
+            {"poses": [{**_ONE_POSE, "alpha_deg": 95}]},
+            "frames.poses.0.alpha_deg: Input should be less than 90",
+        ),
+        (
+            {"poses": [{**_ONE_POSE, "theta_deg": 360}]},
+            "frames.poses.0.theta_deg: Input should be less than 360",
+        ),
+        (
+            {"poses": [{**_ONE_POSE, "diameter_mm": -5}]},
+            "frames.poses.0.diameter_mm: Input should be greater",
+        ),
+        (
+            {"poses": [{**_ONE_POSE, "push_depth_mm": 0}]},
+            "frames.poses.0.push_depth_mm: Input should be greater",
+        ),
+        ({"poses": [_ONE_POSE, {**_ONE_POSE, "depth_mm": 2}]}, "frames.poses.1.depth_mm: Unexpected keyword"),
+        ({"poses": [{"alpha_deg": 10}]}, "frames.poses.0.diameter_mm"),
+        ({"poses": [{**_ONE_POSE, "diameter_mm": 500}]}, "frames: the 500 mm part does not fit the design"),
+        ({"poses": [{**_ONE_POSE, "push_depth_mm": 30}]}, "into the plate"),
+    ],
+)
+def test_bad_poses_are_errors_naming_the_pose_and_key(frames, message):
+    with pytest.raises(ConfigError) as info:
+        build_designs(parse_study({"study": {"name": "t"}, "frames": frames}))
+    assert message in str(info.value)
