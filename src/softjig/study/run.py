@@ -205,6 +205,8 @@ def _estimators(jig: JigConfig, methods: tuple[str, ...], unloaded: Any) -> dict
     ``unloaded`` pair's markers (or, when they cannot be had, the reason, as a string)."""
     from softjig.sensing.estimator import Estimator
 
+    if not methods:
+        return {}
     base = Estimator(jig, method=methods[0])
     out: dict[str, Any] = {}
     for method in methods:
