@@ -180,22 +180,15 @@ def estimate(
         inputs, config, reference_left, reference_right, out=out, workers=workers, part_size=part_size
     )
     from softjig.io.dataset import load_image
-    from softjig.sensing.pipeline import estimate_pair, reference_from_pair
+    from softjig.sensing.estimator import Estimator
 
     jig = load_config(config)
     left, right = load_image(inputs[0]), load_image(inputs[1])
-    reference = None
+    estimator = Estimator(jig, method=method_name, calibration=cal)
     if reference_left is not None and reference_right is not None:
-        reference = reference_from_pair(load_image(reference_left), load_image(reference_right), jig)
-    result = estimate_pair(
-        left,
-        right,
-        jig,
-        part_diameter_mm=part_diameter,
-        calibration=cal,
-        method=method_name,
-        reference=reference,
-    )
+        reference = estimator.reference_from_pair(load_image(reference_left), load_image(reference_right))
+        estimator = estimator.with_reference(reference)
+    result = estimator.estimate(left, right, part_diameter_mm=part_diameter)
     if overlay is not None:
         from softjig.evaluation.overlay import draw_overlay
         from softjig.files import write_bytes_atomic

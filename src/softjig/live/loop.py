@@ -11,8 +11,8 @@ Two threads share one slot:
   closed, and re-opened after a back-off (0.5 s doubling to 5 s) until it delivers again: the loop never
   dies of it. A replay's frame that cannot be read (:class:`~softjig.io.cameras.BadFrame`: a missing or
   corrupt image) is not a camera failure: it is skipped at once and counted (``bad_frames``).
-* the **estimator** (the caller's thread) takes the newest pair, runs
-  :func:`~softjig.sensing.pipeline.estimate_pair`, builds the estimate message (:func:`estimate_message`)
+* the **estimator** (the caller's thread) takes the newest pair, runs the loop's one
+  :class:`~softjig.sensing.estimator.Estimator`, builds the estimate message (:func:`estimate_message`)
   and hands it to the sinks (the ZeroMQ publisher, the viewer). The *latency* of a frame is the time from
   the pair's arrival to its message being ready. Health messages (:func:`health_message`) go out every
   ``health_period_s`` and whenever the camera's health changes.
@@ -459,6 +459,7 @@ class LiveLoop:
         self._estimate_seq = 0
         self._rate_mark = (time.monotonic(), 0)
         self._sink_errors: list[str] = []
+        self._estimator: Any = None  # built on the first pair (_the_estimator)
 
     # -- control
     def stop(self) -> None:
@@ -556,26 +557,30 @@ class LiveLoop:
         return float(part_from_dict(part).diameter_mm)  # a box's is its inscribed circle's
 
     def _estimate(self, frame: StereoFrame) -> FrameOutcome:
-        from softjig.sensing.pipeline import estimate_pair
-
         result, error, code = None, None, 0
-        kwargs: dict[str, Any] = {}
-        if self.settings.method is not None:
-            kwargs["method"] = self.settings.method
         try:
-            result = estimate_pair(
-                frame.left,
-                frame.right,
-                self.settings.jig,
-                part_diameter_mm=self._part_diameter_mm(frame),
-                calibration=self.settings.calibration,
-                **kwargs,
+            estimator = self._the_estimator()
+            result = estimator.estimate(
+                frame.left, frame.right, part_diameter_mm=self._part_diameter_mm(frame)
             )
         except EstimationError as exc:
             error, code = str(exc), 3
         except InputError as exc:
             error, code = str(exc), 2
         return FrameOutcome(frame, result, error, code, time.monotonic() - frame.received_s)
+
+    def _the_estimator(self) -> Any:
+        """The settings' :class:`~softjig.sensing.estimator.Estimator`, built on the first pair (by the one
+        thread that estimates) and kept for the loop's life; a settings error is each pair's error."""
+        if self._estimator is None:
+            from softjig.sensing.estimator import DEFAULT_METHOD, Estimator
+
+            self._estimator = Estimator(
+                self.settings.jig,
+                method=self.settings.method or DEFAULT_METHOD,
+                calibration=self.settings.calibration,
+            )
+        return self._estimator
 
     def snapshot(self, *, stopped: bool = False) -> HealthSnapshot:
         """The loop's counters now (thread-safe)."""
