@@ -20,7 +20,8 @@ from softjig.io.cameras import (
     parse_source_spec,
 )
 from softjig.io.dataset import DatasetWriter
-from softjig.sim.scenarios import paper_sweep, simulate_dataset
+from softjig.io.simulated import simulate_dataset
+from softjig.sim.scenarios import paper_sweep
 
 
 @pytest.fixture(scope="module")

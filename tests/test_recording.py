@@ -16,8 +16,9 @@ from softjig.config import default_jig
 from softjig.errors import InputError
 from softjig.io.cameras import ReplaySource
 from softjig.io.dataset import Dataset, DatasetTruncationWarning
+from softjig.io.simulated import simulate_dataset
 from softjig.live.loop import LiveLoop, LiveSettings, Recorder
-from softjig.sim.scenarios import paper_sweep, simulate_dataset
+from softjig.sim.scenarios import paper_sweep
 
 
 @pytest.fixture(scope="module")

@@ -17,9 +17,10 @@ from softjig.config import default_jig  # noqa: E402
 from softjig.errors import InputError  # noqa: E402
 from softjig.io.cameras import ReplaySource  # noqa: E402
 from softjig.io.dataset import Dataset  # noqa: E402
+from softjig.io.simulated import simulate_dataset  # noqa: E402
 from softjig.live.loop import LiveLoop, LiveSettings  # noqa: E402
 from softjig.live.viewer import FoxgloveViewer, plane_square_pose  # noqa: E402
-from softjig.sim.scenarios import paper_sweep, simulate_dataset  # noqa: E402
+from softjig.sim.scenarios import paper_sweep  # noqa: E402
 
 
 @pytest.fixture(scope="module")

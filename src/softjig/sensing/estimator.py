@@ -22,7 +22,6 @@ from types import MappingProxyType
 
 import numpy as np
 
-from softjig.calibration.tilt import TiltCalibration
 from softjig.config import JigConfig
 from softjig.errors import EstimationError, InputError
 from softjig.sensing.detect import (
@@ -51,6 +50,7 @@ from softjig.sensing.stages import (
     on_fiducials,
 )
 from softjig.sensing.stereo import StereoMatches
+from softjig.tilt_calibration import TiltCalibration
 
 # The best we have (DESIGN.md): on the paper's simulated sweep, uncalibrated, it beats the paper's method
 # calibrated in most cells (`softjig compare`). `--method paper` keeps the published method exactly.

@@ -16,18 +16,8 @@ from functools import cache
 import cv2
 import numpy as np
 
+from softjig.aruco import aruco_dictionary
 from softjig.config import FiducialConfig
-
-
-@cache
-def aruco_dictionary_names() -> tuple[str, ...]:
-    """Names of the predefined ArUco dictionaries OpenCV offers (``DICT_4X4_50`` ...)."""
-    return tuple(sorted(n for n in dir(cv2.aruco) if n.startswith("DICT_") and n[5].isdigit()))
-
-
-def aruco_dictionary(name: str) -> cv2.aruco.Dictionary:
-    """OpenCV's predefined dictionary of that name."""
-    return cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, name))
 
 
 def fiducial_corners_J(fiducials: FiducialConfig) -> np.ndarray:

@@ -44,13 +44,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from softjig.calibration.tilt import TiltCalibration
 from softjig.config import JigConfig
 from softjig.sensing.estimator import DEFAULT_METHOD, METHODS, Estimator
 from softjig.sensing.fitting import NoiseScales
 from softjig.sensing.identities import ReferenceMarkers
 from softjig.sensing.results import Estimate, Markers, Observation, Refusal, SensingResult
 from softjig.sensing.setup import SensingSetup, sensing_setup
+from softjig.tilt_calibration import TiltCalibration
 
 __all__ = [
     "DEFAULT_METHOD",
