@@ -185,8 +185,13 @@ def estimate(
     jig = load_config(config)
     left, right = load_image(inputs[0]), load_image(inputs[1])
     estimator = Estimator(jig, method=method_name, calibration=cal)
-    if reference_left is not None and reference_right is not None:
-        reference = estimator.reference_from_pair(load_image(reference_left), load_image(reference_right))
+    if reference_left is not None and reference_right is not None:  # checked unloaded, of this rig
+        from softjig.io.reference import reference_from_pair
+
+        reference = reference_from_pair(
+            load_image(reference_left), load_image(reference_right), jig, estimator=estimator,
+            where="--reference-left/--reference-right",
+        )  # fmt: skip
         estimator = estimator.with_reference(reference)
     result = estimator.estimate(left, right, part_diameter_mm=part_diameter)
     if overlay is not None:

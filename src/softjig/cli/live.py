@@ -22,6 +22,12 @@ from softjig.cli.options import (
     ReplayRateOption,
     SourceOption,
 )
+from softjig.cli.reference import (
+    ReferenceFromOption,
+    ReferenceLeftOption,
+    ReferenceRightOption,
+    UseReferenceOption,
+)
 from softjig.errors import InputError
 
 
@@ -58,6 +64,10 @@ def live(
     part_diameter: PartDiameterOption = None,
     calibration: CalibrationOption = None,
     method: MethodOption = DEFAULT_METHOD,
+    reference_left: ReferenceLeftOption = None,
+    reference_right: ReferenceRightOption = None,
+    reference_from: ReferenceFromOption = None,
+    use_reference: UseReferenceOption = True,
     rate: ReplayRateOption = ReplayRate.recorded,
     fps: FpsOption = DEFAULT_FPS,
     mcap: Annotated[
@@ -105,11 +115,19 @@ def live(
         cameras, jig = _open_cameras(
             source, rate=rate, fps=fps, config=config, method=method, part_diameter=part_diameter
         )
+    from softjig.cli.reference import choose_reference, describe
+
+    reference = choose_reference(
+        jig, method, left=reference_left, right=reference_right, from_dataset=reference_from,
+        replay=cameras.dataset if replay is not None else None, use_reference=use_reference,
+    )  # fmt: skip
+    typer.echo(describe(reference, method), err=True)
     settings = LiveSettings(
         jig=jig,
         part_diameter_mm=part_diameter,
         calibration=cal,
         method=method,
+        reference=reference,
         max_frames=max_frames,
         health_period_s=health_period,
     )
