@@ -617,7 +617,7 @@ class EstimationService:
                 where="the pair captured for the reference",
             )
         except InputError as exc:
-            return _error(f"reference refused, still estimating against the {self.loop.reference_source}: {exc}",
-                          frame=frame)  # fmt: skip
+            kept = self.loop.reference_source
+            return _error(f"reference refused, still estimating against the {kept}: {exc}", frame=frame)
         self.loop.use_reference(reference)
         return _reply(True, reference={"source": reference.source, "markers": len(reference)}, frame=frame)
