@@ -53,7 +53,7 @@ def reference_source(reference: ReferenceMarkers | None) -> str:
 
 def check_same_rig(reference_jig: JigConfig, jig: JigConfig, where: str) -> None:
     """Refuse a reference recorded on another rig than ``jig``: other image sizes, or another number of
-    markers.
+    markers (of two drawn layouts: a surveyed one, ``markers.centers_mm``, holds only the markers seen).
 
     Raises
     ------
@@ -66,6 +66,8 @@ def check_same_rig(reference_jig: JigConfig, jig: JigConfig, where: str) -> None
             f"{where} was recorded with {ref_cam.width_px}x{ref_cam.height_px} px cameras but the config's "
             f"are {cam.width_px}x{cam.height_px}: take the reference frame of this rig"
         )
+    if reference_jig.markers.centers_mm or jig.markers.centers_mm:
+        return  # a surveyed layout (explicit, of the markers seen) counts fewer markers than its drawing
     n_ref, n = len(rest_marker_points_mm(reference_jig)), len(rest_marker_points_mm(jig))
     if n_ref != n:
         raise InputError(
