@@ -43,6 +43,9 @@ def study(
     from softjig.study.execute import run_study
     from softjig.study.spec import load_study
 
+    from softjig.io.outputs import check_output
+
+    check_output(out, "--out", [study_file])
     loaded = load_study(study_file)
     spec = loaded.spec
     stderr_console().print(

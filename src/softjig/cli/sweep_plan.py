@@ -57,8 +57,12 @@ def sweep_plan(
     from softjig.files import write_text_atomic
     from softjig.planning import sweep_plan as make_plan
     from softjig.planning import sweep_plan_rows
+    from softjig.io.outputs import check_output
     from softjig.planning.contact import CONTACT_THRESHOLD_N
 
+    check_output(out, "--out", [config, robot_jig, csv_out])
+    if csv_out is not None:
+        check_output(csv_out, "--csv-out", [config, robot_jig])
     jig = load_config(config)
     T = None
     if robot_jig:
