@@ -59,7 +59,6 @@ def align_jig(
     from softjig.config import CameraConfig
     from softjig.files import write_text_atomic
     from softjig.io.dataset import load_image
-
     from softjig.io.outputs import check_output
 
     check_output(out, "--out", [image, camera, flange, config])

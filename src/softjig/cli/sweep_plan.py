@@ -55,9 +55,9 @@ def sweep_plan(
 ) -> None:
     """Write the tilt sweep's poses (position, quaternion x,y,z,w) in J and the robot frame, in order."""
     from softjig.files import write_text_atomic
+    from softjig.io.outputs import check_output
     from softjig.planning import sweep_plan as make_plan
     from softjig.planning import sweep_plan_rows
-    from softjig.io.outputs import check_output
     from softjig.planning.contact import CONTACT_THRESHOLD_N
 
     check_output(out, "--out", [config, robot_jig, csv_out])
