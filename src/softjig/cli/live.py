@@ -108,6 +108,13 @@ def live(
         raise InputError(
             "give --record DIR or --record-bag OUT, not both (softjig convert turns one into the other)"
         )
+    from softjig.io.outputs import check_output
+
+    given = [replay, config, calibration, reference_left, reference_right, reference_from]
+    for option, path in (("--record", record), ("--record-bag", record_bag), ("--mcap", mcap),
+                         ("--rerun-save", rerun_save)):  # fmt: skip
+        if path is not None:
+            check_output(path, option, given)
     cal = load_tilt_calibration(calibration) if calibration else None
     if replay is not None:
         cameras, jig = _open_replay(replay, rate=rate, fps=fps, config=config, record=record)
@@ -143,13 +150,6 @@ def live(
         rerun_save=rerun_save,
         overwrite=overwrite,
     )
-    from softjig.io.outputs import check_output
-
-    given = [replay, config, calibration, reference_left, reference_right, reference_from]
-    for option, path in (("--record", record), ("--record-bag", record_bag), ("--mcap", mcap),
-                         ("--rerun-save", rerun_save)):  # fmt: skip
-        if path is not None:
-            check_output(path, option, given)
     sinks, recorder = _open_outputs(outputs, jig, part_diameter)
 
     def on_outcome(_outcome, message) -> None:
