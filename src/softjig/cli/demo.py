@@ -81,9 +81,7 @@ def demo(
 
     from softjig.evaluation.experiment import ExperimentSettings, quick_settings
     from softjig.experiments.paper import run_experiment
-    from softjig.io.outputs import check_output
 
-    check_output(out, "--out", [])
     extra: dict = {
         "split": "alternate" if holdout else "none",
         "workers": workers,

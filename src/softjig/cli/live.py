@@ -122,13 +122,12 @@ def live(
         cameras, jig = _open_cameras(
             source, rate=rate, fps=fps, config=config, method=method, part_diameter=part_diameter
         )
-    from softjig.cli.reference import choose_reference, describe
+    from softjig.cli.reference import announced_reference
 
-    reference = choose_reference(
+    reference = announced_reference(
         jig, method, left=reference_left, right=reference_right, from_dataset=reference_from,
         replay=cameras.dataset if replay is not None else None, use_reference=use_reference,
     )  # fmt: skip
-    typer.echo(describe(reference, method), err=True)
     settings = LiveSettings(
         jig=jig,
         part_diameter_mm=part_diameter,

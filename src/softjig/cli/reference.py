@@ -26,6 +26,7 @@ __all__ = [
     "ReferenceLeftOption",
     "ReferenceRightOption",
     "UseReferenceOption",
+    "announced_reference",
     "choose_reference",
 ]
 
@@ -116,6 +117,13 @@ def choose_reference(
     if replay is not None and use_reference:
         return dataset_reference(replay, jig)
     return None
+
+
+def announced_reference(jig: JigConfig, method: str, **given) -> ReferenceMarkers | None:
+    """:func:`choose_reference`, and a line on stderr saying what the estimates measure against."""
+    reference = choose_reference(jig, method, **given)
+    typer.echo(describe(reference, method), err=True)
+    return reference
 
 
 def describe(reference: ReferenceMarkers | None, method: str) -> str:

@@ -25,6 +25,7 @@ from softjig.cli.reference import (
     ReferenceLeftOption,
     ReferenceRightOption,
     UseReferenceOption,
+    announced_reference,
 )
 from softjig.errors import InputError
 
@@ -80,8 +81,9 @@ def serve(
         ),
     ] = True,
 ) -> None:
-    """Answer estimate, settled, fix, release, health and reference requests (JSON over ZeroMQ REP) until
-    Ctrl-C."""
+    """Answer estimate, settled, fix, release and health requests (JSON over ZeroMQ REP) until Ctrl-C.
+
+    A reference request, while the jig is empty, makes the next pair the reference frame."""
     from softjig.calibration.tilt import load_tilt_calibration
     from softjig.io.cameras import ReplaySource, open_source
     from softjig.io.dataset import Dataset
@@ -130,16 +132,11 @@ def serve(
             raise InputError("the paper's method on live cameras needs --part-diameter MM")
         cam = jig.cameras.left
         cameras = open_source(source, width_px=cam.width_px, height_px=cam.height_px, fps=fps)
-    from softjig.cli.reference import choose_reference, describe
-
-    reference = choose_reference(
+    reference = announced_reference(
         jig, method, left=reference_left, right=reference_right, from_dataset=reference_from,
         replay=dataset, use_reference=use_reference,
     )  # fmt: skip
-    typer.echo(describe(reference, method), err=True)
-    live = LiveSettings(
-        jig=jig, part_diameter_mm=part_diameter, calibration=cal, method=method, reference=reference
-    )
+    live = LiveSettings(jig, part_diameter, cal, method, reference)
     pump_adapter = PumpAdapter(pump, timeout_s=pump_timeout) if pump else None
     try:
         service = EstimationService(
