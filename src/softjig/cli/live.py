@@ -110,7 +110,7 @@ def live(
         )
     from softjig.io.outputs import check_output
 
-    given = [replay, config, calibration, reference_left, reference_right, reference_from]
+    given = [config, calibration, reference_left, reference_right, reference_from]  # the replay: below
     for option, path in (("--record", record), ("--record-bag", record_bag), ("--mcap", mcap),
                          ("--rerun-save", rerun_save)):  # fmt: skip
         if path is not None:
