@@ -2,12 +2,12 @@
 
 A **task** is one design, one seed and a chunk of the design's loaded frames (all of them up to
 ``[study] frames_per_task``, 96 by default): :func:`run_task` draws the design's as-built jig from the
-seed, renders the unloaded reference frame and the chunk's frames with the simulator's renderer
-(:func:`softjig.sim.render.render_pair`; images never touch the disk) and estimates each frame with every
-method of the study. It builds one :class:`~softjig.sensing.estimator.Estimator` per method for the
-task (the per-jig set-up, about half a second, paid once; the methods share the jig's model), the
-refractive one against the reference frame's markers, and calls it frame after frame. Frame ``k`` is
-rendered from ``SeedSequence(seed, spawn_key=(1, k + 1))`` and the
+seed, renders the unloaded reference frame and the chunk's frames with one simulator
+(:class:`softjig.sim.render.Renderer` of the as-built jig, built once for the task; images never touch
+the disk) and estimates each frame with every method of the study. It builds one
+:class:`~softjig.sensing.estimator.Estimator` per method for the task (the per-jig set-up paid once; the
+methods share the jig's model), the refractive one against the reference frame's markers, and calls it
+frame after frame. Frame ``k`` is rendered from ``SeedSequence(seed, spawn_key=(1, k + 1))`` and the
 as-built jig from ``SeedSequence(seed, spawn_key=(0,))``, exactly as ``softjig simulate`` numbers a paper
 sweep's frames after its reference: a study's frame is the frame ``softjig simulate --config
 best/NNN.toml --seed S`` renders, whatever the chunking or the machine. Every design sees the same
@@ -234,19 +234,21 @@ def run_task(inp: TaskInput) -> TaskResult:
     """Render and estimate one task's frames in memory (see the module docstring); never raises for a
     frame: a frame without an estimate is a row of quality ``"failed"`` with the reason."""
     from softjig.sim.asbuilt import draw_as_built
-    from softjig.sim.render import render_pair
+    from softjig.sim.render import Renderer
     from softjig.sim.scenarios import frame_truth
 
     t_start = time.perf_counter()
     task, jig = inp.task, inp.jig
     as_built = draw_as_built(jig, np.random.default_rng(np.random.SeedSequence(task.seed, spawn_key=(0,))))
-    render_s = 0.0
+    t0 = time.perf_counter()
+    renderer = Renderer(as_built)
+    render_s = time.perf_counter() - t0
 
     def render(spec: Any, index: int) -> Any:
         nonlocal render_s
         t0 = time.perf_counter()
         rng = np.random.default_rng(np.random.SeedSequence(task.seed, spawn_key=(1, index)))
-        pair = render_pair(as_built, spec.part, spec.pose, rng)
+        pair = renderer.render_pair(spec.part, spec.pose, rng)
         render_s += time.perf_counter() - t0
         return pair
 
