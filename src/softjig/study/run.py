@@ -240,13 +240,12 @@ def run_task(inp: TaskInput) -> TaskResult:
     t_start = time.perf_counter()
     task, jig = inp.task, inp.jig
     as_built = draw_as_built(jig, np.random.default_rng(np.random.SeedSequence(task.seed, spawn_key=(0,))))
-    t0 = time.perf_counter()
-    renderer = Renderer(as_built)
-    render_s = time.perf_counter() - t0
+    render_s, renderer = 0.0, None
 
     def render(spec: Any, index: int) -> Any:
-        nonlocal render_s
+        nonlocal render_s, renderer
         t0 = time.perf_counter()
+        renderer = renderer or Renderer(as_built)  # built at the first frame (a task may render none)
         rng = np.random.default_rng(np.random.SeedSequence(task.seed, spawn_key=(1, index)))
         pair = renderer.render_pair(spec.part, spec.pose, rng)
         render_s += time.perf_counter() - t0
