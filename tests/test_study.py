@@ -500,3 +500,21 @@ def test_bad_poses_are_errors_naming_the_pose_and_key(frames, message):
     with pytest.raises(ConfigError) as info:
         build_designs(parse_study({"study": {"name": "t"}, "frames": frames}))
     assert message in str(info.value)
+
+
+def test_the_best_rigs_command_for_explicit_poses_renders_the_first_pose(tmp_path):
+    from softjig.io.dataset import Dataset
+    from softjig.study.report import _frames_text, _simulate_command
+
+    spec = _study(POSES, tmp_path).spec
+    command = _simulate_command(spec, 0)
+    assert command.startswith("softjig simulate --scenario single --config best/")
+    assert "--part-diameter 50 --alpha 12 --theta 45 --push-depth 2.5 --seed 2" in command
+    assert _frames_text(spec.frames) == "2 explicit poses of parts of diameter 40, 50 mm tilted by 0, 12 deg"
+    args = command.split()[1:]
+    args[args.index("--config") + 1] = str(tmp_path / "rig.toml")
+    assert runner.invoke(app, ["config", "--out", str(tmp_path / "rig.toml")]).exit_code == 0
+    result = runner.invoke(app, [*args, "--out", str(tmp_path / "ds"), "--no-progress", "--workers", "1"])
+    assert result.exit_code == 0, result.output
+    frame = Dataset.open(tmp_path / "ds")[0]
+    assert (frame.part.diameter_mm, frame.alpha_deg) == (50.0, pytest.approx(12.0))
