@@ -555,16 +555,16 @@ def test_exclude_drops_candidates_before_refinement(nominal_frame):
 
 
 @pytest.fixture(scope="module")
-def default_pairs():
-    from softjig.config import CylinderPart, default_jig
-    from softjig.sim.asbuilt import draw_as_built
+def default_pairs(default_scene):
+    """The default pair and the benchmark's next two (the part turned 72 and 144 deg)."""
+    from scenes import render_scene
     from softjig.sim.parts import PartPose
-    from softjig.sim.render import render_pair
 
-    jig = default_jig()
-    as_built = draw_as_built(jig, rng=0)
-    pose = [PartPose(np.radians(10), np.radians(a), 3.0) for a in (0, 72, 144)]
-    return jig, [render_pair(as_built, CylinderPart(50.0), p, rng=k) for k, p in enumerate(pose)]
+    turned = [
+        render_scene(pose=PartPose(np.radians(10), np.radians(a), 3.0), seed=k)
+        for k, a in ((1, 72), (2, 144))
+    ]
+    return default_scene.jig, [default_scene.pair, *(scene.pair for scene in turned)]
 
 
 def test_pipeline_normals_fast_equal_straightforward(default_pairs, monkeypatch):

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from estimator_cases import coarse_jig, fine_grid_jig, static_speckle
-from softjig.config import CylinderPart, default_jig
+from softjig.config import CylinderPart
 from softjig.geometry import angle_between, normal_from_tilt
 from softjig.sensing.pipeline import estimate_pair, reference_from_pair
 from softjig.sim.asbuilt import draw_as_built
@@ -41,11 +41,9 @@ def test_static_speckle_size_free_contact_is_the_face_not_the_wall(fine_grid):
 
 
 @pytest.fixture(scope="module")
-def default_with_reference():
-    jig = default_jig()
-    as_built = draw_as_built(jig, rng=0)
-    unloaded = render_pair(as_built, None, None, rng=99)
-    return jig, as_built, reference_from_pair(unloaded.left, unloaded.right, jig)
+def default_with_reference(unloaded_scene):
+    jig = unloaded_scene.jig
+    return jig, unloaded_scene.as_built, reference_from_pair(unloaded_scene.left, unloaded_scene.right, jig)
 
 
 def test_known_size_footprint_is_placed_where_the_part_stands(default_with_reference):
