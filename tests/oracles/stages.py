@@ -7,22 +7,23 @@ from __future__ import annotations
 
 import numpy as np
 
+from oracles.jigframe import jig_frame
 from oracles.refracted_rays import traced_triangulation
 from oracles.stereo_assignment import dense_assignment
 from softjig.sensing.estimator import Estimator
-from softjig.sensing.jigframe import resolve_jig_frame
 from softjig.sensing.stages import LogDetector
 from softjig.sensing.stereo import StereoMatches
 
 
 class FullArucoFrameFinder:
-    """The general path only: OpenCV's ArUco detector, PnP and LM (no reading near expected places)."""
+    """The straightforward jig frame: ArUco's detector on the whole images, SciPy's least squares
+    (:func:`oracles.jigframe.jig_frame`)."""
 
     def __init__(self, jig):
         self.jig = jig
 
     def find(self, left_u8, right_u8):
-        return resolve_jig_frame(left_u8, right_u8, self.jig, fast=False)
+        return jig_frame(left_u8, right_u8, self.jig), []
 
 
 class DenseMatcher:

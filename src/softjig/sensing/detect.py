@@ -7,7 +7,7 @@ scale is matched to the marker size in the image. Two ways to find them:
 
 * ``candidates="full"`` (the straightforward path, Sakuma et al.'s): the LoG of the whole
   image at full resolution;
-* ``candidates="pyramid"`` (the default, ~20x faster): the LoG of the image averaged down
+* ``candidates="pyramid"`` (the default, an order of magnitude faster): the LoG of the image averaged down
   by 2 or 4 (``cv2.resize``, ``INTER_AREA``), at the correspondingly smaller scale; only
   the candidates are then refined at full resolution, in small windows.
 
@@ -71,6 +71,10 @@ DEFAULT_CANDIDATES = "pyramid"
 REFINE_METHODS = ("model", "quadratic", None)
 DEFAULT_REFINE = "model"
 _MIN_COARSE_SIGMA_PX = 1.2  # the pyramid level is the coarsest where the LoG scale stays above this
+#: The 5-point discrete Laplacian of a Gaussian of scale ``s`` underestimates the continuous one by
+#: about ``LAPLACIAN_BIAS / s^2``.
+LAPLACIAN_BIAS = 0.125
+_GAUSSIAN_TRUNCATION = 4  # cv2.GaussianBlur's kernel for float32 images reaches 4 sigma each side
 _LOCAL_HALF_WIDTH = 3  # pyramid + quadratic: full-resolution LoG in 7x7 windows around the candidates
 _CANDIDATE_MARGIN = 0.7  # pyramid + quadratic: coarse candidates down to this fraction of the threshold
 _FIT_HALF_WIDTH = 1  # quadratic fit on the (2*1+1) x (2*1+1) = 3x3 neighbourhood
@@ -398,21 +402,21 @@ def detect_markers(
         because the refinement needs the 3x3 neighbourhood. With ``refine="model"`` the
         fitted centres are tested (the pixel nearest each), not the candidates, and a
         candidate whose fit failed within the fit's window of the edge is dropped: both
-        ``candidates`` then keep the same markers, as their fits agree to rounding.
+        ``candidates`` then keep the same markers.
     refine : {"model", "quadratic", None}, optional
         ``"model"`` (default): prewhitened least-squares fit of the marker's image model to
         the ``(2 h + 1)^2`` pixels around each peak (:func:`softjig.sensing.subpixel.refine_centres`,
-        ``h = model.half_width_px``). On the simulator's default frames its error is about
-        0.16 px RMS against 0.27 px for ``"quadratic"`` (mostly the bead speckle, see Notes),
-        and the tilt error of the estimated normal drops from 0.5 to 0.15 deg. A fit that
-        fails (not a bright marker, or moving more than 2.5 px) keeps its candidate position.
+        ``h = model.half_width_px``): near the Cramer-Rao bound, well below ``"quadratic"``'s
+        error, which the bead speckle dominates (see Notes; the figures are in
+        benchmarks/RESULTS.md). A fit that fails (not a bright marker, or moving more than
+        2.5 px) keeps its candidate position.
         ``"quadratic"``: sub-pixel centre from a least-squares fit of
         ``z = a + b x + c y + d x^2 + e x y + f y^2`` to the 3x3 response neighbourhood
         of each peak; the centre is the stationary point of the fit. If the fit is not a
         maximum (``d < 0`` and ``4 d f - e^2 > 0``) or the stationary point is more than
         1 px from the peak pixel in ``u`` or ``v``, the integer peak is kept (the marker
-        is not dropped). The response is smooth at the marker scale, so a 5x5 window
-        was measured to be no more accurate (bias below 0.005 px RMS for both).
+        is not dropped). The response is smooth at the marker scale, so a larger window
+        would be no more accurate.
         ``None``: integer peak positions.
     candidates : {"pyramid", "full"}, optional
         ``"pyramid"`` (default): peaks of the LoG of the image averaged down by ``F`` (4, or
@@ -422,7 +426,7 @@ def detect_markers(
         refinement there. With ``refine="quadratic"`` or ``None`` the LoG is then evaluated
         at full resolution in a 7x7 window around each candidate, so positions and
         responses are those of ``"full"``. ``"full"``: the LoG of the whole image at full
-        resolution (the straightforward path; about 20x slower).
+        resolution (the straightforward path; an order of magnitude slower).
     model : MarkerModel, optional
         The marker and noise model of ``refine="model"``. Default
         ``MarkerModel.for_sigma(sigma_px)``: the nominal marker (blur 0.4 of the radius)
@@ -472,10 +476,9 @@ def detect_markers(
     With ``candidates="pyramid"`` and ``refine="model"``, ``R`` is that of the coarse
     level at its quadratically interpolated peak, times ``(1 + 1 / (8 s^2)) / (1 + 1 / (8
     sigma^2))`` (``s`` the coarse scale in coarse pixels), which undoes most of the coarser
-    discrete Laplacian's larger underestimate: it is 1-3.5 % below the full-resolution ``R``
-    (2.3 % on average on the simulator's default frames, measured), so the threshold means
-    practically the same (the default markers' ``R`` is about 0.25, five times the
-    threshold).
+    discrete Laplacian's larger underestimate: it is a few percent below the full-resolution
+    ``R``, so the threshold means practically the same (the default markers' ``R`` is about
+    0.25, five times the threshold).
 
     Speckle on and around a marker also shifts its LoG peak: with the nominal speckle
     the centre error is about 0.35 px RMS at contrast 120/255 (0.03 px with camera noise
@@ -508,8 +511,8 @@ def detect_markers(
     gray, full_scale = gray_image(image)
     border = max(int(border_px), 1)
     # The model fit's centres are tested against the border instead of the candidates, which differ
-    # between the pyramid and the full-resolution LoG (23 markers at the image edge of the default sweep
-    # were kept by one and not the other, measured).
+    # between the pyramid and the full-resolution LoG: markers at the image's edge would be kept by one
+    # and not the other.
     model_fit = refine == "model"
     candidate_border = 1 if model_fit else border
     if candidates == "full":
@@ -580,7 +583,8 @@ def _pyramid_candidates(
     # -sigma^2 LoG in full-resolution px of the image scaled to [0, 1]: the coarse Laplacian is factor^2
     # times the fine one, and the coarser discrete Laplacian underestimates by 1/(8 s^2) instead of
     # 1/(8 sigma^2). Scales folded into the Laplacian's (one pass over the level instead of three).
-    gain = (sigma / factor) ** 2 * (1.0 + 0.125 / s_coarse**2) / (1.0 + 0.125 / sigma**2) / full_scale
+    bias = (1.0 + LAPLACIAN_BIAS / s_coarse**2) / (1.0 + LAPLACIAN_BIAS / sigma**2)
+    gain = (sigma / factor) ** 2 * bias / full_scale
     smoothed = _coarse_blur(small, s_coarse)
     response = cv2.Laplacian(smoothed, cv2.CV_32F, ksize=1, scale=-gain, borderType=cv2.BORDER_REFLECT)
     exact = refine != "model"  # positions and responses from the full-resolution LoG
@@ -602,15 +606,19 @@ def _pyramid_candidates(
     return xy[keep], peak[keep]
 
 
+def gaussian_ksize(sigma: float) -> int:
+    """The (odd) kernel size ``cv2.GaussianBlur`` chooses for a float32 image and ``sigma`` (px)."""
+    return round(sigma * _GAUSSIAN_TRUNCATION * 2 + 1) | 1
+
+
 def _coarse_blur(small: np.ndarray, sigma: float) -> np.ndarray:
     """``cv2.GaussianBlur`` of ``small`` (any dtype) as float32 at ``sigma`` (px), reflected border.
 
     The same kernel (``cv2.getGaussianKernel`` of ``cv2.GaussianBlur``'s size for float32 images) applied
     by ``cv2.sepFilter2D`` straight from the integer level: the same values as blurring its float32
-    copy (``tests/test_detect.py``), 0.05 ms sooner on the 320x180 level (measured).
+    copy (``tests/test_detect.py``), without making the copy.
     """
-    ksize = round(sigma * 4 * 2 + 1) | 1
-    kernel = cv2.getGaussianKernel(ksize, sigma, cv2.CV_32F)
+    kernel = cv2.getGaussianKernel(gaussian_ksize(sigma), sigma, cv2.CV_32F)
     return cv2.sepFilter2D(small, cv2.CV_32F, kernel, kernel, borderType=cv2.BORDER_REFLECT)
 
 
@@ -655,7 +663,7 @@ def _local_log(
     """``-sigma^2 LoG`` at full resolution in ``(2 half + 1)^2`` windows around integer ``centre``
     (N, 2) ``(u, v)``: the same values as :func:`_log_response` of the whole image (same Gaussian
     kernel, 5-point Laplacian, reflected border), float32 ``(N, 2 half + 1, 2 half + 1)``."""
-    ksize = round(sigma * 4 * 2 + 1) | 1  # cv2.GaussianBlur's size for float32 images
+    ksize = gaussian_ksize(sigma)
     radius = ksize // 2
     kernel = cv2.getGaussianKernel(ksize, sigma, cv2.CV_32F).ravel()
     k = 2 * half + 3  # smoothed values needed: the window and a 1-px ring for the Laplacian
@@ -710,8 +718,8 @@ def _local_maxima(
     tied = (value == around)[is_peak]
     rows, cols = rows[is_peak], cols[is_peak]  # row-major order
     # Plateaus (exactly equal neighbouring values) give several pixels per peak: keep the
-    # first of each group in row-major order. Only tied peaks can be in one (the k-d tree on
-    # all the peaks cost 0.2 ms for 360 coarse peaks; on the tied ones, nothing).
+    # first of each group in row-major order. Only tied peaks can be in one, so only those
+    # go into the k-d tree.
     if np.count_nonzero(tied) > 1:
         tie = np.flatnonzero(tied)
         from scipy.spatial import cKDTree  # on first use: scipy.spatial costs 0.2 s to import

@@ -6,14 +6,14 @@ through air only, so a plain pinhole model is exact for them. Both cameras' view
 stereo head's pose is the one that minimises the reprojection error of every fiducial corner found in
 either image, with the right camera held at its configured pose relative to the left one.
 
-Two paths give that pose. The fast one (every frame of a working rig, ~0.3 ms) reads the fiducials near
-where the config's poses put them (:func:`softjig.sensing.fiducials.locate_fiducials_near`) and solves
-the joint stereo PnP by Gauss-Newton from the config's pose, with an analytic Jacobian (distorted
-cameras: with SciPy's LM). The general one (fiducials far off or partly hidden, ~15 ms) runs OpenCV's
-ArUco detector, OpenCV's PnP for the start and a Levenberg-Marquardt refinement with SciPy. Both refine
-the corners with the same iteration to convergence and minimise the same error, so they agree (measured
-on 196 as-built jigs: to 1.3e-4 mm and 4e-5 deg); the fast one falls back to the general one whenever it
-does not find every fiducial or its fit does not explain the corners.
+Two paths give that pose, tried in turn. The fast one (every frame of a working rig) reads the fiducials
+near where the config's poses put them (:func:`softjig.sensing.fiducials.locate_fiducials_near`) and
+solves the joint stereo PnP by Gauss-Newton from the config's pose, with an analytic Jacobian (distorted
+cameras: with SciPy's LM). The general one (fiducials far off or partly hidden; some fifty times slower)
+runs OpenCV's ArUco detector, OpenCV's PnP for the start and a Levenberg-Marquardt refinement with SciPy.
+Both refine the corners with the same iteration to convergence and minimise the same error, so they agree
+to the iterations' tolerance (``tests/test_jigframe.py``); the fast one falls back to the general one
+whenever it does not find every fiducial or its fit does not explain the corners.
 
 When the fiducials are not visible, or the user calibrated the extrinsics once, the poses in the config
 are used instead (``sensing.extrinsics``); the result says which source was used.
@@ -25,7 +25,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
-import numba
 import numpy as np
 
 from softjig.config import CameraConfig, JigConfig
@@ -88,8 +87,7 @@ def inside_fiducials(xy_px: np.ndarray, quads_px: np.ndarray, *, quiet_zone: flo
     size about its centre; ArUco 4x4 markers are 6 cells wide, so one cell each side is 1/3).
 
     A fiducial's image is a convex quadrilateral: a point is inside when it lies on the same side of all
-    four edges. Compiled (:func:`_inside_quads`), with a bounding-box test first: a few hundred detector
-    candidates per image are tested in about 10 us, where the vectorised NumPy test took 0.1 ms (measured).
+    four edges (a compiled loop, with a bounding-box test first).
     """
     xy = np.ascontiguousarray(np.asarray(xy_px, dtype=float).reshape(-1, 2))
     if len(quads_px) == 0 or len(xy) == 0:
@@ -97,28 +95,9 @@ def inside_fiducials(xy_px: np.ndarray, quads_px: np.ndarray, *, quiet_zone: flo
     quads = np.asarray(quads_px, dtype=float).reshape(-1, 4, 2)
     centres = quads.mean(axis=1, keepdims=True)
     grown = np.ascontiguousarray(centres + (quads - centres) * (1.0 + quiet_zone))  # (Q, 4, 2)
-    return _inside_quads(xy, grown)
+    from softjig.sensing._jigframe_kernels import inside_quads  # Numba is imported on first use
 
-
-@numba.njit(cache=True, nogil=True)
-def _inside_quads(xy, quads):
-    """Whether each point ``xy`` (N, 2) lies inside (or on the edge of) any convex quad (Q, 4, 2)."""
-    out = np.zeros(xy.shape[0], np.bool_)
-    for q in range(quads.shape[0]):
-        lo_u, hi_u = quads[q, :, 0].min(), quads[q, :, 0].max()
-        lo_v, hi_v = quads[q, :, 1].min(), quads[q, :, 1].max()
-        for i in range(xy.shape[0]):
-            u, v = xy[i, 0], xy[i, 1]
-            if out[i] or not (lo_u <= u <= hi_u and lo_v <= v <= hi_v):
-                continue
-            positive = negative = True
-            for k in range(4):
-                a, b = quads[q, k], quads[q, (k + 1) % 4]
-                cross = (b[0] - a[0]) * (v - a[1]) - (b[1] - a[1]) * (u - a[0])
-                positive &= cross >= 0.0
-                negative &= cross <= 0.0
-            out[i] = positive or negative
-    return out
+    return inside_quads(xy, grown)
 
 
 def _project(camera: CameraConfig, T_cam_J: np.ndarray, points_J: np.ndarray) -> np.ndarray:
@@ -144,17 +123,19 @@ def jig_frame_from_fiducials(
     right_u8: np.ndarray,
     jig: JigConfig,
     *,
-    fast: bool = True,
     constants: FrameConstants | None = None,
     memory: FiducialMemory | None = None,
 ) -> JigFrame | None:
     """Measure the stereo head's pose in J from the fiducials seen in an 8-bit gray stereo pair.
 
+    The fast path first (fiducials read near where they are expected, Gauss-Newton), then, if it does
+    not find every fiducial or its fit fails, the general one (ArUco's detector, SciPy's
+    Levenberg-Marquardt); see the module's notes.
+
     Parameters
     ----------
     left_u8, right_u8 : (H, W) uint8 images.
     jig : the nominal jig: its fiducials and cameras (intrinsics, and poses to start from).
-    fast : try the fast path first (see the module's notes); ``False`` runs only the general one.
     constants : :func:`frame_constants` of ``jig`` (built here when not given: an estimator builds them
         once).
     memory : where the general path last found the fiducials (read and updated), if kept.
@@ -164,12 +145,11 @@ def jig_frame_from_fiducials(
     RMS reprojection error exceeds :data:`MAX_FIDUCIAL_RMS_PX`).
     """
     k = constants if constants is not None else frame_constants(jig)
-    if fast:
-        frame = _jig_frame_fast(left_u8, right_u8, jig, k, k.fast.expected_quads)
-        if frame is None and memory is not None and memory.quads is not None:
-            frame = _jig_frame_fast(left_u8, right_u8, jig, k, memory.quads)
-        if frame is not None:
-            return frame
+    frame = _jig_frame_fast(left_u8, right_u8, jig, k, k.fast.expected_quads)
+    if frame is None and memory is not None and memory.quads is not None:
+        frame = _jig_frame_fast(left_u8, right_u8, jig, k, memory.quads)
+    if frame is not None:
+        return frame
     fid = jig.fiducials
     expected = k.config_frame
     found = [
@@ -316,7 +296,7 @@ def _fit_pose_lm(
         return None
 
     # The residual is evaluated ~30 times per frame: OpenCV's projectPoints and composeRT work on the
-    # rotation vectors directly (measured: 22 ms per frame with optics.project_points, ~3 ms with these).
+    # rotation vectors directly, several times faster than optics.project_points on poses.
     k = constants if constants is not None else frame_constants(jig)
     T_right_left = invert_pose(k.T_left_right)
     rvec_rl = cv2.Rodrigues(T_right_left[:3, :3])[0]
@@ -346,9 +326,8 @@ def _fit_pose_gauss_newton(
     The head's pose is updated as ``T <- exp(omega, v) T``: a point at ``X`` in the left camera moves by
     ``omega x X + v``, in the right camera by ``R_rl`` of that, and its pixel by the pinhole's Jacobian
     ``[[fx / z, 0, -fx x / z^2], [0, fy / z, -fy y / z^2]]``. Each step solves the 6x6 normal equations;
-    from the config's pose (~1 mm, 0.5 deg away) it converges in 3-4 steps. A Numba loop (measured: ~10
-    us; the same steps on NumPy arrays took ~0.3 ms, ~100 array operations of call overhead, and SciPy's
-    LM with a finite-difference Jacobian ~5 ms).
+    from the config's pose (~1 mm, 0.5 deg away) it converges in 3-4 steps
+    (:func:`softjig.sensing._jigframe_kernels.gauss_newton`).
     """
     c = constants if constants is not None else frame_constants(jig)
     k = _pinhole_constants(jig, c.config_frame, c.T_left_right, len(obj[0]), len(obj[1]))
@@ -358,9 +337,11 @@ def _fit_pose_gauss_newton(
 def _gauss_newton(
     points_J: np.ndarray, observed_px: np.ndarray, n_left: int, k: _PinholeConstants
 ) -> tuple[np.ndarray, np.ndarray] | None:
-    """``T_left_J`` and the residuals (px) of :func:`_gauss_newton_kernel`, or ``None`` if it did not
-    converge."""
-    R, t, residuals, converged = _gauss_newton_kernel(
+    """``T_left_J`` and the residuals (px) of the compiled Gauss-Newton steps
+    (:func:`softjig.sensing._jigframe_kernels.gauss_newton`), or ``None`` if they did not converge."""
+    from softjig.sensing._jigframe_kernels import gauss_newton  # Numba is imported on first use
+
+    R, t, residuals, converged = gauss_newton(
         points_J,
         observed_px,
         n_left,
@@ -378,112 +359,6 @@ def _gauss_newton(
     T_left_J = np.eye(4)
     T_left_J[:3, :3], T_left_J[:3, 3] = R, t
     return T_left_J, residuals
-
-
-@numba.njit(cache=True, nogil=True)
-def _gauss_newton_kernel(
-    points, observed, n_left, focal, centre, R_start, t_start, R_rl, t_rl, max_steps, tol
-):
-    """Gauss-Newton steps of the head's pose ``(R, t)`` (``T_left_J``) for corners ``points`` (N, 3) in J
-    seen at ``observed`` (N, 2) px, the first ``n_left`` in the left camera and the rest in the right one.
-
-    Returns ``R``, ``t``, the residuals (2 N,) px before the last step, and whether a step fell below
-    ``tol`` (rad, and ``100 tol`` mm) within ``max_steps``.
-    """
-    n = points.shape[0]
-    R = R_start.copy()
-    t = t_start.copy()
-    residuals = np.empty(2 * n)
-    H = np.empty((6, 6))
-    b = np.empty(6)
-    row = np.empty(6)
-    g = np.empty(3)
-    gr = np.empty(3)
-    X_left = np.empty(3)
-    X = np.empty(3)
-    rotation = np.empty((3, 3))
-    for _ in range(max_steps):
-        H[:] = 0.0
-        b[:] = 0.0
-        for k in range(n):
-            for i in range(3):
-                X_left[i] = R[i, 0] * points[k, 0] + R[i, 1] * points[k, 1] + R[i, 2] * points[k, 2] + t[i]
-            if k >= n_left:
-                for i in range(3):
-                    X[i] = R_rl[i, 0] * X_left[0] + R_rl[i, 1] * X_left[1] + R_rl[i, 2] * X_left[2] + t_rl[i]
-            else:
-                X[:] = X_left
-            inv_z = 1.0 / X[2]
-            for c in range(2):  # u, then v
-                f = focal[k, c]
-                r = f * X[c] * inv_z + centre[k, c] - observed[k, c]
-                residuals[2 * k + c] = r
-                g[:] = 0.0  # d pixel / d X in this camera
-                g[c] = f * inv_z
-                g[2] = -f * X[c] * inv_z * inv_z
-                if k >= n_left:  # to d pixel / d X_left
-                    for i in range(3):
-                        gr[i] = g[0] * R_rl[0, i] + g[1] * R_rl[1, i] + g[2] * R_rl[2, i]
-                    g[:] = gr
-                row[0] = X_left[1] * g[2] - X_left[2] * g[1]  # X_left x g: d pixel / d omega
-                row[1] = X_left[2] * g[0] - X_left[0] * g[2]
-                row[2] = X_left[0] * g[1] - X_left[1] * g[0]
-                row[3], row[4], row[5] = g[0], g[1], g[2]
-                for i in range(6):
-                    b[i] -= row[i] * r
-                    for j in range(i + 1):
-                        H[i, j] += row[i] * row[j]
-        # Cholesky H = L L^T (lower triangle of H), then two triangular solves for the step
-        for j in range(6):
-            d = H[j, j]
-            for m in range(j):
-                d -= H[j, m] * H[j, m]
-            if not d > 0.0:
-                return R, t, residuals, False
-            H[j, j] = np.sqrt(d)
-            for i in range(j + 1, 6):
-                s = H[i, j]
-                for m in range(j):
-                    s -= H[i, m] * H[j, m]
-                H[i, j] = s / H[j, j]
-        for i in range(6):
-            s = b[i]
-            for m in range(i):
-                s -= H[i, m] * b[m]
-            b[i] = s / H[i, i]
-        for i in range(5, -1, -1):
-            s = b[i]
-            for m in range(i + 1, 6):
-                s -= H[m, i] * b[m]
-            b[i] = s / H[i, i]
-        # R <- exp(omega) R, t <- exp(omega) t + v (Rodrigues' formula)
-        wx, wy, wz = b[0], b[1], b[2]
-        theta = np.sqrt(wx * wx + wy * wy + wz * wz)
-        if theta < 1e-12:
-            sa, sb = 1.0, 0.5
-        else:
-            sa, sb = np.sin(theta) / theta, (1.0 - np.cos(theta)) / (theta * theta)
-        # exp(omega) = I + sa [omega]_x + sb [omega]_x^2, with [omega]_x^2 = omega omega^T - theta^2 I
-        for i in range(3):  # b[:3] is omega
-            for j in range(3):
-                rotation[i, j] = sb * b[i] * b[j]
-            rotation[i, i] += 1.0 - sb * theta * theta
-        rotation[0, 1] -= sa * wz
-        rotation[1, 0] += sa * wz
-        rotation[0, 2] += sa * wy
-        rotation[2, 0] -= sa * wy
-        rotation[1, 2] -= sa * wx
-        rotation[2, 1] += sa * wx
-        for j in range(3):  # R <- rotation R, column by column
-            c0, c1, c2 = R[0, j], R[1, j], R[2, j]
-            for i in range(3):
-                R[i, j] = rotation[i, 0] * c0 + rotation[i, 1] * c1 + rotation[i, 2] * c2
-        c0, c1, c2 = t[0], t[1], t[2]
-        for i in range(3):
-            t[i] = rotation[i, 0] * c0 + rotation[i, 1] * c1 + rotation[i, 2] * c2 + b[3 + i]
-        if max(abs(wx), abs(wy), abs(wz)) < tol and max(abs(b[3]), abs(b[4]), abs(b[5])) < 100.0 * tol:
-            return R, t, residuals, True
-    return R, t, residuals, False
 
 
 @dataclass(frozen=True)
@@ -519,16 +394,14 @@ def resolve_jig_frame(
     right_u8: np.ndarray,
     jig: JigConfig,
     *,
-    fast: bool = True,
     constants: FrameConstants | None = None,
     memory: FiducialMemory | None = None,
 ) -> tuple[JigFrame, list[str]]:
     """The jig frame as ``sensing.extrinsics`` asks, with any warning to report.
 
     ``"fiducials"`` requires them; ``"config"`` uses the fixed extrinsics; ``"auto"`` measures them when
-    found and falls back to the config with a warning. ``fast=False`` reads the fiducials with the full
-    ArUco detector only (the straightforward path, see :func:`jig_frame_from_fiducials`, which also says
-    what ``constants`` and ``memory`` are).
+    found and falls back to the config with a warning. See :func:`jig_frame_from_fiducials`, which also
+    says what ``constants`` and ``memory`` are.
 
     Raises
     ------
@@ -539,7 +412,7 @@ def resolve_jig_frame(
     k = constants if constants is not None else frame_constants(jig)
     if mode == "config":
         return k.config_frame, []
-    frame = jig_frame_from_fiducials(left_u8, right_u8, jig, fast=fast, constants=k, memory=memory)
+    frame = jig_frame_from_fiducials(left_u8, right_u8, jig, constants=k, memory=memory)
     if frame is not None:
         return frame, []
     message = (

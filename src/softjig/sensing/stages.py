@@ -149,20 +149,15 @@ class FiducialFrameFinder:
     """The cameras' pose as ``sensing.extrinsics`` asks (:func:`~softjig.sensing.jigframe.resolve_jig_frame`),
     remembering where the general path found the fiducials for the next frames (its own
     :class:`~softjig.sensing.jigframe.FiducialMemory`).
-
-    ``fast=False`` reads the fiducials with the full ArUco detector only (the straightforward path).
     """
 
-    def __init__(self, model: JigModel, *, fast: bool = True) -> None:
+    def __init__(self, model: JigModel) -> None:
         self._jig = model.jig
         self._constants = model.frame
-        self._fast = fast
-        self._memory = FiducialMemory() if fast else None
+        self._memory = FiducialMemory()
 
     def find(self, left_u8: np.ndarray, right_u8: np.ndarray) -> tuple[JigFrame, list[str]]:
-        return resolve_jig_frame(
-            left_u8, right_u8, self._jig, fast=self._fast, constants=self._constants, memory=self._memory
-        )
+        return resolve_jig_frame(left_u8, right_u8, self._jig, constants=self._constants, memory=self._memory)
 
 
 class RowMatcher:

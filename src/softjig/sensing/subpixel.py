@@ -65,7 +65,7 @@ __all__ = [
 MIN_MODEL_BLUR_PX = 1.0
 _SUPERSAMPLE = 8  # sub-samples per pixel side when rendering the profile
 _MAX_SHIFT_PX = 2.5  # a fit that moves further from its start than this failed: the start is kept
-_DERIVATIVE_STEP_PX = 0.05
+_DERIVATIVE_STEP_PX = 0.05  # central differences of the profile (marker_profile's derivatives)
 
 
 @dataclass(frozen=True)
@@ -214,7 +214,7 @@ def speckle_correlation_1d(n: int, corr_px: float) -> np.ndarray:
     """
     f = max(1, round(corr_px / 2.0))
     sigma = max(corr_px / (2.0 * f), 0.3)
-    ksize = round(sigma * 4 * 2 + 1) | 1  # cv2's automatic size for float32 images
+    ksize = round(sigma * 4 * 2 + 1) | 1  # cv2's automatic size for float32 images (4 sigma each side)
     g = cv2.getGaussianKernel(ksize, sigma, cv2.CV_64F).ravel()
     half = ksize // 2
     n_fine = n + f
@@ -280,6 +280,8 @@ def _poly_derivative_terms(t: np.ndarray, degree: int) -> tuple[np.ndarray, np.n
 _PROFILE_DEGREE = 5  # profile vs offset: a quintic holds it to ~1e-5 of the amplitude over +-1 px
 _WEIGHT_DEGREE = 3  # weights vs offset
 _TABLE_RANGE_PX = 1.0  # the weights are fitted for offsets within this of the window's central pixel
+_TABLE_STEP_PX = 0.25  # the offsets the profile and the weights are computed at, every this (px)
+_GRID_SLACK = 1e-9  # rounding slack of the offset grid's ends (px)
 _FULL_SCALE = {np.dtype(np.uint8): 255.0, np.dtype(np.uint16): 65535.0}
 
 
@@ -293,7 +295,8 @@ def _tables_key(model: MarkerModel) -> str:
     fields = ", ".join(f"{name}={getattr(model, name)!r}" for name in model.__dataclass_fields__)
     constants = (
         f"supersample={_SUPERSAMPLE!r} derivative_step={_DERIVATIVE_STEP_PX!r} "
-        f"profile_degree={_PROFILE_DEGREE!r} weight_degree={_WEIGHT_DEGREE!r} range={_TABLE_RANGE_PX!r}"
+        f"profile_degree={_PROFILE_DEGREE!r} weight_degree={_WEIGHT_DEGREE!r} range={_TABLE_RANGE_PX!r} "
+        f"step={_TABLE_STEP_PX!r}"
     )
     libraries = f"numpy={np.__version__} scipy={scipy.__version__} opencv={cv2.__version__}"
     return f"format={TABLES_FORMAT_VERSION}\nMarkerModel({fields})\n{constants}\n{libraries}"
@@ -328,13 +331,14 @@ def fit_tables(model: MarkerModel) -> np.ndarray:
 
 def _build_tables(model: MarkerModel) -> np.ndarray:
     """:func:`fit_tables` computed (no cache)."""
-    grid = np.arange(-1.25, 1.25 + 1e-9, 0.25)
+    reach = _TABLE_RANGE_PX + _TABLE_STEP_PX  # the profile one step beyond the weights, for its derivatives
+    grid = np.arange(-reach, reach + _GRID_SLACK, _TABLE_STEP_PX)
     tu, tv = np.meshgrid(grid, grid)
     t_prof = np.column_stack([tu.ravel(), tv.ravel()])
     profiles = marker_profile(model, t_prof).reshape(len(t_prof), -1)
     n2 = profiles.shape[1]
     coef_f = np.linalg.lstsq(_poly_terms(t_prof, _PROFILE_DEGREE), profiles, rcond=None)[0]
-    inner = np.abs(t_prof).max(axis=1) <= _TABLE_RANGE_PX + 1e-9
+    inner = np.abs(t_prof).max(axis=1) <= _TABLE_RANGE_PX + _GRID_SLACK
     t_w = t_prof[inner]
     f = _poly_terms(t_w, _PROFILE_DEGREE) @ coef_f
     dterm_u, dterm_v = _poly_derivative_terms(t_w, _PROFILE_DEGREE)
