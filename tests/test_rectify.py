@@ -47,6 +47,7 @@ def test_rectified_jig_satisfies_the_rectified_rules(raw_pair):
     assert jig.cameras.baseline_mm == pytest.approx(RAW.cameras.baseline_mm)
 
 
+@pytest.mark.accuracy
 def test_rectified_images_put_every_marker_where_the_virtual_cameras_see_it(raw_pair):
     rect = rectification(RAW.cameras)
     layers = flat_layers(RAW)
@@ -88,6 +89,7 @@ def test_maps_are_cached():
     assert rectification(RAW.cameras) is rectification(RAW.cameras)
 
 
+@pytest.mark.exceptions
 def test_swapped_cameras_are_an_input_error():
     swapped = StereoConfig(
         left=replace(RAW_RIGHT, position_mm=(-15.0, 0.0, -155.0)),
@@ -98,6 +100,7 @@ def test_swapped_cameras_are_an_input_error():
         rectification(swapped)
 
 
+@pytest.mark.exceptions
 def test_wrong_image_size_is_an_input_error(raw_pair):
     with pytest.raises(InputError, match=r"cameras\.left"):
         rectify_pair(raw_pair.left[:100], raw_pair.right, RAW)

@@ -56,6 +56,7 @@ def test_profile_is_the_shaded_disc_blurred():
     assert fv[0, c + 8, c] > 0 > fv[0, c - 8, c]
 
 
+@pytest.mark.accuracy
 def test_noise_free_fit_is_unbiased_from_any_start_within_a_pixel():
     rng = np.random.default_rng(0)
     offsets = rng.uniform(-0.5, 0.5, (30, 2))
@@ -122,6 +123,7 @@ def test_failed_fits_keep_the_start():
     assert fit.xy_px.shape == (2, 2)
 
 
+@pytest.mark.agreement
 @pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.float32])
 def test_compiled_fit_equals_the_plain_reference(dtype):
     # starts up to 1.4 px off (re-centred windows), on pixel boundaries, a marker whose window leaves the
@@ -194,6 +196,7 @@ def test_noise_covariance_terms():
     assert uncorrelated[0, 1] == 0
 
 
+@pytest.mark.exceptions
 def test_model_validation():
     with pytest.raises(InputError, match="radius_px"):
         MarkerModel(radius_px=0.0)
@@ -208,6 +211,7 @@ def test_model_validation():
     assert_allclose(model.blur_px, 3.0, atol=0.01)
 
 
+@pytest.mark.accuracy
 def test_within_one_and_a_half_cramer_rao_bounds_on_default_frames(default_scene):
     # Measured over the benchmark's 5 pairs (2895 markers): model fit 0.161 px RMS, 3x3 quadratic on the
     # LoG 0.271 px, bound 0.134 px (nominal marker; the illumination fall-off raises it at the corners).
