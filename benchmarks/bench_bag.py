@@ -67,7 +67,8 @@ def main() -> None:
     from softjig.io.batch import dataset_reference
     from softjig.io.dataset import Dataset
     from softjig.io.rosbag import BagReader
-    from softjig.sim.scenarios import paper_sweep, simulate_dataset
+    from softjig.io.simulated import simulate_dataset
+    from softjig.sim.scenarios import paper_sweep
 
     root = args.out or Path(tempfile.mkdtemp(prefix="bench_bag_"))
     ds_path, bag_path = root / "dataset", root / "bag"

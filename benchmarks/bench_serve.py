@@ -90,7 +90,8 @@ def main() -> None:
     args = parser.parse_args()
 
     from softjig.config import CylinderPart, default_jig
-    from softjig.sim.scenarios import simulate_dataset, single
+    from softjig.io.simulated import simulate_dataset
+    from softjig.sim.scenarios import single
 
     root = Path(tempfile.mkdtemp(prefix="bench_serve_"))
     specs = [s for _ in range(args.frames) for s in single(CylinderPart(50.0), 10.0, 0.0)]

@@ -46,7 +46,8 @@ def alive(pid: int) -> bool:
 
 def make_dataset(root: Path) -> Path:
     from softjig.config import default_jig
-    from softjig.sim.scenarios import paper_sweep, simulate_dataset
+    from softjig.io.simulated import simulate_dataset
+    from softjig.sim.scenarios import paper_sweep
 
     specs = list(paper_sweep(diameters_mm=(50,), alphas_deg=(10,), theta_step_deg=120))
     simulate_dataset(root, specs, default_jig(), seed=2, workers=1, progress=False)

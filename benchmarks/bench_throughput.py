@@ -53,7 +53,8 @@ import numpy as np
 
 from softjig.config import default_jig
 from softjig.io.dataset import FRAMES_NAME, RIG_NAME, Dataset
-from softjig.sim.scenarios import paper_sweep, simulate_dataset
+from softjig.io.simulated import simulate_dataset
+from softjig.sim.scenarios import paper_sweep
 
 THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS")
 SOFTJIG = str(Path(sys.executable).with_name("softjig"))

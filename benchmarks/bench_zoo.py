@@ -348,7 +348,7 @@ def write_section(path: Path, lines: Iterable[str]) -> None:
     else:
         end = text.find("\n## ", start + len(SECTION))
         text = text[:start] + body + ("" if end < 0 else text[end + 1 :])
-    from softjig.io.files import write_text_atomic
+    from softjig.files import write_text_atomic
 
     write_text_atomic(path, text)
 

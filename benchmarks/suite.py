@@ -516,7 +516,7 @@ def run_suite(plan: Plan, jig: JigConfig | None = None, log: Callable[[str], Non
 
 
 def write_results(tables: list[Table], path: Path, command: str) -> None:
-    from softjig.io.files import write_text_atomic
+    from softjig.files import write_text_atomic
 
     stamp = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
     head = f"# softjig benchmark results\n\nProduced by `{command}` on {stamp}.\n\n"

@@ -53,7 +53,8 @@ def unloaded_scene(default_jig_config: JigConfig) -> Scene:
 
 @pytest.fixture(scope="session")
 def small_dataset(tmp_path_factory) -> Path:
-    from softjig.sim.scenarios import paper_sweep, simulate_dataset
+    from softjig.io.simulated import simulate_dataset
+    from softjig.sim.scenarios import paper_sweep
 
     out = tmp_path_factory.mktemp("shared") / "sweep"
     specs = list(paper_sweep(diameters_mm=(50,), alphas_deg=(10,), theta_step_deg=90))

@@ -22,7 +22,8 @@ from softjig.io.batch import (
     write_rows,
 )
 from softjig.io.dataset import Dataset, Frame
-from softjig.sim.scenarios import paper_sweep, simulate_dataset
+from softjig.io.simulated import simulate_dataset
+from softjig.sim.scenarios import paper_sweep
 
 
 @pytest.fixture(scope="module")

@@ -10,11 +10,11 @@ import pytest
 from scipy.spatial.transform import Rotation
 from typer.testing import CliRunner
 
+from softjig.aruco import aruco_dictionary
 from softjig.calibration.stereo import Board, detect_board
 from softjig.cli import app
 from softjig.config import CameraConfig, load_jig
 from softjig.geometry import invert_pose
-from softjig.sensing.fiducials import aruco_dictionary
 from softjig.sim.chessboard import charuco_corners_px, charuco_pattern, render_charuco_view
 
 LEFT_CAM = CameraConfig(

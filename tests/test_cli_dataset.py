@@ -11,7 +11,8 @@ from typer.testing import CliRunner
 from softjig.cli import app
 from softjig.config import default_jig
 from softjig.io.dataset import Dataset
-from softjig.sim.scenarios import paper_sweep, simulate_dataset
+from softjig.io.simulated import simulate_dataset
+from softjig.sim.scenarios import paper_sweep
 
 runner = CliRunner()
 

@@ -6,9 +6,10 @@ from typer.testing import CliRunner
 
 from softjig.cli import app
 from softjig.config import default_jig
-from softjig.evaluation.compare import compare_methods
+from softjig.experiments.compare import compare_methods
 from softjig.io.dataset import Dataset
-from softjig.sim.scenarios import paper_sweep, simulate_dataset
+from softjig.io.simulated import simulate_dataset
+from softjig.sim.scenarios import paper_sweep
 
 
 @pytest.fixture(scope="module")

@@ -470,7 +470,8 @@ def test_dataset_with_a_non_convex_part_exits_2(tmp_path):
     from typer.testing import CliRunner
 
     from softjig.cli import app
-    from softjig.sim.scenarios import FrameSpec, simulate_dataset
+    from softjig.io.simulated import simulate_dataset
+    from softjig.sim.scenarios import FrameSpec
 
     out = tmp_path / "ds"
     simulate_dataset(

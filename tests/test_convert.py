@@ -10,7 +10,8 @@ from softjig.cli import app
 from softjig.config import default_jig, save_jig
 from softjig.io.dataset import Dataset
 from softjig.io.rosbag import TOPIC_LEFT, TOPIC_PART_POSE, BagReader
-from softjig.sim.scenarios import paper_sweep, simulate_dataset
+from softjig.io.simulated import simulate_dataset
+from softjig.sim.scenarios import paper_sweep
 
 runner = CliRunner()
 

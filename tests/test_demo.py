@@ -10,8 +10,10 @@ from typer.testing import CliRunner
 
 from softjig.calibration.tilt import load_tilt_calibration
 from softjig.cli import app
-from softjig.evaluation import experiment
+from softjig.errors import InputError
+from softjig.evaluation import experiment as settings_module
 from softjig.evaluation.experiment import ExperimentSettings
+from softjig.experiments import paper as experiment
 
 runner = CliRunner()
 
@@ -37,7 +39,7 @@ def demo_run(tmp_path_factory):
     """The CLI with the quick settings swapped for the tiny ones (the real --quick takes ~25 s)."""
     out = tmp_path_factory.mktemp("demo") / "out"
     patch = pytest.MonkeyPatch()
-    patch.setattr(experiment, "quick_settings", lambda out_dir, seed=0, **kw: _tiny(out_dir, **kw))
+    patch.setattr(settings_module, "quick_settings", lambda out_dir, seed=0, **kw: _tiny(out_dir, **kw))
     try:
         result = runner.invoke(app, ["demo", "--quick", "--out", str(out), "--seed", "3", "--no-progress"])
     finally:
@@ -122,7 +124,7 @@ def test_an_interrupted_run_resumes_without_rendering_again(demo_run, tmp_path):
     mtime = finished.stat().st_mtime_ns
 
     # Other options are refused, naming what differs; the unfinished run is left as it was.
-    with pytest.raises(experiment.InputError, match="seed"):
+    with pytest.raises(InputError, match="seed"):
         experiment.run_experiment(_tiny(out, chunk_frames=2, workers=1, seed=4))
     assert _manifest(out)["chunks"] == first["chunks"]
 
@@ -148,7 +150,7 @@ def test_a_finished_run_is_not_overwritten_without_overwrite(demo_run):
     out, _ = demo_run
     before = (out / "report.md").read_text()
     patch = pytest.MonkeyPatch()
-    patch.setattr(experiment, "quick_settings", lambda out_dir, seed=0, **kw: _tiny(out_dir, **kw))
+    patch.setattr(settings_module, "quick_settings", lambda out_dir, seed=0, **kw: _tiny(out_dir, **kw))
     try:
         result = runner.invoke(app, ["demo", "--quick", "--out", str(out), "--seed", "3", "--no-progress"])
     finally:
@@ -163,7 +165,7 @@ def test_overwrite_replaces_only_what_a_run_writes(tmp_path):
     settings = _tiny(out, cube_frames=0, theta_step_deg=120.0, workers=1, split="none")
     experiment.run_experiment(settings)
     (out / "my-notes.txt").write_text("mine")
-    with pytest.raises(experiment.InputError, match="finished"):
+    with pytest.raises(InputError, match="finished"):
         experiment.run_experiment(settings)
     from dataclasses import replace
 
@@ -176,7 +178,7 @@ def test_a_folder_that_is_not_a_run_is_never_touched(tmp_path):
     out.mkdir()
     (out / "calib.png").write_bytes(b"not ours")
     for overwrite in (False, True):
-        with pytest.raises(experiment.InputError, match="not a softjig demo run"):
+        with pytest.raises(InputError, match="not a softjig demo run"):
             experiment.run_experiment(_tiny(out, overwrite=overwrite))
     assert sorted(p.name for p in out.iterdir()) == ["calib.png"]
 
@@ -222,7 +224,8 @@ def test_report_text_is_escaped_in_html():
 
 _RUN_SCRIPT = """
 import sys
-from softjig.evaluation.experiment import ExperimentSettings, run_experiment
+from softjig.evaluation.experiment import ExperimentSettings
+from softjig.experiments.paper import run_experiment
 settings = ExperimentSettings(
     out_dir=sys.argv[1], seed=3, diameters_mm=(50.0,), alphas_deg=(10.0,), theta_step_deg=120.0,
     cube_frames=0, split="none", workers=2, progress=False, chunk_frames=1,

@@ -500,9 +500,9 @@ def test_pyramid_and_full_find_the_same_markers(nominal_frame, refine):
     assert_array_equal(np.sort(partner), np.arange(len(full)))
     # The same refinement gives the same centres. The quadratic fit and the integer peaks use the
     # full-resolution LoG around each candidate (float32 products instead of cv2's blur: 0.002 px).
-    # The model fit does not depend on its start, except where two neighbouring windows are both
-    # consistent with their own fit (a marker near a pixel boundary; here one of 527, whose flat disc
-    # and white speckle do not match the model; on the simulator's frames 4 of 2895, up to 0.11 px).
+    # The model fit depends on its start only where the two starts round to different pixels near a
+    # boundary whose windows fit the marker differently (here 4 of 527, whose flat disc and white speckle
+    # do not match the model, up to 0.28 px; on the simulator's frames 9 of 4630, up to 0.08 px).
     if refine == "model":
         assert np.mean(dist < 1e-4) > 0.99
         assert dist.max() < 0.5

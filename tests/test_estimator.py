@@ -179,17 +179,34 @@ def test_no_cache_keyed_on_a_config_in_sensing():
         for name, value in vars(module).items()
         if hasattr(value, "cache_info") and getattr(value, "__module__", None) == module.__name__
     }
-    assert cached - _VALUE_KEYED - _NOT_YET <= set(), sorted(cached - _VALUE_KEYED)
+    assert cached - _VALUE_KEYED == set(), sorted(cached - _VALUE_KEYED)
 
 
-# Left to the image-side helper's modules (the sub-pixel tables are also kept on disk), for now.
-_NOT_YET = {
-    "softjig.sensing.subpixel.fit_tables",
-    "softjig.sensing.subpixel._kernel_tables",
-    "softjig.sensing.fiducials._capture_table",
-    "softjig.sensing.fiducials._cell_patterns",
-    "softjig.sensing.fiducials._detector",
-}
+# Constant lookup tables (never written).
+_CONSTANT_TABLES = {"softjig.sensing.detect._FULL_SCALE", "softjig.sensing.subpixel._FULL_SCALE"}
+
+
+def test_no_module_level_mutable_state_in_sensing():
+    """No module dict, list or set (such as the former jigframe._FOUND_BEFORE, keyed by id(jig)) and no
+    identity-keyed cache (a plain function wrapping another) in sensing/: what an estimator learns
+    between frames, it holds itself."""
+    import inspect
+
+    found = {
+        f"{module.__name__}.{name}"
+        for module in _sensing_modules()
+        for name, value in vars(module).items()
+        if not name.startswith("__")
+        and (
+            isinstance(value, dict | list | set)
+            or (
+                inspect.isfunction(value)
+                and hasattr(value, "__wrapped__")
+                and value.__module__ == module.__name__
+            )
+        )
+    }
+    assert found - _CONSTANT_TABLES == set(), sorted(found - _CONSTANT_TABLES)
 
 
 def test_two_estimators_of_one_jig_share_nothing_they_derive():
@@ -213,3 +230,20 @@ def test_the_reference_frame_is_measured_once_when_the_estimator_is_built(pairs)
     assert abs(estimator.reference.height_at_axis_mm - rest_shape.height_at_axis_mm) < 0.5
     result = estimator.estimate(pairs[0].left, pairs[0].right)
     assert result.estimate.indentation_reference == "reference frame"
+
+
+def test_the_estimate_command_refuses_an_unknown_detector_with_exit_2(pairs, tmp_path):
+    import cv2
+    from typer.testing import CliRunner
+
+    from softjig.cli import app
+    from softjig.config import dumps_jig
+
+    config = tmp_path / "rig.toml"
+    config.write_text(dumps_jig(JIG.replace(sensing=SensingConfig(detector="sift"))))
+    paths = [tmp_path / "l.png", tmp_path / "r.png"]
+    for path, image in zip(paths, (pairs[0].left, pairs[0].right), strict=True):
+        cv2.imwrite(str(path), image)
+    result = CliRunner().invoke(app, ["estimate", *map(str, paths), "--config", str(config), "--json"])
+    assert result.exit_code == 2
+    assert "sensing.detector = 'sift'" in result.output and "known: log" in result.output

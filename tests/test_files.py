@@ -12,9 +12,9 @@ import pytest
 
 from softjig.config import default_jig
 from softjig.errors import InputError
+from softjig.files import write_bytes_atomic, write_text_atomic
 from softjig.io.batch import RowsWriter
 from softjig.io.dataset import DatasetWriter
-from softjig.io.files import write_bytes_atomic, write_text_atomic
 
 
 def _mode(path) -> int:

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+from numpy.testing import assert_allclose
 
 from softjig.errors import InputError
 from softjig.geometry import (
@@ -102,3 +103,21 @@ def test_rotation_from_rotvec_is_scipys():
             v *= scale / max(np.linalg.norm(v), 1e-300)
             expected = Rotation.from_rotvec(v).as_matrix()
             np.testing.assert_allclose(rotation_from_rotvec(v), expected, atol=2e-15)
+
+
+@pytest.mark.parametrize("width_mm", [1e-3, 1e-5, 1e-7])
+def test_plane_fit_of_a_thin_strip_is_the_svd(width_mm):
+    """Points along a 40 mm strip 2 um to 0.2 nm wide, on a tilted plane: the same normal, largest
+    singular values and RMS as NumPy's SVD of the centred points (below 1e-6 of the largest singular
+    value the fit takes the SVD itself: the scatter matrix has lost the small ones' precision)."""
+    rng = np.random.default_rng(4)
+    n_true = normal_from_tilt(np.radians(20), np.radians(-30))
+    xy = np.column_stack([rng.uniform(-20, 20, 50), rng.uniform(-width_mm, width_mm, 50)])
+    z = 3.0 - (n_true[0] * xy[:, 0] + n_true[1] * xy[:, 1]) / n_true[2] + rng.normal(0, 1e-3 * width_mm, 50)
+    pts = np.column_stack([xy, z])
+    fit = fit_plane_svd(pts)
+    _, s, vt = np.linalg.svd(pts - pts.mean(axis=0), full_matrices=False)
+    expected = vt[2] * np.sign(vt[2, 2])
+    assert_allclose(fit.singular_values[:2], s[:2], rtol=1e-6)
+    assert_allclose(fit.normal, expected, atol=1e-6)
+    assert fit.rms_residual_mm == pytest.approx(s[2] / np.sqrt(len(pts)), rel=1e-6)

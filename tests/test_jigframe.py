@@ -122,7 +122,7 @@ def test_a_head_far_off_takes_the_general_path_once(monkeypatch):
     pair = render_pair(draw_as_built(JIG, rng=235), rng=1)
     constants = jigframe.frame_constants(JIG)
     fast_first = jigframe._jig_frame_fast(
-        pair.left, pair.right, JIG, constants, constants.fast.expected_quads
+        pair.left, pair.right, JIG, constants, constants.fast.expected_quads, constants.fast.capture_tables
     )
     assert fast_first is None
     memory = jigframe.FiducialMemory()

@@ -17,9 +17,10 @@ from softjig.cli import app
 from softjig.config import default_jig
 from softjig.io.cameras import CameraError, ReplaySource, StereoSource
 from softjig.io.dataset import Dataset
+from softjig.io.simulated import simulate_dataset
 from softjig.io.stream import TOPIC_ESTIMATE, TOPIC_HEALTH, Publisher, Subscriber
 from softjig.live.loop import HealthSnapshot, LiveLoop, LiveSettings, PublisherSink, health_status
-from softjig.sim.scenarios import paper_sweep, simulate_dataset
+from softjig.sim.scenarios import paper_sweep
 
 runner = CliRunner()
 

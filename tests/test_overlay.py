@@ -11,8 +11,9 @@ from softjig.config import default_jig
 from softjig.evaluation import overlay
 from softjig.io.batch import dataset_reference
 from softjig.io.dataset import Dataset
+from softjig.io.simulated import simulate_dataset
 from softjig.sensing.pipeline import estimate_pair
-from softjig.sim.scenarios import paper_sweep, simulate_dataset
+from softjig.sim.scenarios import paper_sweep
 
 runner = CliRunner()
 MAGENTA = np.array(overlay.MAGENTA)

@@ -19,8 +19,9 @@ from pathlib import Path
 import pytest
 
 from softjig.config import default_jig
+from softjig.io.simulated import simulate_dataset
 from softjig.io.workers import Terminated, terminate_raises
-from softjig.sim.scenarios import paper_sweep, simulate_dataset
+from softjig.sim.scenarios import paper_sweep
 
 pytestmark = pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs Linux /proc")
 
@@ -116,7 +117,7 @@ def test_sigkill_of_estimate_kills_its_workers_and_the_next_run_removes_its_temp
     assert _gone(workers, 2.0), "workers outlived their parent"
     left = _temporary_files(tmp_path)  # nothing runs in a killed process: its results file's temporary
     assert [p.name.split(".")[3].split("-")[0] for p in left] == [str(proc.pid)]
-    from softjig.io.files import remove_stale_temporaries
+    from softjig.files import remove_stale_temporaries
 
     assert remove_stale_temporaries(tmp_path / "est.jsonl") == left  # what the next run does first
 

@@ -8,6 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from oracles.nearest_identities import kd_tree_identities
 from oracles.refracted_rays import traced_triangulation
 from softjig.config import default_jig, exact_jig
 from softjig.errors import InputError
@@ -182,23 +183,14 @@ def test_triangulate_refracted_says_why_rays_cannot_be_traced():
 
 @pytest.mark.agreement
 def test_identities_match_a_kd_tree_resolved_nearest_first():
-    from scipy.spatial import cKDTree
-
     reference = rest_shape_reference(default_jig())
     rng = np.random.default_rng(6)
     for _ in range(10):
         points = reference.xyz_mm[rng.permutation(len(reference))[:250]].copy()
         points[:, :2] += rng.normal(0, 2.5, (len(points), 2))  # some claim the same marker, some none
-        distance, nearest = cKDTree(reference.xyz_mm[:, :2]).query(points[:, :2], distance_upper_bound=4.0)
-        expected = np.full(len(points), -1)
-        taken = set()
-        for k in np.argsort(distance, kind="stable"):
-            if np.isfinite(distance[k]) and nearest[k] not in taken:
-                taken.add(nearest[k])
-                expected[k] = nearest[k]
+        expected, moved = kd_tree_identities(points, reference.xyz_mm, 4.0)
         found = identify_markers(points, reference, max_lateral_mm=4.0)
         assert np.array_equal(found.ids, expected)
         assert (found.ids == -1).any() and len(set(found.ids[found.ids >= 0])) == (found.ids >= 0).sum()
-        known = expected >= 0
-        assert np.array_equal(found.displacement_mm[known], points[known] - reference.xyz_mm[expected[known]])
-        assert np.isnan(found.displacement_mm[~known]).all()
+        assert np.array_equal(found.displacement_mm, moved, equal_nan=True)
+        assert np.isnan(found.displacement_mm[found.ids == -1]).all()

@@ -8,10 +8,10 @@ import cv2
 import numpy as np
 import pytest
 
+from softjig.aruco import aruco_dictionary
 from softjig.config import CylinderPart, JigConfig, default_jig, exact_jig
 from softjig.optics import backproject_pixels, projection_jacobian
 from softjig.rig import AIR_REFRACTIVE_INDEX, distortion_of, flat_layers
-from softjig.sensing.fiducials import aruco_dictionary
 from softjig.sim.asbuilt import draw_as_built, nominal_as_built
 from softjig.sim.membrane import deform
 from softjig.sim.parts import PartPose

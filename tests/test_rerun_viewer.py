@@ -14,9 +14,10 @@ from softjig.config import default_jig
 from softjig.errors import InputError
 from softjig.io.cameras import ReplaySource
 from softjig.io.dataset import Dataset
+from softjig.io.simulated import simulate_dataset
 from softjig.live.loop import LiveLoop, LiveSettings
 from softjig.live.rerun_viewer import NORMAL_ARROW_MM, RERUN_PIXEL_OFFSET, RerunViewer
-from softjig.sim.scenarios import paper_sweep, simulate_dataset
+from softjig.sim.scenarios import paper_sweep
 
 
 @pytest.fixture(scope="module")

@@ -34,7 +34,8 @@ from softjig.io.rosbag import (
     decode_image_message,
     rotation_z_to,
 )
-from softjig.sim.scenarios import paper_sweep, simulate_dataset
+from softjig.io.simulated import simulate_dataset
+from softjig.sim.scenarios import paper_sweep
 
 runner = CliRunner()
 

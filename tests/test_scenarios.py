@@ -11,6 +11,7 @@ from softjig.config import CylinderPart, default_jig
 from softjig.errors import InputError
 from softjig.geometry import fit_plane_svd, normal_from_tilt
 from softjig.io.dataset import Dataset
+from softjig.io.simulated import simulate_dataset
 from softjig.jig_shape import rest_inner_height_mm
 from softjig.sim.parts import PartPose
 from softjig.sim.scenarios import (
@@ -18,7 +19,6 @@ from softjig.sim.scenarios import (
     cube_experiment,
     frame_truth,
     paper_sweep,
-    simulate_dataset,
     single,
     theta_values_deg,
 )

@@ -1,12 +1,14 @@
-"""The self-check's split halves: a flat face passes, a curved wall does not (issue 13 item 6)."""
+"""The self-check's split halves and rival contacts: a flat face passes, a curved wall or a wall beside
+the face does not (issue 13 item 6)."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from softjig.config import default_jig
+from softjig.geometry import fit_plane_svd
 from softjig.jig_shape import rest_inner_height_mm
-from softjig.sensing.selfcheck import SPLIT_SUSPECT_MIN_DEG, split_halves
+from softjig.sensing.selfcheck import SPLIT_SUSPECT_MIN_DEG, agreement, split_halves
 
 
 def _grid(centre, radius, pitch=5.0):
@@ -41,3 +43,32 @@ def test_the_membranes_wall_is_suspect():
 def test_too_few_points_give_no_check():
     xy = _grid((0.0, 0.0), 6.0)
     assert split_halves(np.column_stack([xy, np.zeros(len(xy))]), point_sigma_mm=0.1) is None
+
+
+def _fit(points):
+    return fit_plane_svd(points).normal
+
+
+def test_two_samples_of_one_face_agree():
+    """Two contacts of the same noisy face (different markers): their normals agree within the noise."""
+    rng = np.random.default_rng(2)
+    for trial in range(20):
+        a, b = _grid((-8.0, 0.0), 12.0), _grid((8.0, 0.0), 12.0)
+        sigma_mm = 0.3
+        pa = np.column_stack([a, -4.0 + 0.3 * a[:, 0] + rng.normal(0, sigma_mm, len(a))])
+        pb = np.column_stack([b, -4.0 + 0.3 * b[:, 0] + rng.normal(0, sigma_mm, len(b))])
+        check = agreement(pa, _fit(pa), pb, _fit(pb), point_sigma_mm=sigma_mm, noise_factor=1.5)
+        assert check is not None and not check.suspect, trial
+
+
+def test_a_face_and_the_wall_beside_it_disagree():
+    """A level face and a strip of wall rising at 15 deg beside it, each fitted alone: a rival."""
+    rng = np.random.default_rng(3)
+    sigma_mm = 0.3
+    face, wall = _grid((0.0, 0.0), 12.0), _grid((25.0, 0.0), 8.0)
+    pf = np.column_stack([face, -6.0 + rng.normal(0, sigma_mm, len(face))])
+    pw = np.column_stack([wall, -6.0 + np.tan(np.radians(15.0)) * (wall[:, 0] - 17.0)])
+    pw[:, 2] += rng.normal(0, sigma_mm, len(wall))
+    check = agreement(pf, _fit(pf), pw, _fit(pw), point_sigma_mm=sigma_mm, noise_factor=1.5)
+    assert check.suspect and abs(np.degrees(check.angle_rad) - 15.0) < 2.0
+    assert agreement(pf[:3], _fit(pf), pw, _fit(pw), point_sigma_mm=sigma_mm) is None  # too few

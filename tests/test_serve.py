@@ -21,8 +21,9 @@ import zmq
 
 from softjig.config import CylinderPart, default_jig
 from softjig.hardware.pump import SimulatedPumpController
+from softjig.io.simulated import simulate_dataset
 from softjig.live.settle import Sample, settled_since
-from softjig.sim.scenarios import simulate_dataset, single
+from softjig.sim.scenarios import single
 
 pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals and pseudo-terminals")
 

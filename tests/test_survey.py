@@ -20,12 +20,13 @@ from softjig.config import (
 )
 from softjig.errors import InputError
 from softjig.io.dataset import Dataset
+from softjig.io.simulated import simulate_dataset
 from softjig.jig_shape import rest_marker_points_mm, rest_profile_mm
 from softjig.sensing.identities import rest_shape_reference
 from softjig.sensing.pipeline import estimate_pair
 from softjig.sensing.survey import smoothed_heights, survey_markers
 from softjig.sim.parts import PartPose
-from softjig.sim.scenarios import FrameSpec, simulate_dataset
+from softjig.sim.scenarios import FrameSpec
 
 runner = CliRunner()
 

@@ -25,7 +25,7 @@ import tomli_w
 from pydantic import ConfigDict, TypeAdapter, ValidationError
 
 from softjig.errors import ConfigError, InputError
-from softjig.io.files import write_text_atomic
+from softjig.files import write_text_atomic
 
 # Unknown keys are refused, and so are NaN and infinities (TOML has ``nan`` and ``inf`` literals); values
 # built in Python without pydantic are checked for finiteness by :func:`validate_jig` as well.
@@ -659,6 +659,18 @@ def _check_finite(obj: Any, where: str) -> None:
     walk(obj, where)
 
 
+#: Circles the jig-to-robot alignment needs at least (a PnP pose from fewer is ambiguous).
+MIN_ALIGNMENT_CIRCLES = 4
+#: Refractive indices a plate or medium may have, ``[low, high)``: air up to beyond any optical glass.
+REFRACTIVE_INDEX_RANGE = (1.0, 3.0)
+#: Render supersampling factors per pixel side the simulator accepts, inclusive.
+SUPERSAMPLING_RANGE = (1, 16)
+#: Fewest points a plane fit takes.
+MIN_PLANE_POINTS = 3
+#: Rounding slack (mm) of "on the plate" for the fiducials' height.
+_ON_PLATE_SLACK_MM = 1e-9
+
+
 def validate_jig(jig: JigConfig) -> None:
     """Check every section of a jig and their consistency.
 
@@ -667,19 +679,30 @@ def validate_jig(jig: JigConfig) -> None:
     ConfigError
         Naming the field (as in the TOML file, e.g. ``markers.diameter_mm``) and the problem.
     """
-    p, m, mk, f, md, im, tol = (
-        jig.plate,
-        jig.membrane,
-        jig.markers,
-        jig.fiducials,
-        jig.medium,
-        jig.imaging,
-        jig.tolerances,
-    )
     if jig.version != CONFIG_VERSION:
         _fail("version", f"this softjig reads config version {CONFIG_VERSION}, got {jig.version}")
     _check_finite(jig, "")
     _validate_resolution(jig.cameras)
+    _validate_plate_and_membrane(jig.plate, jig.membrane)
+    _validate_markers(jig)
+    _validate_fiducials(jig.fiducials, jig.plate)
+    _validate_alignment(jig.alignment, jig.plate)
+    _validate_media(jig.medium, jig.plate)
+    _validate_imaging(jig.imaging)
+    _validate_image_model(jig.medium, jig.imaging)
+    for side in ("left", "right"):
+        _validate_camera(getattr(jig.cameras, side), f"cameras.{side}", jig)
+    if jig.cameras.baseline_mm <= 0:
+        _fail("cameras", "the two cameras are at the same place: no baseline")
+    if jig.cameras.rectified:
+        _validate_rectified(jig.cameras)
+    for name, value in asdict(jig.tolerances).items():
+        _non_negative(value, f"tolerances.{name}")
+    _validate_sensing(jig.sensing)
+
+
+def _validate_plate_and_membrane(p: PlateConfig, m: MembraneConfig) -> None:
+    """The plate's sizes, the membrane's shape, and that the membrane fits on the plate."""
     for name in ("size_x_mm", "size_y_mm", "thickness_mm"):
         _positive(getattr(p, name), f"plate.{name}")
     for name in (
@@ -700,6 +723,11 @@ def validate_jig(jig: JigConfig) -> None:
             f"the membrane ({2 * m.footprint_radius_mm} mm across) does not fit on the plate "
             f"({p.size_x_mm} x {p.size_y_mm} mm)",
         )
+
+
+def _validate_markers(jig: JigConfig) -> None:
+    """The markers' size and pitch, their margin to the rim, and the explicit layout if any."""
+    mk = jig.markers
     _positive(mk.diameter_mm, "markers.diameter_mm")
     _positive(mk.pitch_mm, "markers.pitch_mm")
     if mk.diameter_mm >= mk.pitch_mm:
@@ -709,26 +737,36 @@ def validate_jig(jig: JigConfig) -> None:
             f"({mk.pitch_mm} mm): they would merge; reduce the diameter or increase the pitch",
         )
     _non_negative(mk.rim_margin_mm, "markers.rim_margin_mm")
-    if mk.rim_margin_mm >= m.footprint_radius_mm:
+    if mk.rim_margin_mm >= jig.membrane.footprint_radius_mm:
         _fail("markers.rim_margin_mm", "leaves no room for markers on the membrane")
     _validate_layout(jig)
+
+
+def _validate_fiducials(f: FiducialConfig, p: PlateConfig) -> None:
+    """One distinct id per fiducial, a positive size, a height on the plate, a known ArUco dictionary."""
+    from softjig.aruco import aruco_dictionary_names  # OpenCV, imported when a config is checked
+
     if len(f.ids) != len(f.centers_mm):
         _fail("fiducials.ids", f"{len(f.ids)} ids for {len(f.centers_mm)} centres: give one id each")
     if len(set(f.ids)) != len(f.ids):
         _fail("fiducials.ids", "ids must be distinct")
     _positive(f.size_mm, "fiducials.size_mm")
-    if not (-p.thickness_mm - 1e-9 <= f.z_mm <= 1e-9):
+    if not (-p.thickness_mm - _ON_PLATE_SLACK_MM <= f.z_mm <= _ON_PLATE_SLACK_MM):
         _fail("fiducials.z_mm", f"must lie on the plate (between {-p.thickness_mm} and 0), got {f.z_mm}")
-    from softjig.sensing.fiducials import aruco_dictionary_names
-
     if f.dictionary not in aruco_dictionary_names():
         _fail(
             "fiducials.dictionary",
             f"unknown ArUco dictionary {f.dictionary!r}; valid: {', '.join(aruco_dictionary_names())}",
         )
-    al = jig.alignment
-    if len(al.circle_centers_mm) < 4:
-        _fail("alignment.circle_centers_mm", f"PnP needs at least 4 circles, got {len(al.circle_centers_mm)}")
+
+
+def _validate_alignment(al: AlignmentConfig, p: PlateConfig) -> None:
+    """Enough alignment circles, each whole on the plate."""
+    if len(al.circle_centers_mm) < MIN_ALIGNMENT_CIRCLES:
+        _fail(
+            "alignment.circle_centers_mm",
+            f"PnP needs at least {MIN_ALIGNMENT_CIRCLES} circles, got {len(al.circle_centers_mm)}",
+        )
     _positive(al.circle_diameter_mm, "alignment.circle_diameter_mm")
     half_x, half_y = p.size_x_mm / 2.0, p.size_y_mm / 2.0
     for k, (x, y) in enumerate(al.circle_centers_mm):
@@ -737,14 +775,26 @@ def validate_jig(jig: JigConfig) -> None:
                 f"alignment.circle_centers_mm[{k}]",
                 f"({x}, {y}) is not on the {p.size_x_mm} x {p.size_y_mm} mm plate",
             )
+
+
+def _validate_media(md: MediumConfig, p: PlateConfig) -> None:
+    """The refractive indices of the plate, the oil and the beads; the beads' size and the blur."""
+    low, high = REFRACTIVE_INDEX_RANGE
     for name in ("oil_refractive_index", "bead_refractive_index"):
-        if not 1.0 <= getattr(md, name) < 3.0:
-            _fail(f"medium.{name}", f"must be a refractive index in [1, 3), got {getattr(md, name)}")
-    if not 1.0 <= p.refractive_index < 3.0:
-        _fail("plate.refractive_index", f"must be in [1, 3), got {p.refractive_index}")
+        if not low <= getattr(md, name) < high:
+            _fail(
+                f"medium.{name}",
+                f"must be a refractive index in [{low:g}, {high:g}), got {getattr(md, name)}",
+            )
+    if not low <= p.refractive_index < high:
+        _fail("plate.refractive_index", f"must be in [{low:g}, {high:g}), got {p.refractive_index}")
     _positive(md.bead_diameter_mm, "medium.bead_diameter_mm")
     _non_negative(md.blur_coefficient, "medium.blur_coefficient")
     _non_negative(md.speckle_std, "medium.speckle_std")
+
+
+def _validate_imaging(im: ImagingConfig) -> None:
+    """Levels as fractions of full scale (markers brighter), fall-off, sensor noise, supersampling."""
     for name in ("background_level", "marker_level"):
         if not 0.0 <= getattr(im, name) <= 1.0:
             _fail(f"imaging.{name}", f"must be a fraction of full scale in [0, 1], got {getattr(im, name)}")
@@ -754,26 +804,21 @@ def validate_jig(jig: JigConfig) -> None:
         _fail("imaging.illumination_falloff", f"must be in [0, 1), got {im.illumination_falloff}")
     _positive(im.full_well_electrons, "imaging.full_well_electrons")
     _non_negative(im.read_noise, "imaging.read_noise")
-    if not 1 <= im.supersampling <= 16:
-        _fail("imaging.supersampling", f"must be between 1 and 16, got {im.supersampling}")
-    _validate_image_model(md, im)
-    for side in ("left", "right"):
-        _validate_camera(getattr(jig.cameras, side), f"cameras.{side}", jig)
-    if jig.cameras.baseline_mm <= 0:
-        _fail("cameras", "the two cameras are at the same place: no baseline")
-    if jig.cameras.rectified:
-        _validate_rectified(jig.cameras)
-    for name, value in asdict(tol).items():
-        _non_negative(value, f"tolerances.{name}")
-    s = jig.sensing
+    low, high = SUPERSAMPLING_RANGE
+    if not low <= im.supersampling <= high:
+        _fail("imaging.supersampling", f"must be between {low} and {high}, got {im.supersampling}")
+
+
+def _validate_sensing(s: SensingConfig) -> None:
+    """The detector's and matcher's parameters, and enough points for a plane."""
     if s.log_sigma_px is not None:
         _positive(s.log_sigma_px, "sensing.log_sigma_px")
     if s.detection_threshold is not None:
         _positive(s.detection_threshold, "sensing.detection_threshold")
     _positive(s.row_tolerance_px, "sensing.row_tolerance_px")
     _non_negative(s.disparity_margin_px, "sensing.disparity_margin_px")
-    if s.min_points < 3:
-        _fail("sensing.min_points", f"a plane needs at least 3 points, got {s.min_points}")
+    if s.min_points < MIN_PLANE_POINTS:
+        _fail("sensing.min_points", f"a plane needs at least {MIN_PLANE_POINTS} points, got {s.min_points}")
 
 
 def _validate_image_model(md: MediumConfig, im: ImagingConfig) -> None:

@@ -7,7 +7,7 @@ maps :class:`InputError` to exit code 2 and :class:`EstimationError` to exit cod
 
 from __future__ import annotations
 
-__all__ = ["ConfigError", "EstimationError", "InputError", "SoftjigError"]
+__all__ = ["CameraError", "ConfigError", "EstimationError", "InputError", "SoftjigError"]
 
 
 class SoftjigError(Exception):
@@ -24,3 +24,7 @@ class ConfigError(InputError):
 
 class EstimationError(SoftjigError):
     """Valid input but no estimate possible (too few markers, no contact). CLI exit code 3."""
+
+
+class CameraError(InputError):
+    """A camera could not be opened or stopped delivering; the message names it and what to check."""

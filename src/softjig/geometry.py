@@ -19,7 +19,10 @@ from softjig.errors import InputError
 #: rounding: they define no plane.
 DEGENERATE_PLANE_RATIO = 1e-9
 
-# The hull test under its former private name, for the compiled contact kernels that call it.
+#: Below this angle (rad) a rotation vector's matrix is taken from the Taylor series of Rodrigues' formula.
+ROTVEC_TAYLOR_BELOW_RAD = 1e-4
+
+# The hull test, for the compiled kernels of softjig.sensing.contact that call it by this name.
 _inside_hull_kernel = inside_hull
 
 # ------------------------------------------------------------------------------------------ poses
@@ -42,11 +45,11 @@ def pose_from_rotvec_translation(rotvec_rad, translation_mm) -> np.ndarray:
 def rotation_from_rotvec(rotvec_rad) -> np.ndarray:
     """The 3x3 rotation of a rotation vector (axis times angle, rad): Rodrigues' formula
     ``R = I + sin(t) K + (1 - cos(t)) K^2`` (``K`` the cross-product matrix of the unit axis), with its
-    Taylor series below 1e-4 rad (no division by a small angle)."""
+    Taylor series below :data:`ROTVEC_TAYLOR_BELOW_RAD` (no division by a small angle)."""
     r = np.asarray(rotvec_rad, dtype=float).reshape(3)
     theta = float(np.sqrt(r @ r))
     k = np.array([[0.0, -r[2], r[1]], [r[2], 0.0, -r[0]], [-r[1], r[0], 0.0]])
-    if theta < 1e-4:
+    if theta < ROTVEC_TAYLOR_BELOW_RAD:
         a, b = 1.0 - theta**2 / 6.0, 0.5 - theta**2 / 24.0
     else:
         a, b = np.sin(theta) / theta, (1.0 - np.cos(theta)) / theta**2

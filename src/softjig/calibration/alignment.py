@@ -30,8 +30,8 @@ Fig. "Setup to jig coordinate calibration"). Here:
    everything finite, :func:`check_pose`). Then the circles' reprojection RMS must be at most
    ``max_reprojection_px`` (default :data:`MAX_REPROJECTION_PX` = 2 px) and each detected circle's size
    must match its projection at the pose found (area ratio within :data:`SIZE_RATIO_RANGE`).
-   *Why 2 px*: a circle's centre is fitted to its whole contour, so its noise is small: 0.04 px median,
-   0.064 px at most over 18 rendered views with noise (``tests/test_alignment.py``'s scenes, measured);
+   *Why 2 px*: a circle's centre is fitted to its whole contour, so its noise is a small fraction of a
+   pixel (``tests/test_alignment.py``'s rendered views with noise; figures in benchmarks/RESULTS.md);
    a calibrated camera's own reprojection error is typically 0.1-0.5 px, and a machining tolerance of
    0.2 mm on the circles' positions is about 0.3 px at 420 mm with f = 560 px. A credible pose thus
    reprojects within about 1 px (where a warning starts); 2 px leaves a margin of two, while wrong
@@ -69,6 +69,20 @@ _WARN_REPROJECTION_PX = 1.0
 #: circle is a little smaller or larger than its outline (a pixel of its rim is 15 % of a 27 px circle's
 #: area), never twice or half.
 SIZE_RATIO_RANGE = (0.5, 2.0)
+#: Poses whose RMS is within ``max(_TIE_RMS_PX, _TIE_RMS_FACTOR * best)`` of the best one are ties (a
+#: symmetric layout): the prior rotation decides between them.
+_TIE_RMS_PX, _TIE_RMS_FACTOR = 0.5, 2.0
+#: A blob is a circle's image when its contour's area is within this range of its fitted ellipse's (a
+#: blob of another shape fills its ellipse less, or more) and the ellipse's minor axis is at least
+#: :data:`MIN_AXIS_RATIO` times its major one (a circle seen up to ~70 deg from its normal); a contour of
+#: fewer points than ``_MIN_CONTOUR_POINTS`` is too small a blob to fit an ellipse to reliably.
+ELLIPSE_FILL_RANGE = (0.8, 1.2)
+MIN_AXIS_RATIO = 0.3
+_MIN_CONTOUR_POINTS = 8
+#: Points on each circle's projected outline, and rounds of the ellipse-centre bias correction.
+_OUTLINE_POINTS, _CENTRE_BIAS_ITERATIONS = 72, 2
+#: A tie chosen this far (deg) from the prior rotation gets a warning (a square layout's orders are 90 apart).
+_SYMMETRY_WARN_DEG = 30.0
 #: Largest deviation of ``R^T R`` from the identity accepted for a pose's rotation: a matrix typed or
 #: printed with 4 decimals is within 2e-4; it is then made exactly orthonormal (its nearest rotation).
 ROTATION_TOLERANCE = 1e-3
@@ -193,14 +207,17 @@ def _ellipse_candidates(binary: np.ndarray, min_area_px: float) -> list[tuple[np
     contours, _ = cv2.findContours(binary, cv2.RETR_LIST, cv2.CHAIN_APPROX_NONE)
     out = []
     for c in contours:
-        if len(c) < 8:
+        if len(c) < _MIN_CONTOUR_POINTS:
             continue
         area = cv2.contourArea(c)
         if area < min_area_px:
             continue
         (cx, cy), (a, b), _ = cv2.fitEllipse(c)
         ellipse_area = np.pi * a * b / 4
-        if not 0.8 < area / max(ellipse_area, 1e-9) < 1.2 or min(a, b) < 0.3 * max(a, b):
+        fill_low, fill_high = ELLIPSE_FILL_RANGE
+        if not fill_low < area / max(ellipse_area, 1e-9) < fill_high or min(a, b) < MIN_AXIS_RATIO * max(
+            a, b
+        ):
             continue
         out.append((np.array([cx, cy]), float(ellipse_area)))
     return out
@@ -306,12 +323,7 @@ def align_jig_to_robot(
     check_intrinsics(camera, img_arr.shape)
     T_robot_flange = check_pose(T_robot_flange, "T_robot_flange (the flange's pose)")
     T_flange_cam = check_pose(T_flange_cam, "T_flange_cam (the camera's pose on the flange)")
-    prior = np.eye(3) if R_robot_jig_prior is None else np.asarray(R_robot_jig_prior, float)
-    if prior.shape != (3, 3):
-        raise InputError(f"R_robot_jig_prior must be a 3x3 rotation, got shape {prior.shape}")
-    prior_pose = np.eye(4)
-    prior_pose[:3, :3] = prior
-    prior = check_pose(prior_pose, "R_robot_jig_prior")[:3, :3]
+    prior = _check_prior(R_robot_jig_prior)
     al = jig.alignment
     n = len(al.circle_centers_mm)
     K, dist = camera.K, np.asarray(camera.distortion, float)
@@ -320,60 +332,22 @@ def align_jig_to_robot(
     obj_sorted = obj[_angle_order(obj[:, :2])]
     det_order = _angle_order(detected)
     T_robot_cam = T_robot_flange @ T_flange_cam
-    candidates = []
-    for direction in (1, -1):
-        for shift in range(n):
-            idx = np.roll(det_order[::direction], shift)
-            img = detected[idx]
-            for T_cam_jig in _solve(obj_sorted, img, K, dist):
-                cam_in_J = invert_pose(T_cam_jig)[:3, 3]
-                if cam_in_J[2] <= al.z_mm:
-                    continue
-                rms = float(
-                    np.sqrt(np.mean(np.sum((_project(T_cam_jig, obj_sorted, K, dist) - img) ** 2, 1)))
-                )
-                candidates.append((rms, T_cam_jig, img, (direction, shift), detected_area[idx]))
+    candidates = _pose_candidates(obj_sorted, detected, detected_area, det_order, K, dist, z_mm=al.z_mm)
     if not candidates:
         raise EstimationError(
             "no pose of the jig puts the hand-eye camera above the plate: check the circles"
         )
     best_rms = min(c[0] for c in candidates)
-    good = [c for c in candidates if c[0] <= best_rms + max(0.5, 2 * best_rms)]
+    good = [c for c in candidates if c[0] <= best_rms + max(_TIE_RMS_PX, _TIE_RMS_FACTOR * best_rms)]
     rms, T_cam_jig, img, _, areas = min(
         good, key=lambda c: _rotation_angle((T_robot_cam @ c[1])[:3, :3], prior)
     )
-    # Perspective bias of the ellipse centres, corrected with the pose found.
-    outline = np.linspace(0, 2 * np.pi, 72, endpoint=False)
-    r = al.circle_diameter_mm / 2
-    corrected = img
-    projected_area = np.zeros(n)
-    for _ in range(2):
-        offsets = []
-        for k, p in enumerate(obj_sorted):
-            ring = p + r * np.column_stack([np.cos(outline), np.sin(outline), np.zeros_like(outline)])
-            (ex, ey), (ea, eb), _ = cv2.fitEllipse(_project(T_cam_jig, ring, K, dist).astype(np.float32))
-            offsets.append(np.array([ex, ey]) - _project(T_cam_jig, p[None], K, dist)[0])
-            projected_area[k] = np.pi * ea * eb / 4
-        corrected = img - np.array(offsets)
-        sols = _solve(obj_sorted, corrected, K, dist)
-        T_cam_jig = min(sols, key=lambda T: _rotation_angle(T[:3, :3], T_cam_jig[:3, :3]))
+    T_cam_jig, corrected, projected_area = _corrected_for_centre_bias(
+        T_cam_jig, img, obj_sorted, al.circle_diameter_mm / 2, K, dist
+    )
     res = _project(T_cam_jig, obj_sorted, K, dist) - corrected
     rms = float(np.sqrt(np.mean(np.sum(res**2, axis=1))))
-    if not np.isfinite(rms) or rms > max_reprojection_px:
-        raise EstimationError(
-            f"no credible pose: the circles reproject with an RMS of {rms:.3g} px, above "
-            f"{max_reprojection_px:g} px (a right pose reprojects within about 1 px): check that the image "
-            "is the hand-eye camera's view of the four alignment circles, its intrinsics, T_flange_cam and "
-            "alignment.circle_centers_mm"
-        )
-    ratio = areas / np.maximum(projected_area, 1e-9)
-    if not np.all((ratio >= SIZE_RATIO_RANGE[0]) & (ratio <= SIZE_RATIO_RANGE[1])):
-        worst = float(ratio[np.argmax(np.abs(np.log(np.maximum(ratio, 1e-12))))])
-        raise EstimationError(
-            f"no credible pose: a detected circle is {worst:.2g} times the area its "
-            f"{al.circle_diameter_mm:g} mm circle would have at the pose found: these blobs are not the "
-            "alignment circles (or alignment.circle_diameter_mm is wrong)"
-        )
+    _check_credible(rms, max_reprojection_px, areas / np.maximum(projected_area, 1e-9), al.circle_diameter_mm)
     # back to the config's order
     sorted_idx = _angle_order(obj[:, :2])
     circles = np.empty_like(corrected)
@@ -387,10 +361,81 @@ def align_jig_to_robot(
         )
     angle = np.degrees(_rotation_angle(T_robot_jig[:3, :3], prior))
     n_orders = len({c[3] for c in good})
-    if n_orders > 1 and angle > 30:
+    if n_orders > 1 and angle > _SYMMETRY_WARN_DEG:
         warnings.append(
             f"the circles' layout is symmetric and the chosen jig rotation is {angle:.0f} deg from the "
             "prior: "
             "give a prior rotation closer to the truth (within 45 deg) or the order may be wrong"
         )
     return Alignment(T_robot_jig, T_cam_jig, circles, rms, n_orders, tuple(warnings))
+
+
+def _check_prior(R_robot_jig_prior: np.ndarray | None) -> np.ndarray:
+    """The prior rotation of the jig in the robot frame, checked (identity by default)."""
+    prior = np.eye(3) if R_robot_jig_prior is None else np.asarray(R_robot_jig_prior, float)
+    if prior.shape != (3, 3):
+        raise InputError(f"R_robot_jig_prior must be a 3x3 rotation, got shape {prior.shape}")
+    prior_pose = np.eye(4)
+    prior_pose[:3, :3] = prior
+    return check_pose(prior_pose, "R_robot_jig_prior")[:3, :3]
+
+
+def _pose_candidates(obj_sorted, detected, detected_area, det_order, K, dist, *, z_mm: float) -> list[tuple]:
+    """Every pose of every assignment of the detected circles to the layout's (both turning directions,
+    each cyclic shift) that puts the camera above the plate: ``(rms_px, T_cam_jig, image points, (direction,
+    shift), detected areas)``."""
+    candidates = []
+    n = len(obj_sorted)
+    for direction in (1, -1):
+        for shift in range(n):
+            idx = np.roll(det_order[::direction], shift)
+            img = detected[idx]
+            for T_cam_jig in _solve(obj_sorted, img, K, dist):
+                cam_in_J = invert_pose(T_cam_jig)[:3, 3]
+                if cam_in_J[2] <= z_mm:
+                    continue
+                rms = float(
+                    np.sqrt(np.mean(np.sum((_project(T_cam_jig, obj_sorted, K, dist) - img) ** 2, 1)))
+                )
+                candidates.append((rms, T_cam_jig, img, (direction, shift), detected_area[idx]))
+    return candidates
+
+
+def _corrected_for_centre_bias(T_cam_jig, img, obj_sorted, radius_mm: float, K, dist):
+    """Correct the perspective bias of the ellipse centres with the pose found, and solve again
+    (:data:`_CENTRE_BIAS_ITERATIONS` times): ``(T_cam_jig, corrected image points, each circle's projected
+    area (px²))``."""
+    outline = np.linspace(0, 2 * np.pi, _OUTLINE_POINTS, endpoint=False)
+    corrected = img
+    projected_area = np.zeros(len(obj_sorted))
+    for _ in range(_CENTRE_BIAS_ITERATIONS):
+        offsets = []
+        for k, p in enumerate(obj_sorted):
+            ring = p + radius_mm * np.column_stack([np.cos(outline), np.sin(outline), np.zeros_like(outline)])
+            (ex, ey), (ea, eb), _ = cv2.fitEllipse(_project(T_cam_jig, ring, K, dist).astype(np.float32))
+            offsets.append(np.array([ex, ey]) - _project(T_cam_jig, p[None], K, dist)[0])
+            projected_area[k] = np.pi * ea * eb / 4
+        corrected = img - np.array(offsets)
+        sols = _solve(obj_sorted, corrected, K, dist)
+        previous = T_cam_jig
+        T_cam_jig = min(sols, key=lambda T: _rotation_angle(T[:3, :3], previous[:3, :3]))
+    return T_cam_jig, corrected, projected_area
+
+
+def _check_credible(rms: float, max_reprojection_px: float, ratio: np.ndarray, diameter_mm: float) -> None:
+    """An EstimationError if the pose reprojects the circles too badly, or if a detected circle's area is
+    not what its circle's would be at that pose (``ratio``: detected over projected area)."""
+    if not np.isfinite(rms) or rms > max_reprojection_px:
+        raise EstimationError(
+            f"no credible pose: the circles reproject with an RMS of {rms:.3g} px, above "
+            f"{max_reprojection_px:g} px (a right pose reprojects within about 1 px): check that the image "
+            "is the hand-eye camera's view of the four alignment circles, its intrinsics, T_flange_cam and "
+            "alignment.circle_centers_mm"
+        )
+    if not np.all((ratio >= SIZE_RATIO_RANGE[0]) & (ratio <= SIZE_RATIO_RANGE[1])):
+        worst = float(ratio[np.argmax(np.abs(np.log(np.maximum(ratio, 1e-12))))])
+        raise EstimationError(
+            f"no credible pose: a detected circle is {worst:.2g} times the area its "
+            f"{diameter_mm:g} mm circle would have at the pose found: these blobs are not the "
+            "alignment circles (or alignment.circle_diameter_mm is wrong)"
+        )

@@ -27,9 +27,10 @@ from typing import Literal
 import cv2
 import numpy as np
 
+from softjig.aruco import aruco_dictionary
 from softjig.config import FiducialConfig, JigConfig
 from softjig.geometry import invert_pose
-from softjig.sensing.fiducials import aruco_dictionary, detect_fiducials, fiducial_corners_J
+from softjig.sensing.fiducials import detect_fiducials, fiducial_corners_J
 
 __all__ = ["FiducialCheck", "check_fiducials", "fiducial_sheet", "projected_fiducials", "with_fiducials"]
 

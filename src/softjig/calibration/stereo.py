@@ -39,6 +39,7 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from softjig.aruco import aruco_dictionary, aruco_dictionary_names
 from softjig.config import CameraConfig, JigConfig, StereoConfig
 from softjig.errors import EstimationError, InputError
 from softjig.geometry import invert_pose, pose_from_rotation_translation
@@ -59,6 +60,18 @@ OUTLIER_FLOOR_PX = 0.3  # ... and exceeds the median by more than this (sub-pixe
 
 
 # ------------------------------------------------------------------------------------------- boards
+
+#: A ChArUco marker's side as a fraction of its square's when the board does not say (OpenCV's samples).
+DEFAULT_MARKER_FRACTION = 0.75
+#: Fewest ChArUco corners a view must show to be used (OpenCV's pose from a board needs a few more than 4).
+MIN_CHARUCO_CORNERS = 6
+#: cornerSubPix's half window (px) as a fraction of a square's side in the image: a chessboard corner's
+#: saddle fills its squares; a ChArUco corner's window stays within the white between it and the nearest
+#: marker (this fraction of that inset). Clipped to :data:`SUBPIX_HALF_WINDOW_PX`.
+CHESSBOARD_WINDOW_FRACTION, CHARUCO_WINDOW_FRACTION = 0.35, 0.8
+SUBPIX_HALF_WINDOW_PX = (2, 11)
+#: cornerSubPix's stopping rule: at most 50 iterations, or a step below 1e-4 px.
+_SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-4)
 
 
 @dataclass(frozen=True)
@@ -100,11 +113,15 @@ class Board:
             raise InputError(f"the square size must be a positive number of mm, got {self.square_mm}")
         if self.kind == "charuco" and not 0 < self.marker_side_mm < self.square_mm:
             raise InputError(f"the ChArUco marker ({self.marker_side_mm} mm) must be smaller than a square")
+        if self.kind == "charuco" and self.dictionary not in aruco_dictionary_names():
+            raise InputError(
+                f"unknown ArUco dictionary {self.dictionary!r}; valid: {', '.join(aruco_dictionary_names())}"
+            )
 
     @property
     def marker_side_mm(self) -> float:
         """ChArUco marker side (mm)."""
-        return self.marker_mm if self.marker_mm is not None else 0.75 * self.square_mm
+        return self.marker_mm if self.marker_mm is not None else DEFAULT_MARKER_FRACTION * self.square_mm
 
     @property
     def n_corners(self) -> int:
@@ -139,23 +156,14 @@ def parse_board_size(text: str) -> tuple[int, int]:
     return cols, rows
 
 
-_CHARUCO_CACHE: dict[Board, cv2.aruco.CharucoBoard] = {}
-
-
 def _charuco_board(board: Board) -> cv2.aruco.CharucoBoard:
-    if board not in _CHARUCO_CACHE:
-        from softjig.sensing.fiducials import aruco_dictionary, aruco_dictionary_names
-
-        if board.dictionary not in aruco_dictionary_names():
-            raise InputError(f"unknown ArUco dictionary {board.dictionary!r}")
-        _CHARUCO_CACHE[board] = cv2.aruco.CharucoBoard(
-            (board.cols, board.rows),
-            board.square_mm,
-            board.marker_side_mm,
-            aruco_dictionary(board.dictionary),
-        )
-        _CHARUCO_CACHE[board].setLegacyPattern(board.legacy)
-    return _CHARUCO_CACHE[board]
+    """OpenCV's ChArUco board for ``board``, built on each call: it is cheap next to a detection, and a
+    cache would be module state shared by every caller."""
+    cv_board = cv2.aruco.CharucoBoard(
+        (board.cols, board.rows), board.square_mm, board.marker_side_mm, aruco_dictionary(board.dictionary)
+    )
+    cv_board.setLegacyPattern(board.legacy)
+    return cv_board
 
 
 # ---------------------------------------------------------------------------------------- detection
@@ -201,12 +209,12 @@ def detect_board(image: np.ndarray, board: Board, *, name: str = "image") -> Boa
     -------
     BoardView or None
         ``None`` when the board is not found (a chessboard must be seen whole; a ChArUco board needs at
-        least 6 corners).
+        least :data:`MIN_CHARUCO_CORNERS` corners).
     """
     gray = _gray_u8(image, name)
     if board.kind == "charuco":
         corners, ids, _, _ = cv2.aruco.CharucoDetector(_charuco_board(board)).detectBoard(gray)
-        if ids is None or len(ids) < 6:
+        if ids is None or len(ids) < MIN_CHARUCO_CORNERS:
             return None
         # Refine again with cornerSubPix in a window that stays within the white between a corner and
         # the nearest marker (80 % of it): OpenCV 4.8-4.10's detector returns corners 0.5 px off in u and v
@@ -216,9 +224,8 @@ def detect_board(image: np.ndarray, board: Board, *, name: str = "image") -> Boa
         np.fill_diagonal(gaps, np.inf)
         step = float(np.median(gaps.min(axis=1)))  # one square (px), neighbouring corners' distance
         inset = (board.square_mm - board.marker_side_mm) / 2.0 / board.square_mm
-        half = int(np.clip(round(0.8 * inset * step), 2, 11))
-        crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-4)
-        pts = cv2.cornerSubPix(gray, pts.reshape(-1, 1, 2), (half, half), (-1, -1), crit)
+        half = int(np.clip(round(CHARUCO_WINDOW_FRACTION * inset * step), *SUBPIX_HALF_WINDOW_PX))
+        pts = cv2.cornerSubPix(gray, pts.reshape(-1, 1, 2), (half, half), (-1, -1), _SUBPIX_CRITERIA)
         return BoardView(pts.reshape(-1, 2).astype(float), ids.ravel().astype(int))
     size = (board.cols, board.rows)
     ok, corners = cv2.findChessboardCornersSB(gray, size, flags=0)
@@ -234,9 +241,8 @@ def detect_board(image: np.ndarray, board: Board, *, name: str = "image") -> Boa
         np.linalg.norm(np.diff(grid, axis=0), axis=2).min(),
         np.linalg.norm(np.diff(grid, axis=1), axis=2).min(),
     )
-    half = int(np.clip(0.35 * step, 2, 11))
-    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-4)
-    corners = cv2.cornerSubPix(gray, corners.astype(np.float32), (half, half), (-1, -1), crit)
+    half = int(np.clip(CHESSBOARD_WINDOW_FRACTION * step, *SUBPIX_HALF_WINDOW_PX))
+    corners = cv2.cornerSubPix(gray, corners.astype(np.float32), (half, half), (-1, -1), _SUBPIX_CRITERIA)
     return BoardView(corners.reshape(-1, 2).astype(float), np.arange(board.n_corners))
 
 

@@ -31,7 +31,7 @@ import datetime as _dt
 import json
 import math
 import os
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import IO, Any
@@ -46,7 +46,7 @@ from softjig.calibration.tilt import (
     tilt_calibration_to_dict,
 )
 from softjig.errors import InputError
-from softjig.io.files import write_text_atomic
+from softjig.files import write_text_atomic
 
 __all__ = [
     "MIN_THETAS",
@@ -55,7 +55,7 @@ __all__ = [
     "SweepCalibration",
     "SweepSamples",
     "alternate_theta_mask",
-    "calibrate_dataset",
+    "calibrate_from_rows",
     "check_sweep_design",
     "fit_sweep_calibration",
     "load_result_rows",
@@ -597,39 +597,34 @@ def _read_rows(fh: IO[str], path: Path) -> list[dict]:
 # ------------------------------------------------------------------------------------ end to end
 
 
-def calibrate_dataset(
+def calibrate_from_rows(
     dataset: Any,
+    rows: Sequence[dict],
     *,
-    rows: Sequence[dict] | None = None,
     mode: str = "pooled",
     selection: str = "all",
     method: str = "paper",
-    workers: int | None = None,
-    on_row: Callable[[dict], None] | None = None,
-) -> tuple[SweepCalibration, SweepSamples, list[dict]]:
-    """Calibrate from a sweep dataset: estimate its frames (unless ``rows`` are given), then fit.
+) -> tuple[SweepCalibration, SweepSamples]:
+    """Calibrate from a sweep dataset's estimate rows (one per frame, all of ``method``).
 
     Parameters
     ----------
-    dataset : an open :class:`softjig.io.dataset.Dataset`.
-    rows : estimate rows of this dataset (e.g. :func:`load_result_rows`); if ``None`` every frame is
-        estimated with ``method`` on the dataset's nominal jig, without calibration, on ``workers``
-        processes (default: every CPU), ``on_row`` called after each.
-    method : the estimation method to calibrate (the calibration is only valid for it).
+    dataset : an open :class:`softjig.io.dataset.Dataset` (its frames' commanded tilts).
+    rows : estimate rows of this dataset (:func:`load_result_rows`, or
+        :func:`softjig.io.batch.calibrate_dataset`, which estimates them first).
+    method : the estimation method the rows were made with (the calibration is only valid for it).
     mode, selection : see :func:`fit_sweep_calibration`.
 
     Returns
     -------
-    (SweepCalibration, SweepSamples, rows)
-        The fit, the sweep it was fitted to (every frame, before the selection) and the estimate rows.
-    """
-    check_sweep_design(*sweep_design(dataset), selection=selection)  # before hours of estimation
-    if rows is None:
-        from softjig.io.batch import BatchSettings, dataset_reference, estimate_dataset
+    (SweepCalibration, SweepSamples)
+        The fit, and the sweep it was fitted to (every frame, before the selection).
 
-        reference = dataset_reference(dataset, dataset.jig) if method == "refractive" else None
-        settings = BatchSettings(jig=dataset.jig, method=method, reference=reference)
-        rows = list(estimate_dataset(dataset, settings, workers=workers, on_row=on_row))
+    Raises
+    ------
+    InputError
+        Rows of another method, or a sweep that cannot be calibrated.
+    """
     used = {row.get("method") for row in rows if "method" in row}
     if used and used != {method}:
         raise InputError(
@@ -640,4 +635,4 @@ def calibrate_dataset(
     fit = fit_sweep_calibration(samples, mode=mode, selection=selection)
     pooled = replace(fit.pooled, method=method)
     per = tuple((d, replace(cal, method=method), n) for d, cal, n in fit.per_diameter)
-    return replace(fit, pooled=pooled, per_diameter=per), samples, list(rows)
+    return replace(fit, pooled=pooled, per_diameter=per), samples

@@ -15,13 +15,13 @@ from __future__ import annotations
 
 import json
 import os
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from softjig.errors import InputError
-from softjig.io.files import write_text_atomic
+from softjig.files import write_text_atomic
+from softjig.tilt_calibration import TiltCalibration
 
 #: Plausible scales ``S``. A pinhole triangulation that ignores the plate and the oil compresses depth by
 #: about their refractive index (1.5), so the paper's method needs ``S`` near 1.5 and a metric method near
@@ -29,40 +29,6 @@ from softjig.io.files import write_text_atomic
 #: in radians, another part's frames), and applying it would scale every tilt by that error.
 SCALE_RANGE = (0.1, 10.0)
 _MIN_SPREAD_RAD = 1e-9  # tilt angles spread less than this (rad) do not vary (rounding only)
-
-
-@dataclass(frozen=True)
-class TiltCalibration:
-    """Offsets (rad) and scale of the paper's tilt calibration; the identity by default.
-
-    ``method`` is the estimation method whose tilt angles it was fitted to (``None``: not recorded): a
-    calibration corrects one method's errors and must not be applied to another's.
-    """
-
-    offset_x_rad: float = 0.0
-    offset_y_rad: float = 0.0
-    scale: float = 1.0
-    method: str | None = None
-
-    def __post_init__(self) -> None:
-        for name in ("offset_x_rad", "offset_y_rad", "scale"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int | float | np.floating | np.integer):
-                raise InputError(f"TiltCalibration.{name} must be a number, got {value!r}")
-            if not np.isfinite(value):
-                raise InputError(f"TiltCalibration.{name} must be finite, got {value}")
-        if not self.scale > 0:
-            raise InputError(f"TiltCalibration.scale must be positive, got {self.scale}")
-
-    def apply(self, ax_rad, ay_rad):
-        """Corrected tilt angles ``S (A - O)`` (rad); scalars or arrays."""
-        return self.scale * (np.asarray(ax_rad) - self.offset_x_rad), self.scale * (
-            np.asarray(ay_rad) - self.offset_y_rad
-        )
-
-    def is_identity(self) -> bool:
-        """True when applying it changes nothing."""
-        return self.offset_x_rad == 0 and self.offset_y_rad == 0 and self.scale == 1
 
 
 def fit_tilt_calibration(

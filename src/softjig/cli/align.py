@@ -1,4 +1,4 @@
-"""`softjig align-jig`: the jig's pose in the robot base frame from a hand-eye image (issue 7)."""
+"""`softjig align-jig`: the jig's pose in the robot base frame from a hand-eye image."""
 
 from __future__ import annotations
 
@@ -57,8 +57,8 @@ def align_jig(
 
     from softjig.calibration.alignment import align_jig_to_robot, check_intrinsics
     from softjig.config import CameraConfig
+    from softjig.files import write_text_atomic
     from softjig.io.dataset import load_image
-    from softjig.io.files import write_text_atomic
 
     jig = load_config(config)
     cam_data = read_json_file(camera, "--camera")

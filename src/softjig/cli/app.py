@@ -99,6 +99,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "softjig.cli.simulate",
         "Render a simulated dataset: the paper's sweep, the cube experiment, a single frame or a jig zoo.",
     ),
+    "study": ("softjig.cli.study", "Run a design study: render and estimate every design; Parquet results."),
     "survey": (
         "softjig.cli.survey",
         "Survey the unloaded jig: write a rig whose marker layout and rest shape are the measured ones.",

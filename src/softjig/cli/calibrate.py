@@ -1,4 +1,4 @@
-"""`softjig calibrate`: the paper's tilt calibration (Ox, Oy, S) from a sweep dataset (issue 4)."""
+"""`softjig calibrate`: the paper's tilt calibration (Ox, Oy, S) from a sweep dataset."""
 
 from __future__ import annotations
 
@@ -53,7 +53,8 @@ def calibrate(
     """Fit the paper's tilt calibration (offsets Ox, Oy and scale S) to a tilt sweep and write it as JSON."""
     from rich.progress import Progress
 
-    from softjig.calibration.sweep import calibrate_dataset, load_result_rows, save_sweep_calibration
+    from softjig.calibration.sweep import load_result_rows, save_sweep_calibration
+    from softjig.io.batch import calibrate_dataset
     from softjig.io.dataset import Dataset
 
     method, frames = Method(method).value, FrameSelection(frames).value

@@ -1,4 +1,4 @@
-"""`softjig calibrate-stereo`: stereo camera calibration from chessboard/ChArUco views (issue 7)."""
+"""`softjig calibrate-stereo`: stereo camera calibration from chessboard/ChArUco views."""
 
 from __future__ import annotations
 
@@ -69,8 +69,8 @@ def calibrate_stereo(
     """Calibrate the stereo pair (intrinsics, distortion, baseline, rectification); write the rig config."""
     from softjig.calibration.stereo import Board, calibrate_stereo, parse_board_size, rig_from_calibration
     from softjig.config import save_jig
+    from softjig.files import write_text_atomic
     from softjig.io.dataset import load_image
-    from softjig.io.files import write_text_atomic
 
     for option, path in (("--out", out), ("--report", report)):
         if path is not None and path.is_dir():

@@ -1,4 +1,4 @@
-"""`softjig compare`: the paper's method and ours side by side on a tilt sweep (issue 6)."""
+"""`softjig compare`: the paper's method and ours side by side on a tilt sweep."""
 
 from __future__ import annotations
 
@@ -36,7 +36,7 @@ def compare(
     """RMSE of the paper's method (calibrated) beside ours (uncalibrated and calibrated), held out."""
     from rich.progress import Progress
 
-    from softjig.evaluation.compare import compare_methods
+    from softjig.experiments.compare import compare_methods
     from softjig.io.dataset import Dataset
 
     data = Dataset.open(dataset)

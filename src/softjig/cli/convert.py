@@ -10,6 +10,8 @@ import typer
 from rich.progress import Progress
 
 from softjig.cli.app import app, handle_errors, load_config, stderr_console, warn
+from softjig.cli.choices import DEFAULT_METHOD, Method
+from softjig.cli.options import ConfigOption, MethodOption
 from softjig.errors import InputError
 
 
@@ -23,10 +25,7 @@ def convert(
     out: Annotated[
         Path, typer.Argument(help="The bag folder (from a DATASET) or the dataset folder (from a BAG).")
     ],
-    config: Annotated[
-        Path | None,
-        typer.Option(help="The nominal jig (rig.toml).", show_default="the dataset's or the bag's own rig"),
-    ] = None,
+    config: ConfigOption = None,
     estimate: Annotated[
         bool,
         typer.Option(
@@ -35,9 +34,7 @@ def convert(
             "/softjig/frame)."
         ),
     ] = True,
-    method: Annotated[
-        str | None, typer.Option(help="DATASET: estimation method.", show_default="the estimator's default")
-    ] = None,
+    method: MethodOption = DEFAULT_METHOD,
     start_time: Annotated[
         float | None,
         typer.Option(
@@ -120,7 +117,7 @@ def convert(
             out,
             jig=jig,
             estimate=estimate,
-            method=method,
+            method=Method(method).value,
             overwrite=overwrite,
             start_unix_s=start_time,
             on_frame=lambda _i: bar.advance(task),

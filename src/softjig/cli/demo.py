@@ -1,4 +1,4 @@
-"""`softjig demo`: the paper's experiments on the simulated jig, end to end (issue 4)."""
+"""`softjig demo`: the paper's experiments on the simulated jig, end to end."""
 
 from __future__ import annotations
 
@@ -79,7 +79,8 @@ def demo(
     """
     from rich.console import Console
 
-    from softjig.evaluation.experiment import ExperimentSettings, quick_settings, run_experiment
+    from softjig.evaluation.experiment import ExperimentSettings, quick_settings
+    from softjig.experiments.paper import run_experiment
 
     extra: dict = {
         "split": "alternate" if holdout else "none",

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import time
-from enum import StrEnum
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
@@ -11,19 +10,12 @@ import typer
 from rich.console import Console
 
 from softjig.cli.app import app, handle_errors, load_config, stderr_console, warn
+from softjig.cli.choices import DEFAULT_METHOD
+from softjig.cli.options import CalibrationOption, ConfigOption, MethodOption, PartDiameterOption
 from softjig.errors import InputError
-from softjig.sensing.pipeline import DEFAULT_METHOD
 
 if TYPE_CHECKING:
     from softjig.calibration.tilt import TiltCalibration
-
-
-class Method(StrEnum):
-    refractive = "refractive"
-    paper = "paper"
-
-
-DEFAULT_METHOD_CHOICE = Method(DEFAULT_METHOD)
 
 
 def _print_estimate_table(estimate: dict) -> None:
@@ -98,31 +90,10 @@ def estimate(
             show_default=False,
         ),
     ],
-    config: Annotated[
-        Path | None,
-        typer.Option(
-            help="The nominal jig (rig.toml); required for a pair, a dataset's own rig.toml by default."
-        ),
-    ] = None,
-    part_diameter: Annotated[
-        float | None,
-        typer.Option(
-            help="Diameter of the part's base in mm: the paper's crop (--method paper needs it); the "
-            "refractive method finds the contact itself and uses it only to judge partial contact. A "
-            "dataset's frames name their part."
-        ),
-    ] = None,
-    calibration: Annotated[
-        Path | None, typer.Option(help="Tilt calibration JSON (offset_x_deg, offset_y_deg, scale) to apply.")
-    ] = None,
-    method: Annotated[
-        Method,
-        typer.Option(
-            help="refractive: ours (refraction-aware, contact found from the indentation, robust plane, "
-            "uncertainty, position; needs no tilt calibration); paper: the paper's method exactly as "
-            "published."
-        ),
-    ] = DEFAULT_METHOD_CHOICE,
+    config: ConfigOption = None,
+    part_diameter: PartDiameterOption = None,
+    calibration: CalibrationOption = None,
+    method: MethodOption = DEFAULT_METHOD,
     reference_left: Annotated[
         Path | None, typer.Option(help="PAIR: left image of the unloaded jig (a reference frame).")
     ] = None,
@@ -185,14 +156,9 @@ def estimate(
             "--reference-right": reference_right,
             "--displacements": displacements,
         }
-        given = [name for name, value in pair_only.items() if value]
-        if given:
-            raise InputError(f"{', '.join(given)} apply to a stereo pair; a DATASET's results go to --out")
-        if not part_size and (part_diameter is not None or method_name == "paper"):
-            raise InputError(
-                "--no-part-size estimates without the part's size: it excludes --part-diameter and "
-                "--method paper (which needs the size)"
-            )
+        _check_dataset_options(
+            pair_only, part_size=part_size, part_diameter=part_diameter, method=method_name
+        )
         from softjig.io.rosbag import is_bag
 
         if is_bag(inputs[0]):  # a ROS 2 bag: its folder or its .mcap (softjig.cli.estimate_bag)
@@ -210,17 +176,9 @@ def estimate(
             inputs=(config, calibration), part_size=part_size,
         )  # fmt: skip
         return
-    if len(inputs) != 2:
-        raise InputError(f"give LEFT RIGHT (a stereo pair) or one DATASET folder, got {len(inputs)} paths")
-    if config is None:
-        raise InputError("estimating a stereo pair needs --config RIG.toml (the jig and its cameras)")
-    if (reference_left is None) != (reference_right is None):
-        raise InputError("give both --reference-left and --reference-right (one unloaded stereo pair)")
-    if out is not None or workers is not None or not part_size:
-        raise InputError(
-            "--out, --workers and --no-part-size apply to a DATASET, not to a stereo pair (whose part size "
-            "is --part-diameter, or none)"
-        )
+    _check_pair_options(
+        inputs, config, reference_left, reference_right, out=out, workers=workers, part_size=part_size
+    )
     from softjig.io.dataset import load_image
     from softjig.sensing.estimator import Estimator
 
@@ -233,8 +191,8 @@ def estimate(
     result = estimator.estimate(left, right, part_diameter_mm=part_diameter)
     if overlay is not None:
         from softjig.evaluation.overlay import draw_overlay
+        from softjig.files import write_bytes_atomic
         from softjig.io.dataset import encode_png
-        from softjig.io.files import write_bytes_atomic
         from softjig.sensing.rectify import rectify_pair
 
         left, right, used_jig = rectify_pair(left, right, jig)  # the markers' pixels are rectified ones
@@ -248,6 +206,44 @@ def estimate(
         typer.echo(json.dumps(data))
     else:
         _print_estimate_table(data)
+
+
+def _check_dataset_options(
+    pair_only: dict[str, object], *, part_size: bool, part_diameter: float | None, method: str
+) -> None:
+    """Refuse, for one DATASET or BAG, the options of a stereo pair and a size-less paper estimate."""
+    given = [name for name, value in pair_only.items() if value]
+    if given:
+        raise InputError(f"{', '.join(given)} apply to a stereo pair; a DATASET's results go to --out")
+    if not part_size and (part_diameter is not None or method == "paper"):
+        raise InputError(
+            "--no-part-size estimates without the part's size: it excludes --part-diameter and "
+            "--method paper (which needs the size)"
+        )
+
+
+def _check_pair_options(
+    inputs: list[Path],
+    config: Path | None,
+    reference_left: Path | None,
+    reference_right: Path | None,
+    *,
+    out: Path | None,
+    workers: int | None,
+    part_size: bool,
+) -> None:
+    """Refuse, for a stereo pair, a wrong number of paths, a missing config and the DATASET options."""
+    if len(inputs) != 2:
+        raise InputError(f"give LEFT RIGHT (a stereo pair) or one DATASET folder, got {len(inputs)} paths")
+    if config is None:
+        raise InputError("estimating a stereo pair needs --config RIG.toml (the jig and its cameras)")
+    if (reference_left is None) != (reference_right is None):
+        raise InputError("give both --reference-left and --reference-right (one unloaded stereo pair)")
+    if out is not None or workers is not None or not part_size:
+        raise InputError(
+            "--out, --workers and --no-part-size apply to a DATASET, not to a stereo pair (whose part size "
+            "is --part-diameter, or none)"
+        )
 
 
 def _estimate_dataset(

@@ -15,8 +15,9 @@ import time
 import warnings
 from collections import deque
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import typer
 
@@ -66,12 +67,9 @@ def estimate_bag(
     """Estimate every pair of a bag and stream the rows to ``out`` (default ``BAG_estimates.jsonl`` beside
     the bag). The reference frame (refractive method) is a softjig bag's reference pair that comes before
     its first loaded pair, as simulations and recordings write it."""
-    from rich.progress import Progress
-
     from softjig.io.bag_convert import no_pairs_error
-    from softjig.io.batch import BatchSettings, RowsWriter, estimate_dataset
+    from softjig.io.batch import BatchSettings
     from softjig.io.rosbag import BagReader, BagTruncationWarning
-    from softjig.sensing.pipeline import reference_from_pair
 
     if out is None:
         out = path.parent / f"{path.stem if path.is_file() else path.name}_estimates.jsonl"
@@ -93,14 +91,7 @@ def estimate_bag(
             )
         stream = reader.pairs(topics, tolerance_s=stamp_tolerance_s)
         pairs = iter(stream)
-        lead = []
-        reference = None
-        for pair in pairs:  # a reference pair before the first loaded one
-            lead.append(pair)
-            if not pair.reference:
-                break
-            if reference is None and use_reference and method == "refractive":
-                reference = reference_from_pair(pair.left, pair.right, jig)
+        lead, reference = _lead_pairs(pairs, jig, use_reference=use_reference and method == "refractive")
         if not lead:
             raise no_pairs_error(path, topics, stream)
         settings = BatchSettings(
@@ -112,28 +103,11 @@ def estimate_bag(
             frame_part_size=part_size,
         )
         sized = _Pairs(itertools.chain(lead, pairs))
-        n_rows = n_loaded = n_failed = 0
-        late_references = 0
-        first_failure = None
-        with (
-            RowsWriter(out) as writer,
-            Progress(console=stderr_console(), disable=not progress, transient=True) as bar,
-        ):
-            task = bar.add_task("estimating", total=stream.upper_bound)
-            for row in estimate_dataset(sized, settings, workers=workers):
-                row = {**row, **sized.stamps.popleft()}
-                writer.write(row)
-                bar.advance(task)
-                n_rows += 1
-                if row.get("reference") is True:
-                    late_references += n_loaded > 0
-                    continue
-                n_loaded += 1
-                if "error" in row:
-                    n_failed += 1
-                    first_failure = first_failure or row
+        tally = _write_rows(
+            sized, settings, out, workers=workers, progress=progress, total=stream.upper_bound
+        )
     typer.echo(
-        f"estimated {n_loaded - n_failed} of {n_loaded} loaded pairs of {path} in "
+        f"estimated {tally.n_loaded - tally.n_failed} of {tally.n_loaded} loaded pairs of {path} in "
         f"{time.perf_counter() - t0:.1f} s ({method}"
         + (", indentations against the reference frame" if reference is not None else "")
         + f"); wrote {out}"
@@ -143,16 +117,79 @@ def estimate_bag(
             f"{stream.unpaired} images of {topics.left} / {topics.right} found no partner within "
             f"{stamp_tolerance_s * 1000:g} ms and were skipped (--stamp-tolerance)"
         )
-    if late_references:
-        warn(f"{late_references} reference frames after the first loaded one were not used as the reference")
-    if n_loaded == 0:
-        raise EstimationError(f"{path} holds only unloaded reference frames: no pair with a part to estimate")
-    if first_failure is not None:
-        message = (
-            f"{n_failed} pairs gave no estimate (see their 'error' in {out}), e.g. pair "
-            f"{first_failure['index']}: {first_failure['error']}"
+    _check_tally(tally, path, out)
+
+
+def _lead_pairs(pairs: Iterator[BagPair], jig, *, use_reference: bool) -> tuple[list[BagPair], Any]:
+    """Read the pairs up to the first loaded one; the reference frame from the first reference pair among
+    them when ``use_reference`` (else ``None``)."""
+    from softjig.sensing.pipeline import reference_from_pair
+
+    lead = []
+    reference = None
+    for pair in pairs:  # a reference pair before the first loaded one
+        lead.append(pair)
+        if not pair.reference:
+            break
+        if reference is None and use_reference:
+            reference = reference_from_pair(pair.left, pair.right, jig)
+    return lead, reference
+
+
+@dataclass
+class _Tally:
+    """What the rows of a bag said: loaded pairs, those that failed (the first of them), and reference
+    pairs after the first loaded one (not used)."""
+
+    n_loaded: int = 0
+    n_failed: int = 0
+    late_references: int = 0
+    first_failure: dict | None = None
+
+
+def _write_rows(
+    sized: _Pairs, settings: Any, out: Path, *, workers: int | None, progress: bool, total: int | None
+) -> _Tally:
+    """Estimate the pairs and stream each row, with its pair's stamps, to ``out``."""
+    from rich.progress import Progress
+
+    from softjig.io.batch import RowsWriter, estimate_dataset
+
+    tally = _Tally()
+    with (
+        RowsWriter(out) as writer,
+        Progress(console=stderr_console(), disable=not progress, transient=True) as bar,
+    ):
+        task = bar.add_task("estimating", total=total)
+        for row in estimate_dataset(sized, settings, workers=workers):
+            row = {**row, **sized.stamps.popleft()}
+            writer.write(row)
+            bar.advance(task)
+            if row.get("reference") is True:
+                tally.late_references += tally.n_loaded > 0
+                continue
+            tally.n_loaded += 1
+            if "error" in row:
+                tally.n_failed += 1
+                tally.first_failure = tally.first_failure or row
+    return tally
+
+
+def _check_tally(tally: _Tally, path: Path, out: Path) -> None:
+    """Warn of unused reference pairs and of failed pairs; exit 3 when no loaded pair gave an estimate."""
+    if tally.late_references:
+        warn(
+            f"{tally.late_references} reference frames after the first loaded one were not used as the "
+            "reference"
         )
-        if n_failed == n_loaded:  # every error is written; the run itself failed (exit 3)
+    if tally.n_loaded == 0:
+        raise EstimationError(f"{path} holds only unloaded reference frames: no pair with a part to estimate")
+    if tally.first_failure is not None:
+        message = (
+            f"{tally.n_failed} pairs gave no estimate (see their 'error' in {out}), e.g. pair "
+            f"{tally.first_failure['index']}: {tally.first_failure['error']}"
+        )
+        if tally.n_failed == tally.n_loaded:  # every error is written; the run itself failed (exit 3)
             raise EstimationError(f"no pair of {path} gave an estimate: {message}")
         warn(message)
 

@@ -1,5 +1,4 @@
-"""`softjig fiducials`: print the fiducial layout (`sheet`) and check it from a stereo pair (`check`)
-(issue 7)."""
+"""`softjig fiducials`: print the fiducial layout (`sheet`) and check it from a stereo pair (`check`)."""
 
 from __future__ import annotations
 
@@ -47,7 +46,7 @@ def sheet(
     """Write a sheet with the fiducials at exact scale (the view from the cameras) and their config."""
     from softjig.calibration.fiducial_layout import fiducial_sheet, projected_fiducials, with_fiducials
     from softjig.config import save_jig
-    from softjig.io.files import write_bytes_atomic
+    from softjig.files import write_bytes_atomic
 
     jig = load_config(config)
     jig = with_fiducials(

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import signal
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated
 
@@ -10,24 +11,25 @@ import typer
 
 from softjig.cli.app import EXIT_BAD_INPUT, EXIT_NO_ESTIMATE, app, error, handle_errors, load_config, warn
 from softjig.cli.choices import DEFAULT_METHOD, Method, ReplayRate
+from softjig.cli.options import (
+    DEFAULT_FPS,
+    CalibrationOption,
+    ConfigOption,
+    FpsOption,
+    MethodOption,
+    PartDiameterOption,
+    ReplayOption,
+    ReplayRateOption,
+    SourceOption,
+)
 from softjig.errors import InputError
 
 
 @app.command()
 @handle_errors
 def live(
-    replay: Annotated[
-        Path | None, typer.Option(help="Replay this dataset as if it were the cameras.", show_default=False)
-    ] = None,
-    source: Annotated[
-        str | None,
-        typer.Option(
-            help="Cameras: realsense-ir[:SERIAL] (one D4xx's infrared pair), realsense, "
-            "realsense:LEFT_SERIAL,RIGHT_SERIAL, or opencv:LEFT,RIGHT (device numbers, /dev paths or "
-            "video files).",
-            show_default=False,
-        ),
-    ] = None,
+    replay: ReplayOption = None,
+    source: SourceOption = None,
     publish: Annotated[
         str | None,
         typer.Option(
@@ -52,39 +54,12 @@ def live(
     max_frames: Annotated[
         int | None, typer.Option(min=1, help="Stop after this many captured pairs.", show_default="no limit")
     ] = None,
-    config: Annotated[
-        Path | None,
-        typer.Option(
-            help="The nominal jig (rig.toml).", show_default="the replay's rig.toml, else the default jig"
-        ),
-    ] = None,
-    part_diameter: Annotated[
-        float | None,
-        typer.Option(
-            help="Diameter of the part's base in mm (the crop).", show_default="each replayed frame's part"
-        ),
-    ] = None,
-    calibration: Annotated[
-        Path | None, typer.Option(help="Tilt calibration JSON to apply.", show_default=False)
-    ] = None,
-    method: Annotated[
-        Method | None,
-        typer.Option(
-            help="Estimation method: refractive (ours) or paper (as published).",
-            show_default=f"the estimator's default, {DEFAULT_METHOD}",
-        ),
-    ] = None,
-    rate: Annotated[
-        ReplayRate,
-        typer.Option(
-            help="Replay: 'recorded' (its own rate; busy frames are dropped, as with cameras) or "
-            "'fast' (every frame, as fast as possible)."
-        ),
-    ] = ReplayRate.recorded,
-    fps: Annotated[
-        float,
-        typer.Option(min=0.1, help="Camera frame rate; a replay's rate for frames without time_s (Hz)."),
-    ] = 30.0,
+    config: ConfigOption = None,
+    part_diameter: PartDiameterOption = None,
+    calibration: CalibrationOption = None,
+    method: MethodOption = DEFAULT_METHOD,
+    rate: ReplayRateOption = ReplayRate.recorded,
+    fps: FpsOption = DEFAULT_FPS,
     mcap: Annotated[
         Path | None,
         typer.Option(
@@ -111,47 +86,25 @@ def live(
 ) -> None:
     """Capture, estimate and publish at camera rate until the replay ends, --max-frames, or Ctrl-C."""
     from softjig.calibration.tilt import load_tilt_calibration
-    from softjig.config import CylinderPart, part_to_dict
-    from softjig.io.cameras import ReplaySource, open_source
     from softjig.io.stream import TOPIC_ESTIMATE, encode_message
-    from softjig.live.loop import LiveLoop, LiveSettings, PublisherSink, Recorder
+    from softjig.live.loop import LiveLoop, LiveSettings
+    from softjig.live.serve import first_loaded_pair, warm_up
 
-    method = None if method is None else method.value
-    rate = rate.value
+    method = Method(method).value
+    rate = ReplayRate(rate).value
     if (replay is None) == (source is None):
         raise InputError("give either --replay DATASET or --source CAMERAS (e.g. --source opencv:0,1)")
+    if record is not None and record_bag is not None:
+        raise InputError(
+            "give --record DIR or --record-bag OUT, not both (softjig convert turns one into the other)"
+        )
     cal = load_tilt_calibration(calibration) if calibration else None
     if replay is not None:
-        import warnings
-
-        from softjig.io.dataset import DatasetLineWarning
-
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", DatasetLineWarning)  # shown below, once, as a warning line
-            cameras = ReplaySource(replay, rate=rate, fps=fps)
-        for note in cameras.dataset.warnings:
-            warn(note)
-        if len(cameras.dataset) == 0:
-            raise InputError(f"{replay} has no frames (its frames.jsonl lists none): nothing to replay")
-        if record is not None and record.resolve().is_relative_to(cameras.dataset.root.resolve()):
-            raise InputError(
-                f"--record {record} is inside the replayed dataset {replay}: recording there would "
-                "replace what is replayed; record to another folder"
-            )
-        jig = load_config(config) if config else cameras.dataset.jig
+        cameras, jig = _open_replay(replay, rate=rate, fps=fps, config=config, record=record)
     else:
-        if rate != "recorded":
-            raise InputError("--rate applies to --replay, not to cameras")
-        if config is None:
-            warn("no --config: using the default (the paper's) jig; pass the rig.toml of your cameras")
-        jig = load_config(config)
-        if part_diameter is None and (method or DEFAULT_METHOD) == "paper":
-            raise InputError(
-                "the paper's method (the default --method) on live cameras needs --part-diameter MM (the "
-                "part's base diameter), or use --method refractive"
-            )
-        cam = jig.cameras.left
-        cameras = open_source(source, width_px=cam.width_px, height_px=cam.height_px, fps=fps)
+        cameras, jig = _open_cameras(
+            source, rate=rate, fps=fps, config=config, method=method, part_diameter=part_diameter
+        )
     settings = LiveSettings(
         jig=jig,
         part_diameter_mm=part_diameter,
@@ -160,50 +113,19 @@ def live(
         max_frames=max_frames,
         health_period_s=health_period,
     )
-    sinks: list = []
-    recorder = None
-    try:
-        if rerun or rerun_save is not None:
-            from softjig.live.rerun_viewer import RerunViewer
-
-            sinks.append(RerunViewer(save_path=rerun_save, spawn=rerun, overwrite=overwrite))
-        if publish is not None:
-            from softjig.io.stream import Publisher
-
-            publisher = Publisher(publish, allow_remote=allow_remote)
-            sinks.append(PublisherSink(publisher))
-            typer.echo(f"publishing on {publisher.endpoint}", err=True)
-        if mcap is not None or view:
-            from softjig.live.viewer import FoxgloveViewer
-
-            viewer = FoxgloveViewer(
-                mcap_path=mcap,
-                serve=view,
-                port=view_port,
-                allow_remote=allow_remote,
-                host="0.0.0.0" if allow_remote else "127.0.0.1",
-                overwrite=overwrite,
-            )
-            sinks.append(viewer)
-            if view:
-                typer.echo(f"live view: open ws://127.0.0.1:{viewer.port} in the Foxglove app", err=True)
-        if record is not None and record_bag is not None:
-            raise InputError(
-                "give --record DIR or --record-bag OUT, not both (softjig convert turns one into the other)"
-            )
-        if record is not None:
-            default_part = part_to_dict(CylinderPart(part_diameter)) if part_diameter else None
-            recorder = Recorder(record, jig, default_part=default_part, overwrite=overwrite)
-        if record_bag is not None:  # a recorder of pairs and a sink of estimates (softjig.live.record_bag)
-            from softjig.live.record_bag import BagRecorder
-
-            default_part = part_to_dict(CylinderPart(part_diameter)) if part_diameter else None
-            recorder = BagRecorder(record_bag, jig, default_part=default_part, overwrite=overwrite)
-            sinks.append(recorder)
-    except BaseException:
-        for sink in sinks:
-            sink.close()
-        raise
+    outputs = _Outputs(
+        publish=publish,
+        record=record,
+        record_bag=record_bag,
+        mcap=mcap,
+        view=view,
+        view_port=view_port,
+        allow_remote=allow_remote,
+        rerun=rerun,
+        rerun_save=rerun_save,
+        overwrite=overwrite,
+    )
+    sinks, recorder = _open_outputs(outputs, jig, part_diameter)
 
     def on_outcome(_outcome, message) -> None:
         if jsonl:  # exactly what goes on the wire: with schema and version
@@ -214,8 +136,6 @@ def live(
     def on_sigterm(_signum, _frame) -> None:
         raise KeyboardInterrupt
 
-    from softjig.live.serve import first_loaded_pair, warm_up
-
     # Before the cameras open (loop.run opens them): the first pair is estimated as fast as the hundredth.
     first_pair = first_loaded_pair(cameras.dataset) if replay is not None else None
     typer.echo(f"warmed up in {warm_up(settings, first_pair):.2f} s", err=True)
@@ -224,6 +144,119 @@ def live(
         summary = loop.run()
     finally:
         signal.signal(signal.SIGTERM, previous)
+    _report(summary, record or record_bag)
+
+
+def _open_replay(replay: Path, *, rate: str, fps: float, config: Path | None, record: Path | None):
+    """The replayed dataset as the cameras, and the jig (``--config``, else the dataset's)."""
+    import warnings
+
+    from softjig.io.cameras import ReplaySource
+    from softjig.io.dataset import DatasetLineWarning
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DatasetLineWarning)  # shown below, once, as a warning line
+        cameras = ReplaySource(replay, rate=rate, fps=fps)
+    for note in cameras.dataset.warnings:
+        warn(note)
+    if len(cameras.dataset) == 0:
+        raise InputError(f"{replay} has no frames (its frames.jsonl lists none): nothing to replay")
+    if record is not None and record.resolve().is_relative_to(cameras.dataset.root.resolve()):
+        raise InputError(
+            f"--record {record} is inside the replayed dataset {replay}: recording there would "
+            "replace what is replayed; record to another folder"
+        )
+    return cameras, (load_config(config) if config else cameras.dataset.jig)
+
+
+def _open_cameras(
+    source: str, *, rate: str, fps: float, config: Path | None, method: str, part_diameter: float | None
+):
+    """The cameras of ``--source``, and the jig (``--config``, else the default one, with a warning)."""
+    from softjig.io.cameras import open_source
+
+    if rate != "recorded":
+        raise InputError("--rate applies to --replay, not to cameras")
+    if config is None:
+        warn("no --config: using the default (the paper's) jig; pass the rig.toml of your cameras")
+    jig = load_config(config)
+    if part_diameter is None and method == "paper":
+        raise InputError(
+            "the paper's method on live cameras needs --part-diameter MM (the part's base diameter), "
+            "or use --method refractive"
+        )
+    cam = jig.cameras.left
+    return open_source(source, width_px=cam.width_px, height_px=cam.height_px, fps=fps), jig
+
+
+@dataclass(frozen=True)
+class _Outputs:
+    """Where the loop's pairs and estimates go (the options of the same names)."""
+
+    publish: str | None
+    record: Path | None
+    record_bag: Path | None
+    mcap: Path | None
+    view: bool
+    view_port: int
+    allow_remote: bool
+    rerun: bool
+    rerun_save: Path | None
+    overwrite: bool
+
+
+def _open_outputs(out: _Outputs, jig, part_diameter: float | None) -> tuple[list, object | None]:
+    """Open the sinks (Rerun, the publisher, Foxglove) and the recorder; everything opened is closed again
+    if one fails to open."""
+    from softjig.config import CylinderPart, part_to_dict
+    from softjig.live.loop import PublisherSink, Recorder
+
+    sinks: list = []
+    recorder = None
+    default_part = part_to_dict(CylinderPart(part_diameter)) if part_diameter else None
+    try:
+        if out.rerun or out.rerun_save is not None:
+            from softjig.live.rerun_viewer import RerunViewer
+
+            sinks.append(RerunViewer(save_path=out.rerun_save, spawn=out.rerun, overwrite=out.overwrite))
+        if out.publish is not None:
+            from softjig.io.stream import Publisher
+
+            publisher = Publisher(out.publish, allow_remote=out.allow_remote)
+            sinks.append(PublisherSink(publisher))
+            typer.echo(f"publishing on {publisher.endpoint}", err=True)
+        if out.mcap is not None or out.view:
+            from softjig.live.viewer import FoxgloveViewer
+
+            viewer = FoxgloveViewer(
+                mcap_path=out.mcap,
+                serve=out.view,
+                port=out.view_port,
+                allow_remote=out.allow_remote,
+                host="0.0.0.0" if out.allow_remote else "127.0.0.1",
+                overwrite=out.overwrite,
+            )
+            sinks.append(viewer)
+            if out.view:
+                typer.echo(f"live view: open ws://127.0.0.1:{viewer.port} in the Foxglove app", err=True)
+        if out.record is not None:
+            recorder = Recorder(out.record, jig, default_part=default_part, overwrite=out.overwrite)
+        if (
+            out.record_bag is not None
+        ):  # a recorder of pairs and a sink of estimates (softjig.live.record_bag)
+            from softjig.live.record_bag import BagRecorder
+
+            recorder = BagRecorder(out.record_bag, jig, default_part=default_part, overwrite=out.overwrite)
+            sinks.append(recorder)
+    except BaseException:
+        for sink in sinks:
+            sink.close()
+        raise
+    return sinks, recorder
+
+
+def _report(summary, recorded_to: Path | None) -> None:
+    """Print the run's summary on stderr; exit 2 or 3 when it gave nothing (an interrupted run only warns)."""
     final = summary.final
     median = "-" if final.latency_median_s is None else f"{1000 * final.latency_median_s:.0f} ms"
     p95 = "-" if final.latency_p95_s is None else f"{1000 * final.latency_p95_s:.0f} ms"
@@ -232,7 +265,7 @@ def live(
         f"{final.processed} estimated ({final.estimated} with an estimate, {final.failed} without), "
         f"{final.dropped} dropped while busy, latency median {median} / p95 {p95}, "
         f"{summary.throughput_hz:.1f} frames/s"
-        + (f", {final.recorded} recorded to {record or record_bag}" if record or record_bag else "")
+        + (f", {final.recorded} recorded to {recorded_to}" if recorded_to else "")
         + (f" ({final.not_recorded} not recorded)" if final.not_recorded else "")
         + (f", {final.camera_errors} camera errors" if final.camera_errors else "")
         + (f", {final.bad_frames} unreadable frames skipped" if final.bad_frames else ""),

@@ -1,5 +1,5 @@
 """`softjig mocap`: a dataset's estimates against an OptiTrack Motive CSV export (the paper's cube
-experiment, on its own; issue 14)."""
+experiment, on its own)."""
 
 from __future__ import annotations
 

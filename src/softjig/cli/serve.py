@@ -3,31 +3,31 @@
 from __future__ import annotations
 
 import signal
-from pathlib import Path
 from typing import Annotated
 
 import typer
 
 from softjig.cli.app import app, handle_errors, load_config, warn
 from softjig.cli.choices import DEFAULT_METHOD, Method, ReplayRate
+from softjig.cli.options import (
+    DEFAULT_FPS,
+    CalibrationOption,
+    ConfigOption,
+    FpsOption,
+    MethodOption,
+    PartDiameterOption,
+    ReplayOption,
+    ReplayRateOption,
+    SourceOption,
+)
 from softjig.errors import InputError
 
 
 @app.command()
 @handle_errors
 def serve(
-    replay: Annotated[
-        Path | None,
-        typer.Option(help="Serve from this dataset, replayed as the cameras.", show_default=False),
-    ] = None,
-    source: Annotated[
-        str | None,
-        typer.Option(
-            help="Cameras: realsense-ir[:SERIAL], realsense, realsense:LEFT_SERIAL,RIGHT_SERIAL, or "
-            "opencv:LEFT,RIGHT.",
-            show_default=False,
-        ),
-    ] = None,
+    replay: ReplayOption = None,
+    source: SourceOption = None,
     bind: Annotated[
         str, typer.Option(help="ZeroMQ REP endpoint to answer on (loopback unless --allow-remote).")
     ] = "tcp://127.0.0.1:5556",
@@ -39,30 +39,13 @@ def serve(
             show_default=False,
         ),
     ] = None,
-    config: Annotated[
-        Path | None,
-        typer.Option(
-            help="The nominal jig (rig.toml).", show_default="the replay's rig.toml, else the default"
-        ),
-    ] = None,
-    part_diameter: Annotated[
-        float | None,
-        typer.Option(help="Diameter of the part's base in mm.", show_default="each replayed frame's part"),
-    ] = None,
-    calibration: Annotated[
-        Path | None, typer.Option(help="Tilt calibration JSON.", show_default=False)
-    ] = None,
-    method: Annotated[
-        Method | None,
-        typer.Option(
-            help="refractive (ours) or paper (as published).", show_default="the estimator's default"
-        ),
-    ] = None,
-    rate: Annotated[
-        ReplayRate, typer.Option(help="Replay: its recorded rate (like cameras) or fast.")
-    ] = ReplayRate.recorded,
+    config: ConfigOption = None,
+    part_diameter: PartDiameterOption = None,
+    calibration: CalibrationOption = None,
+    method: MethodOption = DEFAULT_METHOD,
+    rate: ReplayRateOption = ReplayRate.recorded,
     loop: Annotated[bool, typer.Option(help="Replay: start again at the first frame after the last.")] = True,
-    fps: Annotated[float, typer.Option(min=0.1, help="Camera frame rate (Hz).")] = 30.0,
+    fps: FpsOption = DEFAULT_FPS,
     settle_s: Annotated[
         float,
         typer.Option(min=0.0, help="settled: how long the estimate must stay within its sigma (s)."),
@@ -102,7 +85,7 @@ def serve(
         warm_up,
     )
 
-    method = None if method is None else method.value
+    method = Method(method).value
     rate = rate.value
     if (replay is None) == (source is None):
         raise InputError("give either --replay DATASET or --source CAMERAS (e.g. --source opencv:0,1)")
@@ -132,7 +115,7 @@ def serve(
         if config is None:
             warn("no --config: using the default (the paper's) jig; pass the rig.toml of your cameras")
         jig = load_config(config)
-        if part_diameter is None and (method or DEFAULT_METHOD) == "paper":
+        if part_diameter is None and method == "paper":
             raise InputError("the paper's method on live cameras needs --part-diameter MM")
         cam = jig.cameras.left
         cameras = open_source(source, width_px=cam.width_px, height_px=cam.height_px, fps=fps)

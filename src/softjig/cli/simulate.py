@@ -73,6 +73,7 @@ def simulate(
     The zoo draws random jig designs into DIR/000, DIR/001, ...: each a dataset with its own rig, its
     reference frame first."""
     from softjig.config import CylinderPart
+    from softjig.io import simulated
     from softjig.sim import scenarios
 
     given = {
@@ -137,7 +138,7 @@ def simulate(
         )
     out = out or Path("out") / f"sim-{scenario.value}"
     t0 = time.perf_counter()
-    scenarios.simulate_dataset(
+    simulated.simulate_dataset(
         out, specs, jig, seed=seed, workers=workers, progress=progress, overwrite=overwrite, color=color
     )
     if scenario is Scenario.cube:  # the cube's true poses as motion capture would export them
@@ -163,8 +164,8 @@ def _simulate_zoo(
     """Draw the zoo's designs and write each as a dataset ``out/NNN`` (see :mod:`softjig.sim.zoo`)."""
     import json
 
-    from softjig.io.files import write_text_atomic
-    from softjig.sim import scenarios
+    from softjig.files import write_text_atomic
+    from softjig.io import simulated
     from softjig.sim.zoo import ZooRanges, draw_designs
 
     t0 = time.perf_counter()
@@ -172,7 +173,7 @@ def _simulate_zoo(
     manifest = []
     for design in draw_designs(designs, seed=seed, frames=frames, ranges=ranges):
         target = out / f"{design.index:03d}"
-        scenarios.simulate_dataset(
+        simulated.simulate_dataset(
             target,
             design.specs,
             design.jig,

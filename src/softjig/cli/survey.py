@@ -10,6 +10,7 @@ import numpy as np
 import typer
 
 from softjig.cli.app import app, handle_errors, load_config, warn
+from softjig.cli.options import ConfigOption
 from softjig.errors import InputError
 
 
@@ -74,10 +75,7 @@ def survey_cmd(
         ),
     ],
     out: Annotated[Path, typer.Option(help="Where to write the surveyed rig's TOML.")],
-    config: Annotated[
-        Path | None,
-        typer.Option(help="The nominal rig (default for a dataset: its rig.toml; required for a pair)."),
-    ] = None,
+    config: ConfigOption = None,
     overwrite: Annotated[
         bool, typer.Option(help="Replace an existing --out (or --markers-csv), even the input rig.")
     ] = False,
@@ -113,8 +111,8 @@ def survey_cmd(
     pressed in is refused (exit 2).
     """
     from softjig.config import marker_csv_text, save_jig
+    from softjig.files import write_text_atomic
     from softjig.io.dataset import Dataset, load_image
-    from softjig.io.files import write_text_atomic
     from softjig.sensing.estimator import Estimator
     from softjig.sensing.survey import survey_markers
 

@@ -1,5 +1,5 @@
 """`softjig sweep-plan`: the robot's tilt-sweep poses; `softjig align-jig`: the jig's pose in the robot
-frame from a hand-eye image of its four alignment circles (issue 7)."""
+frame from a hand-eye image of its four alignment circles."""
 
 from __future__ import annotations
 
@@ -54,7 +54,7 @@ def sweep_plan(
     ] = None,
 ) -> None:
     """Write the tilt sweep's poses (position, quaternion x,y,z,w) in J and the robot frame, in order."""
-    from softjig.io.files import write_text_atomic
+    from softjig.files import write_text_atomic
     from softjig.planning import sweep_plan as make_plan
     from softjig.planning import sweep_plan_rows
     from softjig.planning.contact import CONTACT_THRESHOLD_N

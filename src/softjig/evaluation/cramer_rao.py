@@ -34,7 +34,7 @@ For Gaussian data with mean ``mu(theta)`` and covariance ``C(theta)``:
                    + \tfrac12 \mathrm{tr}(C^{-1}\partial_i C\, C^{-1} \partial_j C).
 
 The second term (information carried by how the noise's *variance* moves with the marker) is included
-with ``covariance_term=True``; it is small here (below 2 % of the bound, measured) because the
+with ``covariance_term=True``; it is small here (a few percent of the bound at most) because the
 speckle's and the shot noise's variance change smoothly across the marker. The bound on the centre is
 ``sqrt(J^{-1}_{uu} + J^{-1}_{vv})``: the 2-D RMS error of any unbiased estimator, in px.
 

@@ -21,8 +21,8 @@ from softjig.calibration.sweep import SweepCalibration, SweepSamples
 from softjig.calibration.tilt import TiltCalibration
 from softjig.evaluation.metrics import RmseGrid, commanded_tilt_angles_deg
 from softjig.evaluation.tilt_sweep import corrected_tilts_deg
+from softjig.files import write_bytes_atomic
 from softjig.geometry import tilt_angles
-from softjig.io.files import write_bytes_atomic
 
 __all__ = [
     "methods_figure",

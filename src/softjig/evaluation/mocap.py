@@ -43,8 +43,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from softjig.errors import InputError
+from softjig.files import write_text_atomic
 from softjig.geometry import invert_pose
-from softjig.io.files import write_text_atomic
 
 __all__ = [
     "MotiveTake",

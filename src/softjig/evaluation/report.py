@@ -1,6 +1,6 @@
 """The experiment's report: Markdown with the figures and tables, the same as one self-contained HTML page
 (figures inline), a JSON summary, and the paper's findings checked against a grid (text making only;
-:mod:`softjig.evaluation.experiment` writes the files)."""
+:mod:`softjig.experiments.paper` writes the files)."""
 
 from __future__ import annotations
 
@@ -207,16 +207,23 @@ def _cube_row(name: str, e: Any) -> list[str]:
 
 
 def _report_blocks(result: ExperimentResult, stereo_pairs: dict[str, int | None]) -> list[_Block]:
-    s, root = result.settings, Path(result.settings.out_dir)
-    ev, cal = result.evaluation, result.calibration
-    dm = result.default_method
-    samples = result.samples
-    n_frames_sweep = len(samples) + samples.n_failed
-    fit_on, eval_on = cal.selection, ev.selection
-    held_out = fit_on != eval_on
-    c = cal.pooled
+    """The report's blocks, section by section (Markdown and HTML render the same blocks)."""
+    return [
+        *_intro_blocks(result),
+        *_glance_blocks(result),
+        *_data_blocks(result),
+        *_calibration_blocks(result),
+        *_grid_blocks(result),
+        *_tilt_blocks(result),
+        *_cube_blocks(result),
+        *_pair_blocks(result, stereo_pairs),
+    ]
+
+
+def _intro_blocks(result: ExperimentResult) -> list[_Block]:
+    """The title, the run (date, seed, timings) and what the experiment compares."""
+    s = result.settings
     t = result.timings_s
-    paths = result.paths
     out: list[_Block] = [_h(1, "softjig: the paper's experiments on the simulated jig")]
     out.append(
         _p(
@@ -241,61 +248,77 @@ def _report_blocks(result: ExperimentResult, stereo_pairs: dict[str, int | None]
             "uncalibrated and with its own calibration fitted on the same frames."
         )
     )
-    if dm is not None:
-        out.append(_h(2, "At a glance: the paper's method and softjig's default"))
-        rows = [
-            [
-                "paper, calibrated (pooled Ox, Oy, S)",
-                _fmt(_grid_mean(ev.calibrated)),
-                _fmt(_grid_max(ev.calibrated)),
-            ],
-            ["paper, uncalibrated", _fmt(_grid_mean(ev.uncalibrated)), _fmt(_grid_max(ev.uncalibrated))],
-            [
-                f"{dm.method} (default), uncalibrated",
-                _fmt(_grid_mean(dm.evaluation.uncalibrated)),
-                _fmt(_grid_max(dm.evaluation.uncalibrated)),
-            ],
-            [
-                f"{dm.method}, its own calibration",
-                _fmt(_grid_mean(dm.evaluation.calibrated)),
-                _fmt(_grid_max(dm.evaluation.calibrated)),
-            ],
+    return out
+
+
+def _glance_blocks(result: ExperimentResult) -> list[_Block]:
+    """Both methods' RMSE side by side (and against motion capture), the default's calibration."""
+    ev, cal, dm = result.evaluation, result.calibration, result.default_method
+    if dm is None:
+        return []
+    root, paths, samples = Path(result.settings.out_dir), result.paths, result.samples
+    fit_on, eval_on = cal.selection, ev.selection
+    held_out = fit_on != eval_on
+    out: list[_Block] = []
+    out.append(_h(2, "At a glance: the paper's method and softjig's default"))
+    rows = [
+        [
+            "paper, calibrated (pooled Ox, Oy, S)",
+            _fmt(_grid_mean(ev.calibrated)),
+            _fmt(_grid_max(ev.calibrated)),
+        ],
+        ["paper, uncalibrated", _fmt(_grid_mean(ev.uncalibrated)), _fmt(_grid_max(ev.uncalibrated))],
+        [
+            f"{dm.method} (default), uncalibrated",
+            _fmt(_grid_mean(dm.evaluation.uncalibrated)),
+            _fmt(_grid_max(dm.evaluation.uncalibrated)),
+        ],
+        [
+            f"{dm.method}, its own calibration",
+            _fmt(_grid_mean(dm.evaluation.calibrated)),
+            _fmt(_grid_max(dm.evaluation.calibrated)),
+        ],
+    ]
+    header = ["method", "mean RMSE over the grid (deg)", "worst cell (deg)"]
+    if result.cube is not None or dm.cube is not None:
+        header.append("cube vs motion capture, RMSE (deg)")
+        cubes = [
+            result.cube.calibrated if result.cube else None,
+            result.cube.raw if result.cube else None,
+            dm.cube.raw if dm.cube else None,
+            dm.cube.calibrated if dm.cube else None,
         ]
-        header = ["method", "mean RMSE over the grid (deg)", "worst cell (deg)"]
-        if result.cube is not None or dm.cube is not None:
-            header.append("cube vs motion capture, RMSE (deg)")
-            cubes = [
-                result.cube.calibrated if result.cube else None,
-                result.cube.raw if result.cube else None,
-                dm.cube.raw if dm.cube else None,
-                dm.cube.calibrated if dm.cube else None,
-            ]
-            for row, e in zip(rows, cubes, strict=True):
-                row.append("n/a" if e is None else _fmt(e.rmse_deg))
-        out.append(
-            _p(
-                f"RMSE of the tilt angles on the **{eval_on}** theta steps"
-                + (
-                    " (held out from every calibration)"
-                    if held_out
-                    else " (the calibration frames: optimistic)"
-                )
-                + "; the grids below on one colour scale."
-            )
+        for row, e in zip(rows, cubes, strict=True):
+            row.append("n/a" if e is None else _fmt(e.rmse_deg))
+    out.append(
+        _p(
+            f"RMSE of the tilt angles on the **{eval_on}** theta steps"
+            + (" (held out from every calibration)" if held_out else " (the calibration frames: optimistic)")
+            + "; the grids below on one colour scale."
         )
-        out.append(_table(header, rows))
-        dc = dm.calibration.pooled
-        out.append(
-            _p(
-                f"The default method's own calibration (fitted like the paper's on the {fit_on} frames, "
-                f"`{_rel(paths['calibration_default'], root)}`): Ox = {math.degrees(dc.offset_x_rad):+.3f} "
-                f"deg, Oy = {math.degrees(dc.offset_y_rad):+.3f} deg, S = {dc.scale:.4f} (a sensor that "
-                f"needs no calibration: 0, 0, 1). Frames without an estimate: paper {samples.n_failed}, "
-                f"{dm.method} {dm.samples.n_failed}."
-            )
+    )
+    out.append(_table(header, rows))
+    dc = dm.calibration.pooled
+    out.append(
+        _p(
+            f"The default method's own calibration (fitted like the paper's on the {fit_on} frames, "
+            f"`{_rel(paths['calibration_default'], root)}`): Ox = {math.degrees(dc.offset_x_rad):+.3f} "
+            f"deg, Oy = {math.degrees(dc.offset_y_rad):+.3f} deg, S = {dc.scale:.4f} (a sensor that "
+            f"needs no calibration: 0, 0, 1). Frames without an estimate: paper {samples.n_failed}, "
+            f"{dm.method} {dm.samples.n_failed}."
         )
-        if "methods" in paths:
-            out.append(_Block("img", "the methods side by side", path=paths["methods"]))
+    )
+    if "methods" in paths:
+        out.append(_Block("img", "the methods side by side", path=paths["methods"]))
+    return out
+
+
+def _data_blocks(result: ExperimentResult) -> list[_Block]:
+    """The frames of each experiment, those that failed, and what the run folder keeps."""
+    s, root = result.settings, Path(result.settings.out_dir)
+    samples = result.samples
+    n_frames_sweep = len(samples) + samples.n_failed
+    out: list[_Block] = []
     out.append(_h(2, "Data"))
     items = [
         f"Tilt sweep: D = {', '.join(f'{d:g}' for d in s.diameters_mm)} mm, alpha = "
@@ -326,6 +349,14 @@ def _report_blocks(result: ExperimentResult, stereo_pairs: dict[str, int | None]
     if result.failed_examples:
         out.append(_p("Frames without an estimate (first ones):"))
         out.append(_Block("list", items=tuple(f"frame {i}: {e}" for i, e in result.failed_examples)))
+    return out
+
+
+def _calibration_blocks(result: ExperimentResult) -> list[_Block]:
+    """The calibration's formula and the fitted offsets and scale, pooled and per diameter."""
+    root, paths, cal = Path(result.settings.out_dir), result.paths, result.calibration
+    fit_on, c = cal.selection, cal.pooled
+    out: list[_Block] = []
     out.append(_h(2, "Calibration (Ox, Oy, S)"))
     out.append(
         _p(
@@ -346,6 +377,15 @@ def _report_blocks(result: ExperimentResult, stereo_pairs: dict[str, int | None]
     )
     out.append(_calibration_table(result.per_diameter))
     out += [_Block("quote", f"warning: {w}") for w in cal.warnings]
+    return out
+
+
+def _grid_blocks(result: ExperimentResult) -> list[_Block]:
+    """The RMSE grids of both methods, on held-out frames or not, and the paper's findings."""
+    ev, cal, dm, paths = result.evaluation, result.calibration, result.default_method, result.paths
+    eval_on = ev.selection
+    held_out = cal.selection != eval_on
+    out: list[_Block] = []
     out.append(_h(2, "RMSE grid"))
     out.append(
         _p(
@@ -388,6 +428,13 @@ def _report_blocks(result: ExperimentResult, stereo_pairs: dict[str, int | None]
             ],
         )
     )
+    return out
+
+
+def _tilt_blocks(result: ExperimentResult) -> list[_Block]:
+    """The tilt angles over the sweep: the methods overlaid, the paper's before and after calibration."""
+    paths = result.paths
+    out: list[_Block] = []
     out.append(_h(2, "Tilt angles over the sweep"))
     if "tilt_methods" in paths:
         out.append(
@@ -405,44 +452,59 @@ def _report_blocks(result: ExperimentResult, stereo_pairs: dict[str, int | None]
     )
     out.append(_Block("img", "before calibration", path=paths["tilt_before"]))
     out.append(_Block("img", "after calibration", path=paths["tilt_after"]))
-    if result.cube is not None:
-        cb = result.cube
-        out.append(_h(2, "Cube against motion capture"))
-        out.append(
-            _p(
-                "The cube's true poses were exported as an OptiTrack Motive CSV (rigid bodies `SoftJig` "
-                f"and `Cube`, quaternions, meters, y-up; `{_rel(paths['mocap'], root)}`), read back, and "
-                "`n_d = R_d z` with `T_d = inv(T_j) T_o` compared with the jig's estimates (the same "
-                "comparison runs alone: `softjig mocap DATASET --csv MOCAP.csv`). The simulated mocap is "
-                "exact: the errors are the jig's alone."
-            )
+    return out
+
+
+def _cube_blocks(result: ExperimentResult) -> list[_Block]:
+    """The cube experiment against motion capture (nothing without cube frames)."""
+    if result.cube is None:
+        return []
+    root, paths, dm = Path(result.settings.out_dir), result.paths, result.default_method
+    out: list[_Block] = []
+    cb = result.cube
+    out.append(_h(2, "Cube against motion capture"))
+    out.append(
+        _p(
+            "The cube's true poses were exported as an OptiTrack Motive CSV (rigid bodies `SoftJig` "
+            f"and `Cube`, quaternions, meters, y-up; `{_rel(paths['mocap'], root)}`), read back, and "
+            "`n_d = R_d z` with `T_d = inv(T_j) T_o` compared with the jig's estimates (the same "
+            "comparison runs alone: `softjig mocap DATASET --csv MOCAP.csv`). The simulated mocap is "
+            "exact: the errors are the jig's alone."
         )
-        rows = [
-            _cube_row("paper, uncalibrated", cb.raw),
-            _cube_row("paper, calibrated (pooled)", cb.calibrated),
+    )
+    rows = [
+        _cube_row("paper, uncalibrated", cb.raw),
+        _cube_row("paper, calibrated (pooled)", cb.calibrated),
+    ]
+    if dm is not None and dm.cube is not None:
+        rows += [
+            _cube_row(f"{dm.method} (default), uncalibrated", dm.cube.raw),
+            _cube_row(f"{dm.method}, its own calibration", dm.cube.calibrated),
         ]
-        if dm is not None and dm.cube is not None:
-            rows += [
-                _cube_row(f"{dm.method} (default), uncalibrated", dm.cube.raw),
-                _cube_row(f"{dm.method}, its own calibration", dm.cube.calibrated),
-            ]
-        out.append(
-            _table(
-                [
-                    "estimate",
-                    "frames",
-                    "RMSE (deg)",
-                    "RMSE x / y (deg)",
-                    "bias x / y (deg)",
-                    "mean / max angle (deg)",
-                ],
-                rows,
-            )
+    out.append(
+        _table(
+            [
+                "estimate",
+                "frames",
+                "RMSE (deg)",
+                "RMSE x / y (deg)",
+                "bias x / y (deg)",
+                "mean / max angle (deg)",
+            ],
+            rows,
         )
-        if "cube_methods" in paths:
-            out.append(_Block("img", "cube, the methods", path=paths["cube_methods"]))
-        if "cube_normals" in paths:
-            out.append(_Block("img", "cube normals", path=paths["cube_normals"]))
+    )
+    if "cube_methods" in paths:
+        out.append(_Block("img", "cube, the methods", path=paths["cube_methods"]))
+    if "cube_normals" in paths:
+        out.append(_Block("img", "cube normals", path=paths["cube_normals"]))
+    return out
+
+
+def _pair_blocks(result: ExperimentResult, stereo_pairs: dict[str, int | None]) -> list[_Block]:
+    """The example stereo pair of each method, with what its overlay shows."""
+    paths = result.paths
+    out: list[_Block] = []
     for method, key in (("paper", "stereo_pair"), ("refractive", "stereo_pair_default")):
         if key not in paths:
             continue
@@ -579,7 +641,7 @@ def experiment_report_markdown(
     stereo_pair_index: int | None = None,
     stereo_pairs: dict[str, int | None] | None = None,
 ) -> str:
-    """The Markdown report of a run of :func:`softjig.evaluation.experiment.run_experiment` (figures as
+    """The Markdown report of a run of :func:`softjig.experiments.paper.run_experiment` (figures as
     links to the PNGs beside it); ``stereo_pairs``: the example pair's frame per method."""
     pairs = {"paper": stereo_pair_index, **(stereo_pairs or {})}
     return _to_markdown(_report_blocks(result, pairs), Path(result.settings.out_dir))

@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from softjig.errors import InputError
-from softjig.io.files import write_text_atomic
+from softjig.files import write_text_atomic
 
 __all__ = ["MANIFEST_NAME", "RUN_MEMBERS", "DiskUse", "RunFolder", "delete_frame_files", "disk_use"]
 

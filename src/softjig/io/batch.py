@@ -10,7 +10,7 @@ frame when it has one (:func:`dataset_reference`).
 **Throughput and memory.** :func:`estimate_dataset` estimates the first frames in this process (until
 one loaded frame has been estimated: that loads the Numba caches and builds the per-jig tables), then
 forks the worker processes, which inherit all of it: a worker starts estimating within milliseconds
-instead of each spending 0.7-1.7 s (measured) on the same warm-up, and the warm-up is paid once, not once
+instead of each spending about a second on the same warm-up, and the warm-up is paid once, not once
 per core. The rest of the frames go to the workers in chunks whose size shrinks towards the end (guided
 scheduling: up to :data:`MAX_CHUNK_FRAMES`, down to one frame for the last ones, so no worker idles while
 another finishes a long last chunk), with a bounded number of chunks in flight, so the parent holds at
@@ -39,7 +39,7 @@ import multiprocessing
 import multiprocessing.context
 import os
 from collections import deque
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import Future
 from dataclasses import dataclass, field, replace
 from itertools import islice
@@ -47,11 +47,18 @@ from pathlib import Path
 from types import TracebackType
 from typing import IO, Protocol
 
+from softjig.calibration.sweep import (
+    SweepCalibration,
+    SweepSamples,
+    calibrate_from_rows,
+    check_sweep_design,
+    sweep_design,
+)
 from softjig.calibration.tilt import TiltCalibration
 from softjig.config import JigConfig
 from softjig.errors import EstimationError, InputError
+from softjig.files import fsync_folder, remove_stale_temporaries, temp_file_beside
 from softjig.io.dataset import Dataset, Frame
-from softjig.io.files import fsync_folder, remove_stale_temporaries, temp_file_beside
 from softjig.io.workers import worker_pool
 from softjig.sensing.estimator import DEFAULT_METHOD, Estimator
 from softjig.sensing.identities import ReferenceMarkers
@@ -71,8 +78,8 @@ __all__ = [
 ]
 
 #: Frames per chunk handed to a worker at most (fewer for short datasets and for the last frames of any,
-#: so every worker gets some and all finish together). A chunk of 8 frames is ~0.3 s of work against ~1 ms
-#: of overhead per task (measured: 0.9 ms per one-frame task of an unloaded frame, pool start included).
+#: so every worker gets some and all finish together): enough frames that a task's overhead (about a
+#: millisecond, pool start included) is negligible against its work.
 MAX_CHUNK_FRAMES = 8
 #: Chunks in flight per worker: enough to keep every worker busy while the parent writes rows.
 CHUNKS_IN_FLIGHT_PER_WORKER = 3
@@ -535,3 +542,38 @@ def estimate_dataset_to_file(
                 n_failed += 1
                 first_failure = first_failure or row
     return BatchSummary(out.n_rows, n_loaded, n_failed, first_failure)
+
+
+def calibrate_dataset(
+    dataset: Dataset,
+    *,
+    rows: Sequence[dict] | None = None,
+    mode: str = "pooled",
+    selection: str = "all",
+    method: str = "paper",
+    workers: int | None = None,
+    on_row: Callable[[dict], None] | None = None,
+) -> tuple[SweepCalibration, SweepSamples, list[dict]]:
+    """Calibrate from a sweep dataset: estimate its frames (unless ``rows`` are given), then fit.
+
+    Parameters
+    ----------
+    dataset : an open sweep dataset.
+    rows : estimate rows of this dataset (e.g. :func:`softjig.calibration.sweep.load_result_rows`); if
+        ``None`` every frame is estimated with ``method`` on the dataset's nominal jig, without
+        calibration, on ``workers`` processes (default: every CPU), ``on_row`` called after each.
+    method : the estimation method to calibrate (the calibration is only valid for it).
+    mode, selection : see :func:`softjig.calibration.sweep.fit_sweep_calibration`.
+
+    Returns
+    -------
+    (SweepCalibration, SweepSamples, rows)
+        The fit, the sweep it was fitted to (every frame, before the selection) and the estimate rows.
+    """
+    check_sweep_design(*sweep_design(dataset), selection=selection)  # before hours of estimation
+    if rows is None:
+        reference = dataset_reference(dataset, dataset.jig) if method == "refractive" else None
+        settings = BatchSettings(jig=dataset.jig, method=method, reference=reference)
+        rows = list(estimate_dataset(dataset, settings, workers=workers, on_row=on_row))
+    fit, samples = calibrate_from_rows(dataset, rows, mode=mode, selection=selection, method=method)
+    return fit, samples, list(rows)

@@ -43,7 +43,7 @@ from typing import Any
 
 import numpy as np
 
-from softjig.errors import InputError
+from softjig.errors import CameraError, InputError
 
 __all__ = [
     "CameraError",
@@ -64,10 +64,6 @@ __all__ = [
 DEFAULT_FPS = 30.0
 
 
-class CameraError(InputError):
-    """A camera could not be opened or stopped delivering; the message names it and what to check."""
-
-
 class SourceExhausted(Exception):
     """A finite source (a replay) has delivered its last frame."""
 
@@ -75,7 +71,7 @@ class SourceExhausted(Exception):
 class BadFrame(InputError):
     """One frame of a replay cannot be read (a missing or corrupt image): the source is fine and goes on
     with the next frame, so the loop skips it at once and counts it instead of backing off as it does
-    for a failed camera (51 missing images used to stall a replay for 243 s)."""
+    for a failed camera (a back-off per missing image would stall a replay for minutes)."""
 
 
 @dataclass(frozen=True, eq=False)

@@ -19,7 +19,7 @@ optionally ``time_s``, and where known ``alpha_deg``, ``theta_deg``, ``part`` (`
 ``alpha_deg`` nor ``part``. Any other key is kept as is (:attr:`Frame.meta`).
 
 **Crash safety.** :class:`DatasetWriter` writes each image and ``.npz`` atomically
-(:mod:`softjig.io.files`) and appends the frame's line to ``frames.jsonl`` (flush + fsync) only after
+(:mod:`softjig.files`) and appends the frame's line to ``frames.jsonl`` (flush + fsync) only after
 its files exist, so a recorder killed at any moment leaves every completed frame readable. A kill in the
 middle of the append can leave a truncated last line; :meth:`Dataset.open` skips it with a warning, as it
 does any line that is not JSON. Two frames with one index are refused.
@@ -33,9 +33,7 @@ streaming pass, but keeps only where each frame's line starts (16 bytes per fram
 again from its line when asked for (``ds[i]``, ``for frame in ds``), so a dataset of any length opens in
 flat memory and :class:`Frame` objects live only as long as their user keeps them. Images and truth are
 read when asked for (:meth:`Frame.load_left`, :meth:`Frame.load_right`, :meth:`Frame.load_truth_markers`).
-Measured on a 10,000-frame replay (2.6 MB ``frames.jsonl``): the old reader held every parsed frame
-(22 MiB) and took 8.3 s to open, most of it building one pydantic validator per frame's ``part``; parts
-are now parsed once per distinct part.
+Parts are parsed once per distinct part (a pydantic validator per frame would dominate the opening).
 
 Every problem with the files is an :class:`~softjig.errors.InputError` (or its subclass
 :class:`~softjig.errors.ConfigError` for ``rig.toml``) naming the file and what to do.
@@ -62,7 +60,7 @@ import numpy as np
 
 from softjig.config import JigConfig, Part, dumps_jig, load_jig, loads_jig, part_from_dict, save_jig
 from softjig.errors import ConfigError, InputError
-from softjig.io.files import fsync_folder, write_bytes_atomic, write_text_atomic
+from softjig.files import fsync_folder, write_bytes_atomic, write_text_atomic
 
 if TYPE_CHECKING:
     from softjig.sim.asbuilt import AsBuiltJig
@@ -444,8 +442,8 @@ def _frame_from_json(root: Path, obj: Any, where: str) -> Frame:
 def _part_from_json(text: str) -> Part:
     """A frame's part from its JSON text, parsed once per distinct part (a sweep has a handful).
 
-    :func:`softjig.config.part_from_dict` builds a pydantic validator per call: 0.8 ms (measured), 8 s over
-    a 10,000-frame replay. Parts are frozen, so every frame of one part can share the object."""
+    :func:`softjig.config.part_from_dict` builds a pydantic validator per call, seconds over a long
+    replay. Parts are frozen, so every frame of one part can share the object."""
     return part_from_dict(json.loads(text))
 
 

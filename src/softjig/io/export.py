@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from softjig.errors import InputError
-from softjig.io.files import write_bytes_atomic, write_text_atomic
+from softjig.files import write_bytes_atomic, write_text_atomic
 from softjig.sensing.pipeline import SensingResult
 
 DISPLACEMENT_COLUMNS = ("id", "x_mm", "y_mm", "z_mm", "dx_mm", "dy_mm", "dz_mm", "in_contact")

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from softjig.config import CameraConfig, JigConfig, StereoConfig
-from softjig.errors import InputError
+from softjig.errors import CameraError, InputError
 
 __all__ = [
     "IR_FPS",
@@ -132,21 +132,17 @@ def rig_from_realsense(
 
 
 def rs_module() -> Any:
-    """``pyrealsense2``, or a :class:`~softjig.io.cameras.CameraError` saying how to install it."""
+    """``pyrealsense2``, or a :class:`~softjig.errors.CameraError` saying how to install it."""
     try:
         import pyrealsense2 as rs
     except ImportError:
-        from softjig.io.cameras import CameraError
-
         raise CameraError("RealSense cameras need pyrealsense2: pip install 'softjig[realsense]'") from None
     return rs
 
 
 def find_device(serial: str | None = None) -> Any:
     """The connected RealSense device of that serial number, or the only one connected (a
-    :class:`~softjig.io.cameras.CameraError` naming those connected otherwise)."""
-    from softjig.io.cameras import CameraError
-
+    :class:`~softjig.errors.CameraError` naming those connected otherwise)."""
     rs = rs_module()
     devices = {d.get_info(rs.camera_info.serial_number): d for d in rs.context().query_devices()}
     if serial is None:
@@ -170,9 +166,7 @@ def find_device(serial: str | None = None) -> Any:
 
 def infrared_profiles(device: Any, width_px: int, height_px: int, fps: int) -> tuple[Any, Any, Any]:
     """The sensor that streams both infrared imagers and its Y8 profiles ``(sensor, ir1, ir2)`` of that
-    mode; a :class:`~softjig.io.cameras.CameraError` naming the modes it has otherwise."""
-    from softjig.io.cameras import CameraError
-
+    mode; a :class:`~softjig.errors.CameraError` naming the modes it has otherwise."""
     rs = rs_module()
     offered = set()
     for sensor in device.query_sensors():
@@ -200,8 +194,6 @@ def _intrinsics(profile: Any) -> IRIntrinsics:
 def read_realsense_rig(base: JigConfig, device: Any, width_px: int = 848, height_px: int = 480) -> JigConfig:
     """The rig of a device's infrared pair at that resolution (its factory calibration, read without
     streaming); see :func:`rig_from_realsense`."""
-    from softjig.io.cameras import CameraError
-
     for fps in (30, *IR_FPS):
         try:
             _, p1, p2 = infrared_profiles(device, width_px, height_px, fps)

@@ -55,6 +55,7 @@ __all__ = [
     "PublisherSink",
     "Recorder",
     "estimate_message",
+    "frame_record_meta",
     "health_message",
     "health_status",
 ]
@@ -271,7 +272,7 @@ class PublisherSink:
 # -------------------------------------------------------------------------------------------- recorder
 
 
-def _frame_record_meta(frame: StereoFrame, t0_s: float, default_part: dict | None) -> dict[str, Any]:
+def frame_record_meta(frame: StereoFrame, t0_s: float, default_part: dict | None) -> dict[str, Any]:
     """The ``frames.jsonl`` metadata of a recorded pair: times relative to the first pair, the skew, the
     replayed frame's pose, part and truth (without its marker file, which is not copied)."""
     meta: dict[str, Any] = {
@@ -354,7 +355,7 @@ class Recorder:
                 self._t0 = min(frame.t_left_s, frame.t_right_s)
             try:
                 self.writer.add_frame(
-                    frame.left, frame.right, _frame_record_meta(frame, self._t0, self.default_part)
+                    frame.left, frame.right, frame_record_meta(frame, self._t0, self.default_part)
                 )
                 self.recorded += 1
             except (OSError, InputError) as exc:  # a full disk: stop recording, keep sensing

@@ -25,6 +25,7 @@ from softjig.config import JigConfig
 from softjig.errors import InputError
 from softjig.io.cameras import StereoFrame
 from softjig.io.rosbag import BagWriter
+from softjig.live.loop import frame_record_meta
 
 __all__ = ["BagRecorder", "frame_stamps_ns"]
 
@@ -102,8 +103,6 @@ class BagRecorder:
 
     # -- writer thread
     def _run(self) -> None:
-        from softjig.live.loop import _frame_record_meta
-
         while True:
             item = self._queue.get()
             if item is None:
@@ -118,7 +117,7 @@ class BagRecorder:
                     if self._t0 is None:
                         self._t0 = min(frame.t_left_s, frame.t_right_s)
                     sl, sr = frame_stamps_ns(frame)
-                    meta = _frame_record_meta(frame, self._t0, self.default_part)
+                    meta = frame_record_meta(frame, self._t0, self.default_part)
                     if "source_index" in meta:
                         meta["index"] = meta["source_index"]
                     self.writer.add_pair(frame.left, frame.right, sl, sr, meta)

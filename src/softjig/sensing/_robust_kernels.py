@@ -12,6 +12,12 @@ from softjig._geometry_kernels import inside_hull, plane_fit
 #: rounding (as :data:`softjig.geometry.DEGENERATE_PLANE_RATIO`).
 DEGENERATE_PLANE_RATIO = 1e-9
 
+#: A triple whose triangle's angle at its first point has a sine below this is collinear: no plane.
+COLLINEAR_SINE = 1e-6
+
+#: A plane whose unit normal has ``|n_z|`` below this is vertical: it has no side "into the part".
+VERTICAL_NZ = 1e-6
+
 #: Tolerance (mm) of the hull test of the one-sided penalty: a point on the hull's edge is inside.
 HULL_TOLERANCE_MM = 1e-9
 
@@ -49,10 +55,10 @@ def score_batch(
         c2 = e10 * e21 - e11 * e20
         norm = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
         scale = np.sqrt(e10 * e10 + e11 * e11 + e12 * e12) * np.sqrt(e20 * e20 + e21 * e21 + e22 * e22)
-        if not norm > 1e-6 * scale:
+        if not norm > COLLINEAR_SINE * scale:
             continue
         n0, n1, n2 = c0 / norm, c1 / norm, c2 / norm
-        if not abs(n2) > 1e-6:
+        if not abs(n2) > VERTICAL_NZ:
             continue
         if n2 < 0:
             n0, n1, n2 = -n0, -n1, -n2

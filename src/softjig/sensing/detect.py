@@ -374,6 +374,7 @@ def detect_markers(
     candidates: Literal["pyramid", "full"] = DEFAULT_CANDIDATES,
     model: MarkerModel | None = None,
     exclude: Callable[[np.ndarray], np.ndarray] | None = None,
+    tables: np.ndarray | None = None,
 ) -> Markers:
     """Detect bright circular markers as maxima of the scale-normalised LoG.
 
@@ -436,6 +437,10 @@ def detect_markers(
         of the candidates to drop before the refinement (e.g. those on the fiducials); the
         refinement does not move a marker by more than 2.5 px, so testing the candidate
         is testing the marker.
+    tables : numpy.ndarray, optional
+        :func:`softjig.sensing.subpixel.kernel_tables` of ``model`` for ``refine="model"`` (read
+        for each call when not given: a detector reads them once).
+
     Returns
     -------
     Markers
@@ -524,7 +529,7 @@ def detect_markers(
         xy, peak = xy[keep], peak[keep]
     if model_fit and len(xy) > 0:
         model = model if model is not None else MarkerModel.for_sigma(sigma)
-        fit = refine_centres(gray, xy, model)
+        fit = refine_centres(gray, xy, model, tables=tables)
         xy = fit.xy_px
         # A failed fit keeps its candidate; one whose window was cut by the image's edge is dropped.
         h, w = gray.shape

@@ -8,7 +8,7 @@ on each pair: detect, frame, match, triangulate, contact and plane. A method is 
 (:data:`COMPOSITIONS`): ``"paper"`` triangulates as through air and fits the crop under the part's base,
 ``"refractive"`` triangulates through the layers and fits the contact found from the indentation.
 
-Build one per jig and reuse it for every frame (building costs about 15 ms; a frame, a few ms). Nothing
+Build one per jig and reuse it for every frame (building it costs more than estimating a frame). Nothing
 is cached on the side: two estimators of one jig share nothing, and an estimator's only state that
 changes is where its frame finder last found the fiducials (which only saves time).
 """
@@ -16,12 +16,12 @@ changes is where its frame finder last found the fiducials (which only saves tim
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from types import MappingProxyType
 
 import numpy as np
 
-from softjig.calibration.tilt import TiltCalibration
 from softjig.config import JigConfig
 from softjig.errors import EstimationError, InputError
 from softjig.sensing.detect import (
@@ -50,6 +50,7 @@ from softjig.sensing.stages import (
     on_fiducials,
 )
 from softjig.sensing.stereo import StereoMatches
+from softjig.tilt_calibration import TiltCalibration
 
 # The best we have (DESIGN.md): on the paper's simulated sweep, uncalibrated, it beats the paper's method
 # calibrated in most cells (`softjig compare`). `--method paper` keeps the published method exactly.
@@ -81,12 +82,14 @@ class Composition:
     needs_part_size: bool
 
 
-COMPOSITIONS: dict[str, Composition] = {
-    "refractive": Composition(RefractedTriangulator, ContactPlaneFitter, needs_part_size=False),
-    "paper": Composition(
-        PinholeTriangulator, lambda model, _, calibration: PaperPlaneFitter(model, calibration), True
-    ),
-}
+COMPOSITIONS: Mapping[str, Composition] = MappingProxyType(
+    {
+        "refractive": Composition(RefractedTriangulator, ContactPlaneFitter, needs_part_size=False),
+        "paper": Composition(
+            PinholeTriangulator, lambda model, _, calibration: PaperPlaneFitter(model, calibration), True
+        ),
+    }
+)
 METHODS = tuple(COMPOSITIONS)
 
 

@@ -11,23 +11,13 @@ the same corners (to ~1e-3 px, their convergence tolerance).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import cache, lru_cache
+from functools import cache
 
 import cv2
 import numpy as np
 
+from softjig.aruco import aruco_dictionary
 from softjig.config import FiducialConfig
-
-
-@cache
-def aruco_dictionary_names() -> tuple[str, ...]:
-    """Names of the predefined ArUco dictionaries OpenCV offers (``DICT_4X4_50`` ...)."""
-    return tuple(sorted(n for n in dir(cv2.aruco) if n.startswith("DICT_") and n[5].isdigit()))
-
-
-def aruco_dictionary(name: str) -> cv2.aruco.Dictionary:
-    """OpenCV's predefined dictionary of that name."""
-    return cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, name))
 
 
 def fiducial_corners_J(fiducials: FiducialConfig) -> np.ndarray:
@@ -134,16 +124,24 @@ def locate_fiducials_near(
 
 
 def locate_quads_near(
-    gray_u8: np.ndarray, fiducials: FiducialConfig, expected_quads: bytes
+    gray_u8: np.ndarray,
+    fiducials: FiducialConfig,
+    expected_quads: bytes,
+    *,
+    table: CaptureTable | None = None,
+    white: np.ndarray | None = None,
 ) -> np.ndarray | None:
     """:func:`locate_fiducials_near` for a C-contiguous uint8 image and the expected quads as the bytes of a
-    float64 (M, 4, 2) array (the key of the cached scanlines), giving the (M, 4, 2) corners or ``None``."""
+    float64 (M, 4, 2) array, giving the (M, 4, 2) corners or ``None``. ``table`` (:func:`capture_table`
+    of these quads and the image's shape) and ``white`` (:func:`cell_patterns` of the fiducials) are made
+    here when not given (a frame finder makes them once)."""
     n_quads = len(expected_quads) // (8 * 8)
-    table = _capture_table(expected_quads, n_quads, gray_u8.shape)
+    table = table if table is not None else capture_table(expected_quads, n_quads, gray_u8.shape)
     if table is None:
         return None
     corners = np.empty((n_quads, 4, 2))
-    white = _cell_patterns(fiducials.dictionary, tuple(fiducials.ids))
+    if white is None:
+        white = cell_patterns(fiducials.dictionary, tuple(fiducials.ids))
     from softjig.sensing._fiducial_kernels import locate  # Numba is imported on first use
 
     found = locate(
@@ -170,7 +168,7 @@ def locate_quads_near(
 
 
 @dataclass(frozen=True)
-class _CaptureTable:
+class CaptureTable:
     """What the capture step needs of a set of expected quads in an image of a given size (cached).
 
     Attributes
@@ -191,8 +189,7 @@ class _CaptureTable:
     window: int
 
 
-@lru_cache(maxsize=32)
-def _capture_table(quads_bytes: bytes, n_quads: int, image_shape: tuple[int, int]) -> _CaptureTable | None:
+def capture_table(quads_bytes: bytes, n_quads: int, image_shape: tuple[int, int]) -> CaptureTable | None:
     """The capture step's constants for these expected quads (``None`` if a scanline leaves the image)."""
     quads = np.frombuffer(quads_bytes, dtype=float).reshape(n_quads, 4, 2)
     along = quads[:, [1, 2, 3, 0]] - quads  # side k runs from corner k to corner k + 1
@@ -209,7 +206,7 @@ def _capture_table(quads_bytes: bytes, n_quads: int, image_shape: tuple[int, int
     h, w = image_shape
     if pix.min() < 0 or pix[..., 0].max() >= w or pix[..., 1].max() >= h:
         return None
-    table = _CaptureTable(
+    table = CaptureTable(
         index=(pix[..., 1] * w + pix[..., 0]).ravel(),
         shape=pix.shape[:4],
         midpoints=(steps[:-1] + steps[1:]) / 2,
@@ -244,8 +241,7 @@ def _cell_weights() -> np.ndarray:
     return weights
 
 
-@cache
-def _cell_patterns(dictionary: str, ids: tuple[int, ...]) -> np.ndarray:
+def cell_patterns(dictionary: str, ids: tuple[int, ...]) -> np.ndarray:
     """(M, 36) which cells of each fiducial are white (1.0; border included, row by row), as drawn."""
     d = aruco_dictionary(dictionary)
     size = d.markerSize + 2
@@ -267,7 +263,6 @@ def _detect(gray_u8: np.ndarray, fiducials: FiducialConfig) -> dict[int, np.ndar
     return found
 
 
-@cache
 def _detector(dictionary: str) -> cv2.aruco.ArucoDetector:
     return cv2.aruco.ArucoDetector(aruco_dictionary(dictionary), _detector_parameters())
 

@@ -18,7 +18,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from softjig.calibration.tilt import TiltCalibration
 from softjig.config import JigConfig
 from softjig.errors import EstimationError, InputError
 from softjig.geometry import PlaneFit, fit_plane_svd, normal_from_tilt_angles, tilt_angles
@@ -41,7 +40,7 @@ from softjig.sensing.contact import (
 from softjig.sensing.identities import identify_markers
 from softjig.sensing.results import Estimate, Observation, Refusal, SensingResult
 from softjig.sensing.robust import fit_plane_robust
-from softjig.sensing.selfcheck import SplitCheck, split_halves
+from softjig.sensing.selfcheck import SplitCheck, agreement, split_halves
 from softjig.sensing.setup import JigModel, ReferenceModel
 from softjig.sensing.uncertainty import (
     NormalUncertainty,
@@ -50,6 +49,7 @@ from softjig.sensing.uncertainty import (
     with_angle_floor,
     with_spread_between,
 )
+from softjig.tilt_calibration import TiltCalibration
 
 # Unmodelled, systematic errors of a triangulated marker (hemisphere seen obliquely, membrane ripple, the
 # as-built cameras): the residual scale used for the normal's uncertainty is at least this.
@@ -184,8 +184,8 @@ def suspicions(
         )
     if violations > 0:
         reasons.append(
-            f"suspect: {violations} markers inside the contact lie above the fitted face or far below it, "
-            "beyond what the noise explains: the plane may not be the part's face"
+            f"suspect: {violations} markers in or beside the contact lie above the fitted face or far below "
+            "it, beyond what the noise explains: the plane may not be the part's face"
         )
     if plane.normal[2] < np.cos(np.radians(MAX_PLAUSIBLE_TILT_DEG)):
         reasons.append(
@@ -294,6 +294,11 @@ class NoiseScales:
     plane_sigma_mm: float
     face_depth_sigma_mm: float
 
+    @property
+    def inlier_mm(self) -> float:
+        """The contact plane's inlier distance: :data:`CONTACT_INLIER_SIGMAS` plane sigmas (mm)."""
+        return CONTACT_INLIER_SIGMAS * self.plane_sigma_mm
+
 
 def noise_scales(
     points_J: np.ndarray, dent: Indentation, reference: ReferenceModel, jig: JigConfig
@@ -365,6 +370,8 @@ class ContactPlaneFitter:
     def fit(
         self, observation: Observation, points_J: np.ndarray, part_diameter_mm: float | None
     ) -> SensingResult | Refusal:
+        """Identify the markers, measure their indentation, find the contact (in the reference markers'
+        order, :func:`canonical_order`), drop the lifted-off markers, and describe the result."""
         identities = identify_markers(
             points_J, self._reference.markers, max_lateral_mm=IDENTITY_REACH_PITCHES * self._pitch
         )
@@ -378,19 +385,14 @@ class ContactPlaneFitter:
             )
         noise = noise_scales(points_J, dent, self._reference, self._jig)
         order = canonical_order(identities.ids, points_J)
-        ordered = Dent(
-            points_J[order],
-            Indentation(dent.depth_mm[order], dent.zero_mm, dent.noise_mm),
-            candidates[order],
-            noise,
-            CONTACT_INLIER_SIGMAS * noise.plane_sigma_mm,
-        )
+        in_order = Indentation(dent.depth_mm[order], dent.zero_mm, dent.noise_mm)
+        ordered = Dent(points_J[order], in_order, candidates[order], noise, noise.inlier_mm)
         found = self._contact(ordered, part_diameter_mm)
         if not found:
             return found
-        used = np.empty_like(found[0])
-        used[order] = found[0]
-        plane = found[1]
+        (used_in_order, plane), rival = found
+        used = np.empty_like(used_in_order)
+        used[order] = used_in_order
         if part_diameter_mm is None:  # under a known face, the plane is already the SVD fit of points_J[used]
             plane = fit_or_fail(points_J[used], self._minimum)
         grown = used
@@ -417,7 +419,9 @@ class ContactPlaneFitter:
             edge_face_depth_mm=plane_depth[outside],
         )
         threshold = ordered.threshold_mm
-        violations = contact_violations(points_J, used, plane, threshold_mm=threshold, pitch_mm=self._pitch)
+        violations = contact_violations(
+            points_J, used, plane, threshold_mm=threshold, pitch_mm=self._pitch, dent=dent
+        )
         estimate = self._estimate(
             observation,
             points_J,
@@ -427,6 +431,7 @@ class ContactPlaneFitter:
             uncertainty,
             split,
             violations,
+            rival,
             dent,
             int(candidates.sum()),
             part_diameter_mm,
@@ -473,8 +478,11 @@ class ContactPlaneFitter:
 
         return fit
 
-    def _contact(self, dent: Dent, part_diameter_mm: float | None) -> Contact | Refusal:
-        """The contact's markers (canonical order) and plane: under the known face, or size-free."""
+    def _contact(
+        self, dent: Dent, part_diameter_mm: float | None
+    ) -> tuple[Contact, SplitCheck | None] | Refusal:
+        """The contact's markers (canonical order) and plane, under the known face or size-free, and its
+        rival's agreement (:meth:`_contact_under_known_face`; ``None`` size-free)."""
         fit = self._robust_fit(dent.threshold_mm)
 
         def size_free() -> Contact:
@@ -489,23 +497,25 @@ class ContactPlaneFitter:
             )
 
         if part_diameter_mm is None:
-            used, plane = size_free()
+            (used, plane), rival = size_free(), None
         else:
             found = self._contact_under_known_face(dent, part_diameter_mm / 2.0, fit, size_free)
             if not found:
                 return found
-            used, plane = found
+            (used, plane), rival = found
         if used.sum() < self._minimum:
             return Refusal(
                 f"only {int(used.sum())} markers are in contact; at least {self._minimum} are needed "
                 "(sensing.min_points)"
             )
-        return used, plane
+        return (used, plane), rival
 
     def _contact_under_known_face(
         self, dent: Dent, radius_mm: float, fit: PlaneFitFunction, size_free: Callable[[], Contact]
-    ) -> Contact | Refusal:
-        """The contact when the part's base radius is known, wherever the part stands on the jig.
+    ) -> tuple[Contact, SplitCheck | None] | Refusal:
+        """The contact when the part's base radius is known, wherever the part stands on the jig, and the
+        agreement with a rival contact that no marker contradicts either but whose normal is far from it
+        (``None`` when there is none: the estimate is suspect when there is).
 
         - **The face searched from the indentation** (:meth:`_search_face`): from the jig axis (the
           paper's setting) and, when the dent's centroid lies :data:`OFF_AXIS_DENT_RADII` radii or more
@@ -519,36 +529,60 @@ class ContactPlaneFitter:
         dent_centre = points_J[candidates, :2].mean(axis=0) if candidates.any() else np.zeros(2)
         starts = [None] if np.hypot(*dent_centre) < OFF_AXIS_DENT_RADII * radius_mm else [None, dent_centre]
         searches = [s for s in (self._search_face(dent, radius_mm, fit, start) for start in starts) if s]
+        rival = None
         if len(searches) > 1:  # the one whose plane fewer markers contradict, then the larger contact
             scores = [
                 (
                     contact_violations(
-                        points_J, used, plane, threshold_mm=dent.threshold_mm, pitch_mm=self._pitch
+                        points_J,
+                        used,
+                        plane,
+                        threshold_mm=dent.threshold_mm,
+                        pitch_mm=self._pitch,
+                        dent=dent.indentation,
                     ),
                     -used.sum(),
                 )
                 for used, plane in searches
             ]
-            searches = [searches[min(range(len(scores)), key=scores.__getitem__)]]
+            best = min(range(len(scores)), key=scores.__getitem__)
+            if scores[1 - best][0] == 0:  # the other one no marker contradicts either
+                rival = self._rival(points_J, searches[best], searches[1 - best], dent.threshold_mm)
+            searches = [searches[best]]
         if not searches or searches[0][0].sum() < SELF_CHECK_MIN_POINTS:
-            cut = self._size_free_cut(dent, radius_mm, size_free, checked=bool(searches))
+            cut = self._size_free_cut(dent, radius_mm, size_free, search=searches[0] if searches else None)
             if cut:
-                return cut
+                return cut, rival
         if not searches:
             return Refusal(
                 f"no {2 * radius_mm:g} mm face was found in the contact: fewer than {self._minimum} "
                 "pushed-in markers lie under it (sensing.min_points); is the part's size right?"
             )
-        return searches[0]
+        return searches[0], rival
+
+    def _rival(
+        self, points_J: np.ndarray, chosen: Contact, other: Contact, threshold_mm: float
+    ) -> SplitCheck | None:
+        """``other``'s agreement with the ``chosen`` contact when it contradicts it
+        (:func:`~softjig.sensing.selfcheck.agreement`), else ``None``."""
+        check = agreement(
+            points_J[chosen[0]],
+            chosen[1].normal,
+            points_J[other[0]],
+            other[1].normal,
+            point_sigma_mm=threshold_mm / CONTACT_INLIER_SIGMAS,
+            noise_factor=MODEL_ERROR_FACTOR,
+        )
+        return check if check is not None and check.suspect else None
 
     def _size_free_cut(
-        self, dent: Dent, radius_mm: float, size_free: Callable[[], Contact], *, checked: bool
+        self, dent: Dent, radius_mm: float, size_free: Callable[[], Contact], *, search: Contact | None
     ) -> Contact | Refusal:
-        """The size-free contact (made only when needed: it costs about 0.7 ms) cut to the face: the face
-        placed where that contact puts it (:func:`~softjig.sensing.contact.face_centre_xy`), and that
-        contact's markers under it. With ``checked`` (a search found a contact too small to check), it is
-        taken only when it has enough markers to check and passes the checks (no violations, halves that
-        agree)."""
+        """The size-free contact (made only when needed: it costs more than a search) cut to the face: the
+        face placed where that contact puts it (:func:`~softjig.sensing.contact.face_centre_xy`), and that
+        contact's markers under it. Beside a ``search``'s contact (too small to check), it is taken only
+        when it has enough markers to check, passes the checks (no violations, halves that agree) and does
+        not contradict the search's face (which is then kept: too few markers to check, so suspect)."""
         points_J = dent.points_J
         try:
             grown, grown_plane = size_free()
@@ -567,7 +601,7 @@ class ContactPlaneFitter:
         # Half a pitch of slack (the footprint's markers stand for grid cells); the markers are already
         # the inliers of a robust fit: a least-squares refit suffices.
         selection = grown & under_face(points_J, grown_plane, radius_mm + self._pitch / 2.0, centre)
-        if not checked:
+        if search is None:
             if selection.sum() < self._minimum:
                 return Refusal(f"only {int(selection.sum())} markers of the grown contact lie under the face")
             return selection, fit_or_fail(points_J[selection], self._minimum)
@@ -579,10 +613,14 @@ class ContactPlaneFitter:
             point_sigma_mm=dent.threshold_mm / CONTACT_INLIER_SIGMAS,
             noise_factor=MODEL_ERROR_FACTOR,
         )
-        violations = contact_violations(points_J, *cut, threshold_mm=dent.threshold_mm, pitch_mm=self._pitch)
-        if check is not None and not check.suspect and violations == 0:
-            return cut  # a larger contact that passes the self-check
-        return Refusal("the grown contact under the face fails the self-check")
+        violations = contact_violations(
+            points_J, *cut, threshold_mm=dent.threshold_mm, pitch_mm=self._pitch, dent=dent.indentation
+        )
+        if check is None or check.suspect or violations > 0:
+            return Refusal("the grown contact under the face fails the self-check")
+        if self._rival(points_J, search, cut, dent.threshold_mm) is not None:
+            return Refusal("the grown contact under the face contradicts the search's face")
+        return cut  # a larger contact that passes the self-check
 
     def _search_face(
         self, dent: Dent, radius_mm: float, fit: PlaneFitFunction, start_xy: np.ndarray | None = None
@@ -734,6 +772,7 @@ class ContactPlaneFitter:
         uncertainty: NormalUncertainty,
         split: SplitCheck | None,
         violations: int,
+        rival: SplitCheck | None,
         dent: Indentation,
         n_candidates: int,
         part_diameter_mm: float | None,
@@ -752,6 +791,12 @@ class ContactPlaneFitter:
                 "only the markers in contact were fitted"
             )
         suspect = suspicions(split, violations, plane, contact, part_diameter_mm, self._jig, n_used)
+        if rival is not None:
+            suspect.append(
+                f"suspect: another contact fits the frame as well, its normal "
+                f"{np.degrees(rival.angle_rad):.1f} deg from this one's ({rival.sigmas:.0f} times their "
+                "noise): the frame may show the membrane's wall beside a small contact"
+            )
         if part_diameter_mm is None and n_used < MIN_CANDIDATE_SHARE * n_candidates:  # size-free only
             suspect.append(
                 f"suspect: only {n_used} of the {n_candidates} clearly pushed-in markers were fitted: a face "

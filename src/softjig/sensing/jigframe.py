@@ -31,7 +31,14 @@ from softjig.config import CameraConfig, JigConfig
 from softjig.errors import EstimationError
 from softjig.geometry import invert_pose, pose_from_rotvec_translation
 from softjig.optics import project_points
-from softjig.sensing.fiducials import detect_fiducials, fiducial_corners_J, locate_quads_near
+from softjig.sensing.fiducials import (
+    CaptureTable,
+    capture_table,
+    cell_patterns,
+    detect_fiducials,
+    fiducial_corners_J,
+    locate_quads_near,
+)
 
 MIN_FIDUCIALS_PER_IMAGE = 2  # 8 corners: a well-conditioned planar PnP
 MAX_FIDUCIAL_RMS_PX = 2.0  # above this, a corner was misread or a fiducial moved: the pose is rejected
@@ -110,12 +117,14 @@ class FiducialMemory:
     in each image, in the config's order), or ``None``: the fast path's second guess when the as-built
     head is too far from the config's poses for the capture (> CAPTURE_PX), so that only the first frame
     of such a rig takes the general path. The fast path's result does not depend on where it starts (the
-    corners and the fit are iterated to convergence): this only saves time. An estimator owns one."""
+    corners and the fit are iterated to convergence): this only saves time. An estimator owns one.
+    ``tables`` are the capture tables of those quads (made on their first use)."""
 
-    __slots__ = ("quads",)
+    __slots__ = ("quads", "tables")
 
     def __init__(self) -> None:
         self.quads: tuple[bytes, bytes] | None = None
+        self.tables: tuple[CaptureTable | None, CaptureTable | None] | None = None
 
 
 def jig_frame_from_fiducials(
@@ -145,9 +154,11 @@ def jig_frame_from_fiducials(
     RMS reprojection error exceeds :data:`MAX_FIDUCIAL_RMS_PX`).
     """
     k = constants if constants is not None else frame_constants(jig)
-    frame = _jig_frame_fast(left_u8, right_u8, jig, k, k.fast.expected_quads)
+    frame = _jig_frame_fast(left_u8, right_u8, jig, k, k.fast.expected_quads, k.fast.capture_tables)
     if frame is None and memory is not None and memory.quads is not None:
-        frame = _jig_frame_fast(left_u8, right_u8, jig, k, memory.quads)
+        if memory.tables is None:
+            memory.tables = _capture_tables(memory.quads, k.fast.image_shape)
+        frame = _jig_frame_fast(left_u8, right_u8, jig, k, memory.quads, memory.tables)
     if frame is not None:
         return frame
     fid = jig.fiducials
@@ -161,6 +172,7 @@ def jig_frame_from_fiducials(
     frame = _frame_from_corners(found, jig, _fit_pose_lm, k)
     if memory is not None and frame is not None and all(set(f) == set(fid.ids) for f in found):
         memory.quads = tuple(np.array([f[i] for i in fid.ids], dtype=float).tobytes() for f in found)
+        memory.tables = None
     return frame
 
 
@@ -170,6 +182,7 @@ def _jig_frame_fast(
     jig: JigConfig,
     constants: FrameConstants,
     expected_quads: tuple[bytes, bytes],
+    tables: tuple[CaptureTable | None, CaptureTable | None],
 ) -> JigFrame | None:
     """The fast path: every fiducial read near its expected place (the bytes of (M, 4, 2) float64 quads
     in each image), and a Gauss-Newton fit; ``None`` if a fiducial is not there or the fit fails."""
@@ -177,9 +190,16 @@ def _jig_frame_fast(
     images = [np.asarray(image) for image in (left_u8, right_u8)]
     if any(image.dtype != np.uint8 or image.ndim != 2 for image in images):
         return None
+    if any(image.shape != k.image_shape for image in images):  # not the cameras' images: tables made here
+        tables = tuple(
+            capture_table(q, len(q) // 64, image.shape)
+            for q, image in zip(expected_quads, images, strict=True)
+        )
+    if tables[0] is None or tables[1] is None:  # a scanline leaves the image: not found there
+        return None
     corners = [
-        locate_quads_near(np.ascontiguousarray(image), jig.fiducials, quads)
-        for image, quads in zip(images, expected_quads, strict=True)
+        locate_quads_near(np.ascontiguousarray(image), jig.fiducials, quads, table=table, white=k.white)
+        for image, quads, table in zip(images, expected_quads, tables, strict=True)
     ]
     if corners[0] is None or corners[1] is None:
         return None
@@ -215,6 +235,9 @@ class _FastConstants:
     sorted_ids: tuple[int, ...]
     distorted: bool
     pinhole: _PinholeConstants
+    image_shape: tuple[int, int]
+    capture_tables: tuple[CaptureTable | None, CaptureTable | None]
+    white: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -230,7 +253,7 @@ class FrameConstants:
 
 
 def frame_constants(jig: JigConfig) -> FrameConstants:
-    """The jig-frame constants of this jig (about 1 ms to build: an estimator builds them once)."""
+    """The jig-frame constants of this jig (an estimator builds them once)."""
     expected = jig_frame_from_config(jig)
     T_left_right = invert_pose(expected.T_J_left) @ expected.T_J_right
     T_left_right.flags.writeable = False
@@ -240,21 +263,34 @@ def frame_constants(jig: JigConfig) -> FrameConstants:
     points = np.concatenate([corners, corners])
     points.flags.writeable = False
     n = len(corners)
+    expected_quads = (
+        np.ascontiguousarray(expected.fiducial_quads_left_px, dtype=float).tobytes(),
+        np.ascontiguousarray(expected.fiducial_quads_right_px, dtype=float).tobytes(),
+    )
+    image_shape = (jig.cameras.left.height_px, jig.cameras.left.width_px)
     fast = _FastConstants(
-        expected_quads=(
-            np.ascontiguousarray(expected.fiducial_quads_left_px, dtype=float).tobytes(),
-            np.ascontiguousarray(expected.fiducial_quads_right_px, dtype=float).tobytes(),
-        ),
+        expected_quads=expected_quads,
         points_J=points,
         n_left=n,
         T_left_right=T_left_right,
         sorted_ids=tuple(sorted(jig.fiducials.ids)),
         distorted=bool(np.any(jig.cameras.left.distortion) or np.any(jig.cameras.right.distortion)),
         pinhole=_pinhole_constants(jig, expected, T_left_right, n, n),
+        image_shape=image_shape,
+        capture_tables=_capture_tables(expected_quads, image_shape),
+        white=cell_patterns(jig.fiducials.dictionary, tuple(jig.fiducials.ids)),
     )
     return FrameConstants(
         expected, T_left_right, dict(zip(jig.fiducials.ids, corners_by_fiducial, strict=True)), fast
     )
+
+
+def _capture_tables(
+    quads: tuple[bytes, bytes], image_shape: tuple[int, int]
+) -> tuple[CaptureTable | None, CaptureTable | None]:
+    """The capture tables of the quads expected in each image
+    (:func:`~softjig.sensing.fiducials.capture_table`)."""
+    return tuple(capture_table(q, len(q) // 64, image_shape) for q in quads)
 
 
 PoseFit = Callable[

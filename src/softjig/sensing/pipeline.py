@@ -36,7 +36,7 @@ sees it, so zero push reads zero, and stays compressed by the same factor.
 The work is done by an :class:`~softjig.sensing.estimator.Estimator`, built once from the jig and the
 method (:mod:`softjig.sensing.estimator`; its stages in :mod:`softjig.sensing.stages`, the plane fits in
 :mod:`softjig.sensing.fitting`, the result types in :mod:`softjig.sensing.results`). The functions here
-are the one-shot forms: each builds an estimator (about 15 ms), so a loop over frames builds one
+are the one-shot forms: each builds an estimator (more work than a frame), so a loop over frames builds one
 :class:`~softjig.sensing.estimator.Estimator` and calls its ``estimate`` instead.
 """
 
@@ -44,13 +44,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from softjig.calibration.tilt import TiltCalibration
 from softjig.config import JigConfig
 from softjig.sensing.estimator import DEFAULT_METHOD, METHODS, Estimator
 from softjig.sensing.fitting import NoiseScales
 from softjig.sensing.identities import ReferenceMarkers
 from softjig.sensing.results import Estimate, Markers, Observation, Refusal, SensingResult
 from softjig.sensing.setup import SensingSetup, sensing_setup
+from softjig.tilt_calibration import TiltCalibration
 
 __all__ = [
     "DEFAULT_METHOD",
@@ -85,7 +85,7 @@ def estimate_pair(
 
     A one-shot :class:`~softjig.sensing.estimator.Estimator` (``Estimator(jig, method=method,
     reference=reference, calibration=calibration).estimate(left, right, ...)``): see there for the
-    parameters, results and errors. Building it costs about 15 ms, more than a frame: a loop over
+    parameters, results and errors. Building it costs more than a frame: a loop over
     frames builds one estimator and calls ``estimate`` for each.
     """
     estimator = Estimator(jig, method=method, reference=reference, calibration=calibration)

@@ -10,8 +10,9 @@ tactile sensors that model refraction (GelStereo 2.0, StereoTacTip) do the same.
 
 Back-projection through flat layers is closed form (:func:`softjig.optics.rays_in_top_region_normalized`:
 a ray keeps its azimuth and Snell invariant through horizontal interfaces), and so is the closest approach
-of two rays (:func:`closest_points_of_rays`). The general trace through each interface
-(:func:`softjig.optics.backproject_pixels`) is the tests' oracle for both.
+of two rays (:func:`closest_points_of_rays`); :func:`triangulate_refracted` runs both for all markers in
+one compiled loop (:func:`softjig.sensing._refractive_kernels.triangulate`). The general trace through
+each interface (:func:`softjig.optics.backproject_pixels`) is the tests' oracle.
 """
 
 from __future__ import annotations
@@ -20,15 +21,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from softjig.config import JigConfig
+from softjig.config import CameraConfig, JigConfig
 from softjig.errors import InputError
-from softjig.optics import FlatLayers, pixels_to_normalized, rays_in_top_region_normalized
+from softjig.optics import layer_constants, pixels_to_normalized
 from softjig.rig import flat_layers
+from softjig.sensing._refractive_kernels import PARALLEL_SIN2, triangulate
 from softjig.sensing.jigframe import JigFrame
-
-#: Rays whose directions' cross product has a squared norm ``1 - (a . b)^2`` below this are parallel: they
-#: have no unique closest approach (their midpoint is NaN).
-PARALLEL_SIN2 = 1e-12
 
 
 @dataclass(frozen=True)
@@ -105,40 +103,48 @@ def triangulate_refracted(
     if len(left_xy) == 0:
         return RefractedPoints(np.zeros((0, 3)), np.zeros(0))
     k = constants if constants is not None else kernel_constants(jig)
-    normalized = np.stack(
-        [
-            pixels_to_normalized(xy, K, distortion)
-            for xy, K, distortion in zip((left_xy, right_xy), k.K, k.distortion, strict=True)
-        ]
-    )
+    pixels = [left_xy, right_xy]
+    for i, camera in enumerate(k.distorted):  # undistorted first; the kernel's intrinsics are then 1
+        if camera is not None:
+            pixels[i] = pixels_to_normalized(pixels[i], camera.K, camera.distortion)
     poses = np.stack([frame.T_J_left, frame.T_J_right])
-    origins, directions = rays_in_top_region_normalized(
-        normalized, poses[:, :3, :3], poses[:, :3, 3], k.layers
-    )
-    points, gap = closest_points_of_rays(origins[0], directions[0], origins[1], directions[1])
+    below = poses[:, 2, 3] < k.z_if[0]
+    if not below.all():
+        raise ValueError(
+            f"camera centre z = {poses[:, 2, 3].max()} mm must lie in region 0, strictly below the lowest "
+            f"interface z = {k.z_if[0]} mm"
+        )
+    points = np.empty((len(left_xy), 3))
+    gap = np.empty(len(left_xy))
+    triangulate(pixels[0], pixels[1], k.intrinsics, poses, k.z_if, k.ratio, points, gap)
     return RefractedPoints(points, gap)
 
 
 @dataclass(frozen=True)
 class KernelConstants:
-    """Per jig: the two cameras' matrices ``K`` (px) and distortion coefficients (``None`` without
-    distortion), and the refracting layers."""
+    """Per jig: each camera's ``(fx, fy, cx, cy)`` (px; ``(1, 1, 0, 0)`` for a camera with distortion,
+    whose pixels are undistorted first), those cameras (or ``None``), and the layers' interface heights
+    (mm) and ``n_0 / n_i`` per region."""
 
-    K: tuple[np.ndarray, np.ndarray]
-    distortion: tuple[np.ndarray | None, np.ndarray | None]
-    layers: FlatLayers
+    intrinsics: np.ndarray
+    distorted: tuple[CameraConfig | None, CameraConfig | None]
+    z_if: np.ndarray
+    ratio: np.ndarray
 
 
 def kernel_constants(jig: JigConfig) -> KernelConstants:
-    """The triangulation's constants of this jig (an estimator builds them once)."""
+    """The kernel's constants of this jig (an estimator builds them once)."""
     cams = jig.cameras.left, jig.cameras.right
-    K = tuple(np.asarray(cam.K, dtype=float) for cam in cams)
-    distortion = tuple(
-        np.asarray(cam.distortion, dtype=float) if np.any(cam.distortion) else None for cam in cams
+    distorted = tuple(cam if np.any(cam.distortion) else None for cam in cams)
+    intrinsics = np.array(
+        [
+            (1.0, 1.0, 0.0, 0.0) if d is not None else (c.fx_px, c.fy_px, c.cx_px, c.cy_px)
+            for c, d in zip(cams, distorted, strict=True)
+        ]
     )
-    for array in (*K, *(d for d in distortion if d is not None)):
-        array.flags.writeable = False
-    return KernelConstants(K, distortion, flat_layers(jig))
+    intrinsics.flags.writeable = False
+    z_if, ratio, _, _ = layer_constants(flat_layers(jig))
+    return KernelConstants(intrinsics, distorted, z_if, ratio)
 
 
 def _as_pixels(xy_px: np.ndarray, name: str) -> np.ndarray:

@@ -51,20 +51,15 @@ Method
    candidates (a convex hull per hypothesis would be too slow), and the scale of step 5 uses the residuals
    above the plane, which the lifted-off markers cannot reach.
 
-No M-estimator refinement follows: it is not implemented, because its benefit was not measured. The
-error that remains (see Limits) comes from lifted-off markers just below the plane, within ``t``, which
-are indistinguishable from noise by their residual alone.
+No M-estimator refinement follows (none is implemented). The error that remains comes from lifted-off
+markers just below the plane, within ``t``, which are indistinguishable from noise by their residual
+alone.
 
-Limits (measured on a simulated disc of markers on an 8 mm grid, radius 20-40 mm, tilts 5-20 deg,
-0-50 % outliers of both kinds, 300 cases per noise level; "excess" is the error beyond that of the
-least-squares fit to the true contact markers alone): noise-free, excess below 0.1 deg in 98 % of cases
-(worst 0.26 deg: lifted-off markers within the 0.125 mm minimum threshold join the fit); with 0.05 mm
-noise, below 0.1 deg in 98 % (worst 0.3 deg, 20 mm discs at 50 % outliers). The fit degrades when the
-noise approaches the lifted-off markers' gaps: at 0.2 mm noise and 50 % outliers, the excess passes 1 deg
-in 11 of 25 cases on 20 mm discs and 2 of 25 on 40 mm discs; at 0.3 mm most such cases fail. Plain SVD
-is off by 2-10 deg in all of them. Without outliers, 45 or more markers with bounded noise keep every
-marker in 94-100 % of cases (Gaussian noise loses ~1 % of markers by design, beyond 2.5 sigma); 9-13
-markers with a 0.1 mm ripple drop one or more in 6-32 % of cases (a few markers are coplanar by chance).
+Limits: the fit degrades when the triangulation noise approaches the lifted-off markers' gaps below the
+plane (small contact discs with many outliers fail first); with Gaussian noise about 1 % of the contact
+markers fall beyond 2.5 sigma and are dropped by design, and a few markers that happen to be coplanar can
+hold the automatic threshold down on small sets. The figures are in ``benchmarks/RESULTS.md`` (robust
+plane fit).
 
 References
 ----------
@@ -91,7 +86,7 @@ from softjig._geometry_kernels import plane_fit
 from softjig.checks import positive_float
 from softjig.errors import InputError
 from softjig.geometry import DEGENERATE_PLANE_RATIO, PlaneFit, fit_plane_svd
-from softjig.sensing._robust_kernels import best_candidate, refine, score_batch
+from softjig.sensing._robust_kernels import COLLINEAR_SINE, VERTICAL_NZ, best_candidate, refine, score_batch
 
 __all__ = ["RobustPlaneFit", "fit_plane_robust"]
 
@@ -104,7 +99,9 @@ _THRESHOLD_SIGMAS = 2.5  # inlier threshold in units of the noise scale
 _COVERAGE_QUANTILE = NormalDist().cdf(_THRESHOLD_SIGMAS)  # one-sided quantile of +-2.5 sigma
 _MIN_SCALE_MM = 0.05  # floor of the automatic noise scale (the threshold is at least 2.5 x this)
 _MAD_TO_SIGMA = 1.4826  # sigma / median(|r|) for Gaussian noise
-_MAX_REFINE_ROUNDS = 10
+_MAX_REFINE_ROUNDS = 10  # least-squares refits of one candidate's inliers, at most
+_MIN_ABOVE_FOR_SCALE = 8  # the one-sided scale needs at least this many residuals above the plane
+_MIN_INLIER_RATIO = 1e-6  # the adaptive hypothesis count's inlier ratio is at least this (no log(0))
 _MAX_SCALE_ROUNDS = 8  # re-estimations of the automatic threshold after refinement
 _SETTLED_THRESHOLD_CHANGE = 0.01  # the automatic threshold has settled when it changes by less than this
 _N_CANDIDATES = 3  # refined candidates compared at the end
@@ -183,8 +180,7 @@ def fit_plane_robust(
     -----
     Distances are signed along the plane's normal ``n`` (``n_z > 0``, into the part): lifted-off markers
     have negative residuals, wall markers positive ones. The inlier threshold is symmetric; only the
-    choice between refined candidates and the final scale are one-sided. Takes about 0.3 ms for 150
-    points with a given threshold, 2 ms with the automatic one (measured).
+    choice between refined candidates and the final scale are one-sided.
 
     Examples
     --------
@@ -250,8 +246,8 @@ def _triple_source(
     ``np.random.default_rng(rng).integers(0, n, size=(count, 3))`` drawn in turn would give them.
 
     For an integer seed (the default) the whole sequence is drawn once per ``(seed, n, max_iterations)``
-    and sliced (batches drawn in turn are the rows of one draw of all of them): making or resetting a
-    seeded generator and two draws took about 50 us per fit in the pipeline (measured).
+    and sliced (batches drawn in turn are the rows of one draw of all of them), so a fit does not pay for
+    making a seeded generator.
     """
     if isinstance(rng, (int, np.integer)) and not isinstance(rng, bool):
         table = _seeded_triples(int(rng), n, max_iterations)
@@ -298,16 +294,16 @@ def _planes_from_triples(points: np.ndarray, triples: np.ndarray) -> tuple[np.nd
     cross = np.cross(e1, e2)
     norm = np.linalg.norm(cross, axis=1)
     scale = np.linalg.norm(e1, axis=1) * np.linalg.norm(e2, axis=1)
-    ok = norm > 1e-6 * scale  # sine of the triangle's angle at p0
+    ok = norm > COLLINEAR_SINE * scale  # sine of the triangle's angle at p0
     normals = cross[ok] / norm[ok, None]
-    ok_z = np.abs(normals[:, 2]) > 1e-6  # a vertical plane has no side "into the part"
+    ok_z = np.abs(normals[:, 2]) > VERTICAL_NZ
     normals = normals[ok_z] * np.sign(normals[ok_z, 2])[:, None]
     offsets = -np.einsum("ij,ij->i", normals, p0[ok][ok_z])
     return normals, offsets
 
 
 def _required_iterations(inlier_ratio: float) -> float:
-    w3 = min(max(inlier_ratio, 1e-6), 1.0) ** 3
+    w3 = min(max(inlier_ratio, _MIN_INLIER_RATIO), 1.0) ** 3
     if w3 >= 1.0:
         return 0.0
     return math.log(1.0 - _CONFIDENCE) / math.log1p(-w3)
@@ -337,8 +333,7 @@ def _hypotheses(
         count = min(_BATCH, max_iterations - drawn)
         triples = draw(drawn, count)  # those with a repeated point are skipped
         drawn += count
-        # One compiled pass per batch: planes, their scores, the best one's inlier ratio (the NumPy
-        # version of the same steps took 0.1-0.2 ms per batch on 30 points, measured; this, 10 us).
+        # One compiled pass per batch: planes, their scores, the best one's inlier ratio.
         normals, offsets, key, ratio = score_batch(
             points, triples, t_batch, lqs_factor, h, _THRESHOLD_SIGMAS, _MIN_SCALE_MM
         )
@@ -390,7 +385,7 @@ def _threshold_from_refined(residuals: np.ndarray, t: float, one_sided: bool) ->
     abs_r = np.abs(residuals)
     half = np.partition(abs_r, (len(abs_r) - 1) // 2)[(len(abs_r) - 1) // 2]  # the inliers are >= half
     window = abs_r <= max(_SCALE_WINDOW * t, half)
-    if one_sided and np.count_nonzero(window & (residuals > 0)) >= 8:
+    if one_sided and np.count_nonzero(window & (residuals > 0)) >= _MIN_ABOVE_FOR_SCALE:
         window &= residuals > 0
     r = np.abs(residuals[window])
     m = len(r)
@@ -409,8 +404,8 @@ def _student_factor(dof: int) -> float:
 
 @lru_cache(maxsize=256)
 def _student_quantile(dof: int) -> float:
-    # scipy.stats is imported here, on the first fit: at module level it took 0.8 s of every command's
-    # start-up (measured).
+    # scipy.stats is imported here, on the first fit, not at module level: it is slow to import and
+    # every command's start-up would pay for it.
     from scipy.stats import t as student_t
 
     return float(student_t.ppf(_COVERAGE_QUANTILE, dof))

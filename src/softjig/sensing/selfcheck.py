@@ -16,6 +16,12 @@ plausible normals), and a difference beyond :data:`SPLIT_SUSPECT_SIGMAS` of its 
 :data:`SPLIT_SUSPECT_MIN_DEG` makes the estimate suspect. Splitting along both axes sees a curvature
 in any direction.
 
+**Rival contacts.** Where two ways of finding the contact (e.g. the face searched from the jig axis
+and from the dent's centroid, or the size-free contact cut to the face) both give a plane that no
+marker contradicts, their normals are compared the same way (:func:`agreement`): normals farther
+apart than their noise allows mean that the frame holds two plausible faces (the part's and a strip of
+the membrane's wall beside a small contact), and whichever is reported, the estimate is suspect.
+
 The other checks (the contact's consistency with its plane, its area against the part's, a plane too
 steep for a part on a soft jig) are made where their quantities are (:mod:`softjig.sensing.contact`,
 :mod:`softjig.sensing.pipeline`); this module is pure math on points.
@@ -29,7 +35,11 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-__all__ = ["SplitCheck", "split_halves"]
+from softjig.errors import InputError
+from softjig.geometry import PlaneFit
+from softjig.sensing.uncertainty import normal_uncertainty
+
+__all__ = ["SplitCheck", "agreement", "split_halves"]
 
 #: The halves' normals differing by more than this many sigmas of their difference's noise (a 2-D
 #: Gaussian difference of RMS ``noise`` exceeds ``k noise`` with probability ``exp(-k^2)``: 1e-4 for 3) ...
@@ -112,6 +122,61 @@ def split_halves(
         if worst is None or check.sigmas > worst.sigmas:
             worst = check
     return worst
+
+
+def agreement(
+    points_a: np.ndarray,
+    normal_a: np.ndarray,
+    points_b: np.ndarray,
+    normal_b: np.ndarray,
+    *,
+    point_sigma_mm: float,
+    noise_factor: float = 1.0,
+) -> SplitCheck | None:
+    """The agreement of two planes fitted to two sets of markers (two candidate contacts), as a
+    :class:`SplitCheck` (``suspect`` when they disagree beyond their noise and
+    :data:`SPLIT_SUSPECT_MIN_DEG`).
+
+    Parameters
+    ----------
+    points_a, points_b : (N, 3) the markers of each contact in J (mm).
+    normal_a, normal_b : (3,) their planes' unit normals (``n_z > 0``).
+    point_sigma_mm : the markers' noise (mm), measured elsewhere (as for :func:`split_halves`).
+    noise_factor : the factor on the first-order sigmas for the errors the model leaves out.
+
+    Returns
+    -------
+    SplitCheck or None
+        ``None`` when a set has fewer than 4 markers or its ``(x, y)`` lie on a line. The noise is that
+        of two independent fits, ``sqrt(sigma_a^2 + sigma_b^2)``: contacts that share markers have
+        correlated errors, so their true noise is smaller and the test errs towards agreeing.
+    """
+    sigmas = []
+    for points, normal in ((points_a, normal_a), (points_b, normal_b)):
+        pts = np.asarray(points, dtype=float)
+        if len(pts) < 4:
+            return None
+        n = np.asarray(normal, dtype=float)
+        centroid = pts.mean(axis=0)
+        plane = PlaneFit(
+            normal=n,
+            offset_mm=-float(n @ centroid),
+            centroid_mm=centroid,
+            rms_residual_mm=0.0,
+            n_points=len(pts),
+            singular_values=np.zeros(3),
+        )
+        try:
+            sigmas.append(normal_uncertainty(pts, plane, point_sigma_mm=point_sigma_mm).tilt_sigma_rad)
+        except InputError:  # on a line: no tilt across it
+            return None
+    a, b = np.asarray(normal_a, dtype=float), np.asarray(normal_b, dtype=float)
+    return SplitCheck(
+        angle_rad=_angle_between(a.tolist(), b.tolist()),
+        noise_rad=noise_factor * math.hypot(*sigmas),
+        normal_a=a.copy(),
+        normal_b=b.copy(),
+    )
 
 
 def _angle_between(a: list[float], b: list[float]) -> float:

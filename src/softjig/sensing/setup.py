@@ -71,7 +71,7 @@ class SensingSetup:
 
 def sensing_setup(jig: JigConfig, layers: FlatLayers | None = None) -> SensingSetup:
     """Derive the detection scale, disparity window and push-depth reference from the nominal (rectified)
-    jig; about 10 ms: an estimator derives it once."""
+    jig (it projects every marker through the layers: an estimator derives it once)."""
     left, right = jig.cameras.left, jig.cameras.right
     layers = layers if layers is not None else flat_layers(jig)
     apex = np.array([[0.0, 0.0, jig.membrane.dome_height_mm]])
@@ -162,7 +162,7 @@ class JigModel:
 
     @classmethod
     def build(cls, jig: JigConfig) -> JigModel:
-        """Derive it (about 15 ms, and the rectification's maps for a raw pair).
+        """Derive it (more than a frame's work, and the rectification's maps for a raw pair).
 
         Raises
         ------

@@ -26,6 +26,7 @@ from softjig.sensing.jigframe import FiducialMemory, JigFrame, inside_fiducials,
 from softjig.sensing.refractive import triangulate_refracted
 from softjig.sensing.setup import JigModel, pinhole_triangulation
 from softjig.sensing.stereo import StereoMatches, match_rectified
+from softjig.sensing.subpixel import kernel_tables
 
 if TYPE_CHECKING:
     from softjig.sensing.results import Observation, Refusal, SensingResult
@@ -107,6 +108,8 @@ class LogDetector:
             self._kwargs["threshold"] = threshold
         if model is not None:
             self._kwargs["model"] = model
+            if refine == "model":  # the model fit's weight tables, read once (from disk)
+                self._kwargs["tables"] = kernel_tables(model)
 
     @classmethod
     def from_model(cls, model: JigModel, *, candidates: str | None = None) -> LogDetector:

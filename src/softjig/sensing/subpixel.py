@@ -38,7 +38,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from functools import lru_cache
 
 import cv2
 import numpy as np
@@ -54,6 +53,7 @@ __all__ = [
     "MarkerModel",
     "SubpixelFit",
     "fit_tables",
+    "kernel_tables",
     "marker_profile",
     "noise_covariance",
     "refine_centres",
@@ -302,7 +302,6 @@ def _tables_key(model: MarkerModel) -> str:
     return f"format={TABLES_FORMAT_VERSION}\nMarkerModel({fields})\n{constants}\n{libraries}"
 
 
-@lru_cache(maxsize=16)
 def fit_tables(model: MarkerModel) -> np.ndarray:
     """Gauss-Newton weights as a polynomial in the reference centre's offset (see the module docstring).
 
@@ -367,7 +366,12 @@ def _build_tables(model: MarkerModel) -> np.ndarray:
 
 
 def refine_centres(
-    image: np.ndarray, start_xy_px: np.ndarray, model: MarkerModel, *, iterations: int = 20
+    image: np.ndarray,
+    start_xy_px: np.ndarray,
+    model: MarkerModel,
+    *,
+    iterations: int = 20,
+    tables: np.ndarray | None = None,
 ) -> SubpixelFit:
     """Refine marker centres by the prewhitened model fit.
 
@@ -378,6 +382,7 @@ def refine_centres(
     model : the marker and noise model (:class:`MarkerModel`).
     iterations : at most this many Newton steps per window; they stop when a step is below 1e-6 px
         (3 to 5 steps from the window's centre).
+    tables : :func:`kernel_tables` of ``model`` (read here when not given: a detector reads them once).
 
     Returns
     -------
@@ -412,7 +417,7 @@ def refine_centres(
     xy = np.empty_like(start)
     amp = np.empty(len(start))
     ok = np.empty(len(start), np.bool_)
-    tables = _kernel_tables(model)
+    tables = tables if tables is not None else kernel_tables(model)
     half = int(model.half_width_px)
     refine_all(arr, start, tables, half, scale, _TABLE_RANGE_PX, _MAX_SHIFT_PX, int(iterations), xy, amp, ok)
     return SubpixelFit(xy_px=xy, amplitude=amp, ok=ok)
@@ -421,9 +426,10 @@ def refine_centres(
 _BLOCK_ROWS = 5  # table rows per block of the kernels' product: the 30 coefficients, no padding
 
 
-@lru_cache(maxsize=16)
-def _kernel_tables(model: MarkerModel) -> np.ndarray:
-    """:func:`fit_tables` transposed, ``(3 K, n^2)`` padded with zero rows to a multiple of 5, float32.
+def kernel_tables(model: MarkerModel) -> np.ndarray:
+    """:func:`fit_tables` transposed, ``(3 K, n^2)`` padded with zero rows to a multiple of 5, float32
+    (read-only): what :func:`refine_centres` takes as ``tables`` (read from disk: a detector
+    makes them once).
 
     One row per coefficient, contiguous over the window's pixels: the layout of :func:`_block_product`.
     """

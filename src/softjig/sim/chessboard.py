@@ -238,7 +238,7 @@ def render_charuco_view(
     -------
     (H, W) uint8 image.
     """
-    from softjig.sensing.fiducials import aruco_dictionary
+    from softjig.aruco import aruco_dictionary
 
     if not 0 < marker_mm < square_mm:
         raise ValueError(f"the marker ({marker_mm} mm) must be smaller than a square ({square_mm} mm)")

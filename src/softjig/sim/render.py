@@ -124,11 +124,12 @@ import cv2
 import numpy as np
 from scipy.special import ndtri
 
+from softjig.aruco import aruco_dictionary
 from softjig.config import CameraConfig, ImagingConfig, JigConfig, MediumConfig, Part, PlateConfig
 from softjig.jig_shape import rest_inner_height_mm
 from softjig.optics import backproject_pixels, project_points, projection_jacobian
 from softjig.rig import AIR_REFRACTIVE_INDEX, distortion_of, flat_layers
-from softjig.sensing.fiducials import aruco_dictionary, fiducial_corners_J
+from softjig.sensing.fiducials import fiducial_corners_J
 from softjig.sim.asbuilt import AsBuiltJig
 from softjig.sim.membrane import MembraneState, deform
 from softjig.sim.parts import PartPose

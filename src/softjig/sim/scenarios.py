@@ -1,9 +1,9 @@
-"""What to render: the paper's experiments as lists of frames, and the simulator that writes them.
+"""What to render: the paper's experiments as lists of frames, and the ground truth of each frame.
 
 A scenario is a sequence of :class:`FrameSpec` (a part, its pose and the frame's metadata), a pure
-description with nothing rendered. :func:`simulate_dataset` draws an as-built jig from a seed, renders
-every spec with :func:`softjig.sim.render.render_pair` and writes a dataset (:mod:`softjig.io.dataset`)
-with the ground truth of each frame.
+description with nothing rendered. :func:`softjig.io.simulated.simulate_dataset` draws an as-built jig from
+a seed, renders every spec with :func:`softjig.sim.render.render_pair` and writes a dataset
+(:mod:`softjig.io.dataset`) with the ground truth of each frame (:func:`frame_truth`).
 
 Ground truth written per frame (``truth`` in ``frames.jsonl``)
 ---------------------------------------------------------------
@@ -25,26 +25,16 @@ the number of worker processes.
 
 from __future__ import annotations
 
-import contextlib
-import itertools
 import math
-import os
-import time
-from collections import deque
-from collections.abc import Iterable, Iterator, Sequence
-from concurrent.futures import Future, ProcessPoolExecutor
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from softjig.config import CylinderPart, JigConfig, Part, cube, part_to_dict, validate_jig, validate_part
+from softjig.config import CylinderPart, JigConfig, Part, cube, part_to_dict, validate_part
 from softjig.errors import InputError
-from softjig.io.dataset import DatasetWriter, encode_png
-from softjig.io.workers import worker_pool
 from softjig.jig_shape import rest_inner_height_mm
-from softjig.sim.asbuilt import AsBuiltJig, draw_as_built
 from softjig.sim.parts import PartPose, bottom_face_rim, bottom_plane_height_mm
 
 __all__ = [
@@ -52,7 +42,6 @@ __all__ = [
     "cube_experiment",
     "frame_truth",
     "paper_sweep",
-    "simulate_dataset",
     "single",
 ]
 
@@ -259,204 +248,3 @@ def frame_truth(jig: JigConfig, pose: PartPose) -> dict[str, Any]:
         "push_depth_mm": h_rest - z_markers_plane,
         "T_J_part": T.tolist(),
     }
-
-
-# ------------------------------------------------------------------------------------- rendering
-
-_WORKER_AS_BUILT: AsBuiltJig | None = None
-
-
-def _init_worker(as_built: AsBuiltJig) -> None:
-    global _WORKER_AS_BUILT
-    _WORKER_AS_BUILT = as_built
-
-
-def _frame_seed(seed: int, index: int) -> np.random.SeedSequence:
-    return np.random.SeedSequence(seed, spawn_key=(1, index))
-
-
-def _render_one(
-    as_built: AsBuiltJig, spec: FrameSpec, seed: int, index: int, color: bool
-) -> tuple[bytes, bytes, dict[str, np.ndarray]]:
-    """Render one frame and encode it: (left PNG, right PNG, truth arrays)."""
-    from softjig.sim.render import render_pair
-
-    rng = np.random.default_rng(_frame_seed(seed, index))
-    pair = render_pair(as_built, spec.part, spec.pose, rng, color=color)
-    m = pair.markers
-    truth = {
-        "xyz_mm": m.xyz_mm,
-        "axis": m.axis,
-        "in_contact": m.in_contact,
-        "left_px": m.left_px,
-        "right_px": m.right_px,
-        "visible_left": m.visible_left,
-        "visible_right": m.visible_right,
-        "fiducial_corners_left_px": pair.fiducial_corners_left_px,
-        "fiducial_corners_right_px": pair.fiducial_corners_right_px,
-    }
-    return encode_png(pair.left), encode_png(pair.right), {k: np.asarray(v) for k, v in truth.items()}
-
-
-def _render_in_worker(
-    spec: FrameSpec, seed: int, index: int, color: bool
-) -> tuple[bytes, bytes, dict[str, np.ndarray]]:
-    assert _WORKER_AS_BUILT is not None, "worker not initialised"
-    return _render_one(_WORKER_AS_BUILT, spec, seed, index, color)
-
-
-def _warm_up() -> None:
-    from softjig.sim import render  # noqa: F401 - import once per worker, before the first frame
-
-
-def simulate_dataset(
-    out_dir: str | os.PathLike[str],
-    specs: Iterable[FrameSpec],
-    nominal_jig: JigConfig,
-    *,
-    seed: int,
-    workers: int | None = None,
-    progress: bool = True,
-    overwrite: bool = False,
-    color: bool = False,
-    first_index: int = 0,
-) -> Path:
-    """Render every spec on an as-built jig drawn from ``seed`` and write a dataset with ground truth.
-
-    Parameters
-    ----------
-    out_dir : the dataset folder to write.
-    specs : the frames (:func:`paper_sweep`, :func:`cube_experiment`, :func:`single`).
-    nominal_jig : the jig as designed; written as ``rig.toml``. The images come from an as-built jig
-        drawn from its tolerances (:func:`softjig.sim.asbuilt.draw_as_built`), stored as
-        ``as_built.toml`` for analysis only.
-    seed : the run's seed; the same seed gives the same dataset whatever ``workers`` is.
-    workers : rendering processes (default: ``os.cpu_count()``); 1 renders in this process.
-    progress : show a progress bar on stderr.
-    overwrite : replace an existing dataset in ``out_dir``.
-    color : render RGB images instead of gray.
-    first_index : the first spec's number in a longer run (frame ``k`` draws its noise from the seed and
-        ``first_index + k``): the run's frames written in parts (``softjig demo``'s chunks) are the
-        frames of the whole run at once. The dataset still numbers its frames from 0.
-
-    Returns
-    -------
-    Path
-        ``out_dir``.
-
-    Raises
-    ------
-    InputError
-        An existing dataset without ``overwrite``, an invalid spec or seed.
-    """
-    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
-        raise InputError(f"the seed must be a non-negative integer, got {seed!r}")
-    seed = int(seed)
-    validate_jig(nominal_jig)
-    specs = list(specs)
-    for spec in specs:
-        if spec.part is not None:
-            validate_part(spec.part, nominal_jig)
-            check_reachable(nominal_jig, spec)
-    n_workers = (os.cpu_count() or 1) if workers is None else int(workers)
-    if n_workers < 1:
-        raise InputError(f"the number of workers must be at least 1, got {workers}")
-    n_workers = min(n_workers, max(1, len(specs)))
-    from softjig.sim import render  # noqa: F401 - fail early; forked workers inherit the import
-
-    as_built = draw_as_built(nominal_jig, np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(0,))))
-    out = Path(out_dir)
-    with contextlib.ExitStack() as stack:
-        # A simulation can be rendered again from its seed: files are written atomically (a killed run
-        # leaves only complete frames) but not fsynced, which would cost ~30 ms of disk per frame here.
-        writer = stack.enter_context(
-            DatasetWriter(out, nominal_jig, as_built=as_built, overwrite=overwrite, durable=False)
-        )
-        pool = None
-        if n_workers > 1:
-            # Workers die with this process; an exception (Ctrl-C, SIGTERM) ends them at once (io.workers).
-            pool = stack.enter_context(worker_pool(n_workers, initializer=_init_worker, initargs=(as_built,)))
-            # Start every worker before the progress bar's thread exists (workers are forked).
-            for f in [pool.submit(_warm_up) for _ in range(n_workers)]:
-                f.result()
-        advance = stack.enter_context(_progress_bar(progress, len(specs)))
-        for index, (left, right, truth_markers) in enumerate(
-            _rendered(as_built, specs, seed, pool, n_workers, color, int(first_index))
-        ):
-            spec = specs[index]
-            meta = dict(spec.meta)
-            if spec.pose is not None:
-                meta["truth"] = frame_truth(as_built.jig, spec.pose)
-            writer.add_frame(left, right, meta, truth_markers=truth_markers)
-            advance()
-    return out
-
-
-def _rendered(
-    as_built: AsBuiltJig,
-    specs: list[FrameSpec],
-    seed: int,
-    pool: ProcessPoolExecutor | None,
-    n_workers: int,
-    color: bool,
-    first_index: int = 0,
-) -> Iterator[tuple[bytes, bytes, dict[str, np.ndarray]]]:
-    """The rendered frames, in order; in a pool, a bounded window of frames is in flight."""
-    if pool is None:
-        for index, spec in enumerate(specs, start=first_index):
-            yield _render_one(as_built, spec, seed, index, color)
-        return
-    todo = iter(enumerate(specs, start=first_index))
-    pending: deque[Future[tuple[bytes, bytes, dict[str, np.ndarray]]]] = deque(
-        pool.submit(_render_in_worker, spec, seed, index, color)
-        for index, spec in itertools.islice(todo, 8 * n_workers)  # absorbs fsync stalls
-    )
-    try:
-        while pending:
-            result = pending.popleft().result()
-            for index, spec in itertools.islice(todo, 1):
-                pending.append(pool.submit(_render_in_worker, spec, seed, index, color))
-            yield result
-    finally:
-        for f in pending:
-            f.cancel()
-
-
-class _progress_bar:
-    """A rich progress bar on stderr (or nothing); entering gives the ``advance()`` callable."""
-
-    def __init__(self, enabled: bool, total: int) -> None:
-        self.enabled, self.total = enabled, total
-        self._progress: Any = None
-        self._task: Any = None
-        self._t0 = time.perf_counter()
-
-    def __enter__(self):
-        if not self.enabled:
-            return lambda: None
-        from rich.console import Console
-        from rich.progress import (
-            BarColumn,
-            MofNCompleteColumn,
-            Progress,
-            TextColumn,
-            TimeElapsedColumn,
-            TimeRemainingColumn,
-        )
-
-        self._progress = Progress(
-            TextColumn("rendering"),
-            BarColumn(),
-            MofNCompleteColumn(),
-            TimeElapsedColumn(),
-            TimeRemainingColumn(),
-            console=Console(stderr=True),
-            transient=False,
-        )
-        self._progress.start()
-        self._task = self._progress.add_task("render", total=self.total)
-        return lambda: self._progress.advance(self._task)
-
-    def __exit__(self, *exc: object) -> None:
-        if self._progress is not None:
-            self._progress.stop()

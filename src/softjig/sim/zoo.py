@@ -4,7 +4,7 @@
 nominal jig (cameras, plate, oil, membrane, markers, image model) and a list of frames: the unloaded
 reference frame first, then loaded frames of random parts (cylinders, boxes, regular polygons) at
 random tilts, azimuths, spins, offsets and push depths. ``softjig simulate --scenario zoo`` renders each
-design with :func:`softjig.sim.scenarios.simulate_dataset` into ``DIR/NNN/``, an ordinary dataset with
+design with :func:`softjig.io.simulated.simulate_dataset` into ``DIR/NNN/``, an ordinary dataset with
 its full truth; ``benchmarks/bench_zoo.py`` renders them in memory.
 
 A design that cannot be made physically is redrawn, not returned: one whose config does not validate
@@ -17,8 +17,8 @@ not fit the membrane (:func:`softjig.config.validate_part`) or would reach into 
 
 Randomness: design ``i`` of seed ``s`` is drawn from ``SeedSequence(s, spawn_key=(i,))`` only, so the
 same seed gives the same designs whatever their number; each design carries its own dataset seed (the
-as-built jig and every frame, :func:`simulate_dataset`), bead-pack speckle seed and marker-brightness
-seed.
+as-built jig and every frame, :func:`softjig.io.simulated.simulate_dataset`), bead-pack speckle seed and
+marker-brightness seed.
 """
 
 from __future__ import annotations
@@ -172,7 +172,8 @@ class ZooDesign:
     Attributes
     ----------
     index : its number in the zoo (its folder ``NNN``).
-    seed : the dataset's seed (the as-built jig and every frame, :func:`simulate_dataset`).
+    seed : the dataset's seed (the as-built jig and every frame,
+        :func:`softjig.io.simulated.simulate_dataset`).
     family : a coarse label for grouping results: ``"<grid>-<resolution class>"`` (``sd`` below 1 Mpx,
         ``hd`` below 2 Mpx, ``fhd`` above).
     jig : the nominal jig.
@@ -241,43 +242,74 @@ def _u(rng: np.random.Generator, r: Range) -> float:
     return float(rng.uniform(r[0], r[1]))
 
 
-def _draw_jig(
-    rng: np.random.Generator, zr: ZooRanges, speckle_seed: int, brightness_seed: int
-) -> tuple[JigConfig, dict[str, Any]]:
-    base = default_jig()
+#: Bits per pixel of a zoo design's images (the 8-bit streams of common stereo cameras).
+ZOO_BIT_DEPTH = 8
+#: Megapixels below which a design's resolution is labelled ``sd``, then ``hd``; above, ``fhd``.
+SD_MAX_MPX, HD_MAX_MPX = 1.0, 2.0
+#: A marker counts as seen when its rest position projects this far (px) inside both images.
+IMAGE_MARGIN_PX = 10.0
+
+
+@dataclass(frozen=True)
+class _Optics:
+    """A design's plate and cameras as drawn (what the labels report of them)."""
+
+    width_px: int
+    height_px: int
+    material: str
+    plate_index: float
+    thickness_mm: float
+    gap_mm: float
+    baseline_mm: float
+    fx_px: float
+
+    def camera(self, x_mm: float) -> CameraConfig:
+        """A rectified camera of the design at ``x_mm`` along the baseline, below the plate."""
+        w, h = self.width_px, self.height_px
+        return CameraConfig(
+            width_px=w,
+            height_px=h,
+            fx_px=self.fx_px,
+            fy_px=self.fx_px,
+            cx_px=(w - 1) / 2.0,
+            cy_px=(h - 1) / 2.0,
+            position_mm=(x_mm, 0.0, -(self.thickness_mm + self.gap_mm)),
+        )
+
+
+def _draw_optics(rng: np.random.Generator, zr: ZooRanges) -> _Optics:
+    """Resolution, plate material and thickness, camera gap and baseline, and the focal length that gives
+    the drawn half field of view at the plate."""
     w, h = zr.resolutions[int(rng.integers(len(zr.resolutions)))]
     material, plate_index = zr.plate_materials[int(rng.integers(len(zr.plate_materials)))]
     thickness = _u(rng, zr.plate_thickness_mm)
     gap = _u(rng, zr.camera_gap_mm)
     baseline = _u(rng, zr.baseline_mm)
-    z_cam = -(thickness + gap)
-    fx = (w / 2.0) * (-z_cam) / _u(rng, zr.half_field_mm)
+    fx = (w / 2.0) * (thickness + gap) / _u(rng, zr.half_field_mm)
+    return _Optics(int(w), int(h), material, float(plate_index), thickness, gap, baseline, fx)
 
-    def camera(x: float) -> CameraConfig:
-        return CameraConfig(
-            width_px=int(w),
-            height_px=int(h),
-            fx_px=fx,
-            fy_px=fx,
-            cx_px=(w - 1) / 2.0,
-            cy_px=(h - 1) / 2.0,
-            position_mm=(x, 0.0, z_cam),
-        )
 
+def _draw_membrane(rng: np.random.Generator, zr: ZooRanges, base: JigConfig):
+    """The dome: its profile, exponent, height and footprint."""
     profile = "power" if rng.uniform() < 0.5 else "paraboloid_power"
     exponent = _u(rng, zr.power_exponent if profile == "power" else zr.paraboloid_exponent)
-    membrane = replace(
+    return replace(
         base.membrane,
         dome_height_mm=_u(rng, zr.dome_height_mm),
         footprint_radius_mm=_u(rng, zr.footprint_radius_mm),
         dome_profile=profile,
         dome_exponent=exponent,
     )
+
+
+def _draw_markers(rng: np.random.Generator, zr: ZooRanges, base: JigConfig) -> MarkerConfig:
+    """The marker grid: diameter, a pitch of at least ``min_pitch_diameters`` diameters, the grid's kind,
+    rotation and offset."""
     diameter = _u(rng, zr.marker_diameter_mm)
     lo = max(zr.marker_pitch_mm[0], zr.min_pitch_diameters * diameter)
     pitch = _u(rng, (lo, zr.marker_pitch_mm[1])) if lo <= zr.marker_pitch_mm[1] else zr.marker_pitch_mm[1]
     grid = "square" if rng.uniform() < 0.5 else "hex"
-    markers = MarkerConfig(
+    return MarkerConfig(
         diameter_mm=diameter,
         pitch_mm=pitch,
         layout=grid,
@@ -285,7 +317,11 @@ def _draw_jig(
         rotation_deg=_u(rng, zr.grid_rotation_deg),
         offset_mm=tuple(float(v) for v in rng.uniform(-zr.grid_offset_mm, zr.grid_offset_mm, 2)),
     )
-    medium = MediumConfig(
+
+
+def _draw_medium(rng: np.random.Generator, zr: ZooRanges, base: JigConfig, speckle_seed: int) -> MediumConfig:
+    """The oil's index, the blur and the bead pack's speckle."""
+    return MediumConfig(
         oil_refractive_index=_u(rng, zr.oil_index),
         bead_refractive_index=base.medium.bead_refractive_index,
         bead_diameter_mm=base.medium.bead_diameter_mm,
@@ -296,14 +332,21 @@ def _draw_jig(
         speckle_redraw_fraction=_u(rng, zr.speckle_redraw_fraction),
         speckle_redraw_displacement_mm=base.medium.speckle_redraw_displacement_mm,
     )
+
+
+def _draw_imaging(
+    rng: np.random.Generator, zr: ZooRanges, base: JigConfig, brightness_seed: int
+) -> ImagingConfig:
+    """Levels, illumination, sensor noise, marker brightness and appearance, each camera's exposure and
+    gain."""
     c = zr.illumination_center
-    imaging = ImagingConfig(
+    return ImagingConfig(
         background_level=_u(rng, zr.background_level),
         marker_level=_u(rng, zr.marker_level),
         illumination_falloff=_u(rng, zr.illumination_falloff),
         full_well_electrons=_u(rng, zr.full_well_electrons),
         read_noise=_u(rng, zr.read_noise),
-        bit_depth=8,
+        bit_depth=ZOO_BIT_DEPTH,
         supersampling=base.imaging.supersampling,
         marker_brightness_spread=_u(rng, zr.marker_brightness_spread),
         marker_brightness_seed=brightness_seed,
@@ -312,37 +355,50 @@ def _draw_jig(
         exposure=(_u(rng, zr.exposure), _u(rng, zr.exposure)),
         gain=(_u(rng, zr.gain), _u(rng, zr.gain)),
     )
-    fiducials = replace(FiducialConfig(), z_mm=-thickness)
+
+
+def _draw_jig(
+    rng: np.random.Generator, zr: ZooRanges, speckle_seed: int, brightness_seed: int
+) -> tuple[JigConfig, dict[str, Any]]:
+    """One design and its labels. The draws come in a fixed order (optics, membrane, markers, medium,
+    imaging): a seed gives the same designs as long as that order stays."""
+    base = default_jig()
+    optics = _draw_optics(rng, zr)
+    membrane = _draw_membrane(rng, zr, base)
+    markers = _draw_markers(rng, zr, base)
+    medium = _draw_medium(rng, zr, base, speckle_seed)
+    imaging = _draw_imaging(rng, zr, base, brightness_seed)
+    half = optics.baseline_mm / 2.0
     jig = replace(
         base,
         name="zoo design",
         plate=PlateConfig(
             size_x_mm=base.plate.size_x_mm,
             size_y_mm=base.plate.size_y_mm,
-            thickness_mm=thickness,
-            refractive_index=float(plate_index),
+            thickness_mm=optics.thickness_mm,
+            refractive_index=optics.plate_index,
         ),
         membrane=membrane,
         markers=markers,
-        fiducials=fiducials,
+        fiducials=replace(FiducialConfig(), z_mm=-optics.thickness_mm),
         medium=medium,
         imaging=imaging,
-        cameras=StereoConfig(left=camera(-baseline / 2.0), right=camera(baseline / 2.0), rectified=True),
+        cameras=StereoConfig(left=optics.camera(-half), right=optics.camera(half), rectified=True),
     )
-    mpx = w * h / 1e6
+    mpx = optics.width_px * optics.height_px / 1e6
     labels = {
-        "resolution": [int(w), int(h)],
-        "resolution_class": "sd" if mpx < 1.0 else ("hd" if mpx < 2.0 else "fhd"),
-        "plate_material": material,
-        "plate_thickness_mm": thickness,
-        "oil_above_plate": medium.oil_refractive_index > float(plate_index),
-        "baseline_mm": baseline,
-        "camera_gap_mm": gap,
-        "fx_px": fx,
-        "dome_profile": profile,
-        "grid": grid,
-        "marker_diameter_mm": diameter,
-        "marker_pitch_mm": pitch,
+        "resolution": [optics.width_px, optics.height_px],
+        "resolution_class": "sd" if mpx < SD_MAX_MPX else ("hd" if mpx < HD_MAX_MPX else "fhd"),
+        "plate_material": optics.material,
+        "plate_thickness_mm": optics.thickness_mm,
+        "oil_above_plate": medium.oil_refractive_index > optics.plate_index,
+        "baseline_mm": optics.baseline_mm,
+        "camera_gap_mm": optics.gap_mm,
+        "fx_px": optics.fx_px,
+        "dome_profile": membrane.dome_profile,
+        "grid": markers.layout,
+        "marker_diameter_mm": markers.diameter_mm,
+        "marker_pitch_mm": markers.pitch_mm,
         "marker_appearance": imaging.marker_appearance,
     }
     return jig, labels
@@ -361,7 +417,7 @@ def _unmakeable(jig: JigConfig, zr: ZooRanges) -> str | None:
     seen = np.ones(len(points), dtype=bool)
     for cam in (jig.cameras.left, jig.cameras.right):
         px = project_points(points, cam.K, distortion_of(cam), cam.T_J_cam, layers)
-        margin = 10.0
+        margin = IMAGE_MARGIN_PX
         seen &= np.all((px > margin) & (px < [cam.width_px - margin, cam.height_px - margin]), axis=1)
     if int(seen.sum()) < zr.min_markers_seen:
         return "too few markers seen by both cameras"

@@ -1,0 +1,620 @@
+"""A design study: the study file, its dotted config paths, and every design built and validated up front.
+
+A study file (TOML) names a base jig, the config fields to vary, the frames each design is tested on,
+the seeds and the estimation methods::
+
+    [study]
+    name = "pitch-vs-baseline"
+    seeds = [0, 1]
+    config = "rig.toml"            # optional, relative to the study file; default: the paper's jig
+    [vary]                         # dotted config paths; the study is the product of the lists
+    "markers.pitch_mm" = [6.0, 8.0, 10.0]
+    "cameras.baseline_mm" = { start = 20.0, stop = 60.0, num = 5 }
+    [frames]                       # the paper sweep's poses (softjig.sim.scenarios.paper_sweep)
+    diameters_mm = [40, 60]
+    alphas_deg = [5, 10, 20]
+    theta_step_deg = 30
+    push_depth_mm = 3.0            # optional
+    [estimate]
+    methods = ["refractive"]
+
+A path in ``[vary]`` is any leaf field of :class:`~softjig.config.JigConfig` as the config file spells it
+(``section.field`` or ``cameras.left.field``), or one of the documented aliases of :data:`ALIASES` for a
+quantity derived from several fields (a baseline moves both cameras). A value is a list, or a range
+``{start, stop, num}`` (``num`` values from ``start`` to ``stop`` inclusive, as :func:`numpy.linspace`).
+The designs are the product of the lists, row-major in file order (the last path varies fastest):
+design ``i`` is :func:`build_designs`'s ``i``-th. Real fields are set first, then aliases, in file order
+(so ``cameras.distance_mm`` measures from the design's own plate).
+
+Everything that can be wrong is found by :func:`load_study` before any work starts, with the field named:
+an unknown key or path (with the nearest valid names), an empty list, a range with ``num < 1``, a value of
+the wrong type or outside what the field allows, a combination that makes an impossible design (every
+design's :class:`~softjig.config.JigConfig` is built and validated by :func:`softjig.config.validate_jig`),
+a part that does not fit a design's membrane or would reach its plate. Errors are
+:class:`~softjig.errors.ConfigError` (exit code 2).
+
+The study's identity is :attr:`StudySpec.study_hash`, the SHA-256 of its canonical JSON form (the base
+jig's full config included, not its file name): two files that describe the same study have the same
+hash, and ``--resume`` requires it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import hashlib
+import itertools
+import json
+import math
+import os
+import tomllib
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from pydantic import ConfigDict, TypeAdapter, ValidationError
+
+from softjig.config import (
+    CylinderPart,
+    JigConfig,
+    default_jig,
+    jig_to_dict,
+    load_jig,
+    validate_jig,
+    validate_part,
+)
+from softjig.errors import ConfigError, InputError
+
+__all__ = [
+    "ALIASES",
+    "Design",
+    "FramesSpec",
+    "Study",
+    "StudySpec",
+    "build_designs",
+    "load_study",
+    "parse_study",
+]
+
+_STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+#: The estimation methods a study may name (:data:`softjig.sensing.pipeline.METHODS`).
+STUDY_METHODS = ("refractive", "paper")
+#: Loaded frames per task at most: a task renders its chunk's frames plus the unloaded reference frame,
+#: so the reference costs at most 1/96 extra; a design with more frames is split into chunks.
+DEFAULT_FRAMES_PER_TASK = 96
+#: Designs a study may hold at most (each is built and validated up front, ~1 ms each).
+MAX_DESIGNS = 1_000_000
+
+Scalar = float | int | str | bool
+Value = Scalar | tuple[Any, ...]
+
+
+# ------------------------------------------------------------------------------------------ the file
+
+
+@dataclass(frozen=True)
+class _Range:
+    __pydantic_config__ = _STRICT
+    start: float
+    stop: float
+    num: int
+
+
+@dataclass(frozen=True)
+class _StudySection:
+    __pydantic_config__ = _STRICT
+    name: str
+    seeds: tuple[int, ...] = (0,)
+    config: str | None = None
+    frames_per_task: int = DEFAULT_FRAMES_PER_TASK
+
+
+@dataclass(frozen=True)
+class FramesSpec:
+    """The poses each design is tested on: the paper sweep (:func:`softjig.sim.scenarios.paper_sweep`),
+    cylinders of ``diameters_mm`` centred on the jig axis, pushed in by ``push_depth_mm`` and tilted by
+    each of ``alphas_deg`` towards azimuths ``0, theta_step_deg, ...`` below 360 degrees."""
+
+    __pydantic_config__ = _STRICT
+    diameters_mm: tuple[float, ...] = (40.0, 60.0)
+    alphas_deg: tuple[float, ...] = (5.0, 10.0, 20.0)
+    theta_step_deg: float = 30.0
+    push_depth_mm: float = 3.0
+
+
+@dataclass(frozen=True)
+class _EstimateSection:
+    __pydantic_config__ = _STRICT
+    methods: tuple[str, ...] = ("refractive",)
+
+
+@dataclass(frozen=True)
+class StudySpec:
+    """A validated study (see the module docstring).
+
+    Attributes
+    ----------
+    name : the study's name.
+    seeds : the seeds each design is run with (the as-built jig and every frame's noise).
+    vary : ``(path, values)`` in file order; a range is already expanded into its values.
+    frames : the poses each design is tested on.
+    methods : the estimation methods, each run on every rendered frame.
+    base : the base jig every design starts from.
+    frames_per_task : loaded frames per task at most.
+    """
+
+    name: str
+    seeds: tuple[int, ...]
+    vary: tuple[tuple[str, tuple[Value, ...]], ...]
+    frames: FramesSpec
+    methods: tuple[str, ...]
+    base: JigConfig = field(default_factory=default_jig)
+    frames_per_task: int = DEFAULT_FRAMES_PER_TASK
+
+    @property
+    def paths(self) -> tuple[str, ...]:
+        """The varied paths, in file order (the results' column names)."""
+        return tuple(path for path, _ in self.vary)
+
+    @property
+    def numeric_paths(self) -> tuple[str, ...]:
+        """The varied paths whose values are all numbers (float64 columns; the others are strings)."""
+        return tuple(path for path, values in self.vary if all(_is_number(v) for v in values))
+
+    @property
+    def n_designs(self) -> int:
+        """Designs in the study: the product of the lists' lengths (1 when nothing varies)."""
+        return math.prod(len(values) for _, values in self.vary)
+
+    def canonical(self) -> dict[str, Any]:
+        """The study's canonical, JSON-ready form (what :attr:`study_hash` hashes)."""
+        return {
+            "study": {
+                "name": self.name,
+                "seeds": list(self.seeds),
+                "frames_per_task": self.frames_per_task,
+            },
+            "vary": {path: [_plain(v) for v in values] for path, values in self.vary},
+            "frames": _plain(dataclasses.asdict(self.frames)),
+            "estimate": {"methods": list(self.methods)},
+            "base": jig_to_dict(self.base),
+        }
+
+    @property
+    def study_hash(self) -> str:
+        """SHA-256 (hex) of the canonical form's JSON with sorted keys."""
+        text = json.dumps(self.canonical(), sort_keys=True, separators=(",", ":"))
+        return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+    def frame_specs(self) -> list:
+        """The unloaded reference frame, then the loaded frames (:func:`~softjig.sim.scenarios.paper_sweep`
+        order: diameter, alpha, theta); loaded frame ``k`` is the list's ``k + 1``."""
+        from softjig.sim.scenarios import paper_sweep
+
+        f = self.frames
+        try:
+            return list(
+                paper_sweep(f.diameters_mm, f.alphas_deg, f.theta_step_deg, f.push_depth_mm, reference=True)
+            )
+        except InputError as exc:
+            raise ConfigError(f"frames: {exc}") from None
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, tuple | list):
+        return [_plain(v) for v in value]
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    return value
+
+
+def _parse(cls: type, data: Any, where: str) -> Any:
+    try:
+        return TypeAdapter(cls).validate_python(data)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        loc = ".".join(str(x) for x in (where, *err["loc"]) if x != "")
+        raise ConfigError(f"{loc}: {err['msg']}") from None
+
+
+_SECTIONS = ("study", "vary", "frames", "estimate")
+
+
+def load_study(path: str | os.PathLike[str]) -> Study:
+    """Read and validate a study file and build every design (see the module docstring); ``[study] config``
+    is read relative to the file's folder.
+
+    Raises
+    ------
+    InputError
+        A missing or unreadable file (or base config file).
+    ConfigError
+        Invalid TOML or any invalid entry, naming it (``vary.markers.pitch_mm``, ``frames.alphas_deg``).
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise InputError(f"study file {path} does not exist") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"cannot read study file {path}: {exc}") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path} is not valid TOML: {exc}") from None
+    try:
+        spec = parse_study(data, folder=path.parent)
+        return Study(spec, build_designs(spec))
+    except ConfigError as exc:
+        raise ConfigError(f"{path}: {exc}") from None
+
+
+def parse_study(data: dict[str, Any], *, folder: Path | None = None) -> StudySpec:
+    """Validate a study's dict form (a parsed study file); ``folder`` resolves ``[study] config``.
+
+    The designs are not built here: :func:`build_designs` builds and validates them (``load_study`` does
+    both).
+    """
+    for key in data:
+        if key not in _SECTIONS:
+            raise ConfigError(f"{key}: unknown section; a study file has {', '.join(_SECTIONS)}")
+    if "study" not in data:
+        raise ConfigError('study: missing; give [study] with at least name = "..."')
+    section = _parse(_StudySection, data["study"], "study")
+    if not section.seeds:
+        raise ConfigError("study.seeds: give at least one seed")
+    for seed in section.seeds:
+        if seed < 0:
+            raise ConfigError(f"study.seeds: a seed is a non-negative integer, got {seed}")
+    if len(set(section.seeds)) != len(section.seeds):
+        raise ConfigError("study.seeds: seeds must be distinct")
+    if section.frames_per_task < 1:
+        raise ConfigError(f"study.frames_per_task: must be at least 1, got {section.frames_per_task}")
+    base = _base_jig(section.config, folder)
+    frames = _parse(FramesSpec, data.get("frames", {}), "frames")
+    methods = _parse(_EstimateSection, data.get("estimate", {}), "estimate").methods
+    _check_methods(methods)
+    vary = _parse_vary(data.get("vary", {}))
+    spec = StudySpec(section.name, section.seeds, vary, frames, methods, base, section.frames_per_task)
+    if spec.n_designs > MAX_DESIGNS:
+        raise ConfigError(f"vary: {spec.n_designs} designs, more than the {MAX_DESIGNS} a study may hold")
+    spec.frame_specs()  # the sweep's own checks (diameters, alphas, step)
+    return spec
+
+
+def _base_jig(config: str | None, folder: Path | None) -> JigConfig:
+    if config is None:
+        return default_jig()
+    path = Path(config)
+    if not path.is_absolute() and folder is not None:
+        path = folder / path
+    try:
+        return load_jig(path)
+    except ConfigError as exc:
+        raise ConfigError(f"study.config ({path}): {exc}") from None
+
+
+def _check_methods(methods: Sequence[str]) -> None:
+    if not methods:
+        raise ConfigError(f"estimate.methods: give at least one of {', '.join(STUDY_METHODS)}")
+    for method in methods:
+        if method not in STUDY_METHODS:
+            valid = ", ".join(STUDY_METHODS)
+            raise ConfigError(f"estimate.methods: unknown method {method!r}; valid: {valid}")
+    if len(set(methods)) != len(methods):
+        raise ConfigError("estimate.methods: methods must be distinct")
+
+
+def _parse_vary(table: Any) -> tuple[tuple[str, tuple[Value, ...]], ...]:
+    if not isinstance(table, dict):
+        raise ConfigError("vary: must be a table of dotted config paths")
+    out = []
+    for path, raw in _flatten(table, ""):
+        if isinstance(raw, dict):
+            values = _expand_range(path, raw)
+        elif isinstance(raw, list):
+            if not raw:
+                raise ConfigError(f"vary.{path}: an empty list gives no design; give at least one value")
+            values = tuple(_frozen(v) for v in raw)
+        else:
+            raise ConfigError(
+                f"vary.{path}: give a list of values or a range {{start, stop, num}}, got {raw!r}"
+            )
+        resolve_path(path)
+        out.append((path, tuple(check_value(path, value) for value in values)))
+    return tuple(out)
+
+
+_RANGE_KEYS = frozenset({"start", "stop", "num"})
+
+
+def _flatten(table: dict[str, Any], prefix: str) -> list[tuple[str, Any]]:
+    """``(dotted path, list or range)`` of a ``[vary]`` table, whose keys may be quoted dotted paths
+    (``"markers.pitch_mm" = [...]``) or TOML's own dotted keys and sub-tables (``markers.pitch_mm = [...]``
+    parses as ``{"markers": {"pitch_mm": [...]}}``); a table of only ``start``, ``stop``, ``num`` is a
+    range."""
+    out = []
+    for key, value in table.items():
+        path = f"{prefix}{key}"
+        if isinstance(value, dict) and value and not set(value) <= _RANGE_KEYS:
+            out.extend(_flatten(value, f"{path}."))
+        else:
+            out.append((path, value))
+    return out
+
+
+def _frozen(value: Any) -> Value:
+    if isinstance(value, list):
+        return tuple(_frozen(v) for v in value)
+    if isinstance(value, float) and not math.isfinite(value):
+        raise ConfigError(f"a value must be finite, got {value}")
+    return value
+
+
+def _expand_range(path: str, raw: dict[str, Any]) -> tuple[float, ...]:
+    r = _parse(_Range, raw, f"vary.{path}")
+    if r.num < 1:
+        raise ConfigError(f"vary.{path}: a range needs num >= 1 values, got num = {r.num}")
+    return tuple(float(v) for v in np.linspace(r.start, r.stop, r.num))
+
+
+# ------------------------------------------------------------------------------------------ paths
+
+
+@dataclass(frozen=True)
+class Alias:
+    """A derived quantity set through the fields it is made of.
+
+    Attributes
+    ----------
+    help : what it is, with its unit.
+    apply : ``(jig, value) -> jig`` (not validated: the design is validated once, whole).
+    kind : ``"number"`` or ``"pair"`` (two integers).
+    """
+
+    help: str
+    apply: Callable[[JigConfig, Any], JigConfig]
+    kind: str = "number"
+
+
+def _set_cameras(jig: JigConfig, **changes: Any) -> JigConfig:
+    cams = jig.cameras
+    left, right = replace(cams.left, **changes), replace(cams.right, **changes)
+    return replace(jig, cameras=replace(cams, left=left, right=right))
+
+
+def _baseline(jig: JigConfig, value: float) -> JigConfig:
+    left, right = jig.cameras.left, jig.cameras.right
+    centre = (left.position_mm[0] + right.position_mm[0]) / 2.0
+    half = float(value) / 2.0
+    cams = replace(
+        jig.cameras,
+        left=replace(left, position_mm=(centre - half, *left.position_mm[1:])),
+        right=replace(right, position_mm=(centre + half, *right.position_mm[1:])),
+    )
+    return replace(jig, cameras=cams)
+
+
+def _distance(jig: JigConfig, value: float) -> JigConfig:
+    z = -(jig.plate.thickness_mm + float(value))
+    cams = jig.cameras
+    cams = replace(
+        cams,
+        left=replace(cams.left, position_mm=(*cams.left.position_mm[:2], z)),
+        right=replace(cams.right, position_mm=(*cams.right.position_mm[:2], z)),
+    )
+    return replace(jig, cameras=cams)
+
+
+def _focal(jig: JigConfig, value: float) -> JigConfig:
+    return _set_cameras(jig, fx_px=float(value), fy_px=float(value))
+
+
+def _resolution(jig: JigConfig, value: tuple[int, int]) -> JigConfig:
+    w, h = (int(v) for v in value)
+    return _set_cameras(jig, width_px=w, height_px=h, cx_px=(w - 1) / 2.0, cy_px=(h - 1) / 2.0)
+
+
+#: Derived quantities a study may vary by name (``[vary]`` keys), each set through the fields it is made
+#: of. They apply to both cameras of the pair, which stays rectified.
+ALIASES: dict[str, Alias] = {
+    "cameras.baseline_mm": Alias(
+        "distance between the optical centres (mm), along x, about their midpoint", _baseline
+    ),
+    "cameras.distance_mm": Alias(
+        "distance from the optical centres up to the plate's bottom face (mm): z = -(plate.thickness_mm + d)",
+        _distance,
+    ),
+    "cameras.focal_px": Alias("both cameras' focal length fx = fy (px)", _focal),
+    "cameras.resolution_px": Alias(
+        "both cameras' [width, height] (px), the principal point at the image centre", _resolution, "pair"
+    ),
+}
+
+
+def _fields(cls: Any) -> dict[str, dataclasses.Field]:
+    return {f.name: f for f in dataclasses.fields(cls)}
+
+
+def resolve_path(path: str) -> tuple[str, ...]:
+    """The field names along a dotted config path (an alias: its name alone).
+
+    Raises
+    ------
+    ConfigError
+        An unknown path, naming where it goes wrong and the nearest valid names.
+    """
+    if path in ALIASES:
+        return (path,)
+    parts = path.split(".")
+    node: Any = JigConfig
+    for k, part in enumerate(parts):
+        where = ".".join(parts[:k]) or "the config"
+        if not (dataclasses.is_dataclass(node) and isinstance(node, type)):
+            parent = ".".join(parts[:k])
+            raise ConfigError(f"vary.{path}: {parent} is a value, not a section: it has no {part!r}")
+        known = _fields(node)
+        if part not in known:
+            names = [".".join([*parts[:k], n]) for n in known]
+            if k == 0:
+                names += list(ALIASES)
+            close = difflib.get_close_matches(".".join(parts[: k + 1]), names, n=3)
+            hint = f"; did you mean {', '.join(close)}?" if close else f"; {where} has {', '.join(known)}"
+            raise ConfigError(f"vary.{path}: unknown config field {part!r} in {where}{hint}")
+        node = _field_type(node, part)
+    if dataclasses.is_dataclass(node) and isinstance(node, type):
+        raise ConfigError(f"vary.{path}: is a section; name one of its fields ({', '.join(_fields(node))})")
+    return tuple(parts)
+
+
+def _field_type(cls: type, name: str) -> Any:
+    import typing
+
+    hints = typing.get_type_hints(cls)
+    return hints[name]
+
+
+def check_value(path: str, value: Value) -> Value:
+    """Check one value of a path on its own, by its type in the config model (pydantic), and return it as
+    the model holds it (an integer for a float field becomes a float, a list a tuple). Whether the value
+    is allowed (a positive pitch, markers narrower than their pitch) is for :func:`design_jig`, since it
+    may depend on the other fields.
+
+    Raises
+    ------
+    ConfigError
+        ``vary.<path> = <value>: <problem>``.
+    """
+    if path in ALIASES:
+        alias = ALIASES[path]
+        ok = (
+            _is_number(value)
+            if alias.kind == "number"
+            else isinstance(value, tuple) and len(value) == 2 and all(isinstance(v, int) for v in value)
+        )
+        if not ok:
+            want = "a number" if alias.kind == "number" else "a pair of integers [width, height]"
+            raise ConfigError(f"vary.{path} = {_plain(value)!r}: must be {want} ({ALIASES[path].help})")
+        return float(value) if alias.kind == "number" else tuple(int(v) for v in value)
+    parts = resolve_path(path)
+    node: Any = JigConfig
+    for part in parts[:-1]:
+        node = _field_type(node, part)
+    try:
+        coerced = TypeAdapter(_field_type(node, parts[-1]), config=_STRICT).validate_python(
+            list(value) if isinstance(value, tuple) else value
+        )
+    except ValidationError as exc:
+        raise ConfigError(f"vary.{path} = {_plain(value)!r}: {exc.errors()[0]['msg']}") from None
+    return _frozen(coerced) if isinstance(coerced, list) else coerced
+
+
+# ------------------------------------------------------------------------------------------ designs
+
+
+@dataclass(frozen=True)
+class Design:
+    """One design of a study.
+
+    Attributes
+    ----------
+    design_id : its index in the study's product (row-major over ``[vary]`` in file order).
+    values : the varied values, in the order of :attr:`StudySpec.paths`.
+    jig : the design's validated nominal jig.
+    """
+
+    design_id: int
+    values: tuple[Value, ...]
+    jig: JigConfig
+
+
+def _replaced(node: Any, parts: tuple[str, ...], value: Value) -> Any:
+    """``node`` (a config dataclass) with the field at ``parts`` set to ``value`` (not validated)."""
+    if len(parts) == 1:
+        return replace(node, **{parts[0]: value})
+    return replace(node, **{parts[0]: _replaced(getattr(node, parts[0]), parts[1:], value)})
+
+
+def design_jig(spec: StudySpec, values: Sequence[Value]) -> JigConfig:
+    """The validated jig of one combination of values (real fields first, then aliases, in file order).
+
+    The values were type-checked by :func:`check_value`; the jig is validated once, whole
+    (:func:`softjig.config.validate_jig`: about 1 ms).
+
+    Raises
+    ------
+    ConfigError
+        The combination is not a valid jig, naming the field and the design's values.
+    """
+    jig = spec.base
+    pairs = list(zip(spec.paths, values, strict=True))
+    for path, value in pairs:
+        if path not in ALIASES:
+            jig = _replaced(jig, resolve_path(path), value)
+    for path, value in pairs:
+        if path in ALIASES:
+            jig = ALIASES[path].apply(jig, value)
+    try:
+        validate_jig(jig)
+    except ConfigError as exc:
+        raise ConfigError(f"vary: the design {_where(spec, values)} is impossible: {exc}") from None
+    return jig
+
+
+def _where(spec: StudySpec, values: Sequence[Value]) -> str:
+    text = ", ".join(f"{p} = {_plain(v)!r}" for p, v in zip(spec.paths, values, strict=True))
+    return text or "(the base jig)"
+
+
+def _check_frames(spec: StudySpec, jig: JigConfig, values: Sequence[Value]) -> None:
+    """Every part of ``[frames]`` fits the design's membrane and stays clear of its plate."""
+    from softjig.sim.parts import PartPose
+    from softjig.sim.scenarios import CYLINDER_HEIGHT_MM, FrameSpec, check_reachable
+
+    f = spec.frames
+    for d in f.diameters_mm:
+        part = CylinderPart(diameter_mm=float(d), height_mm=CYLINDER_HEIGHT_MM)
+        try:
+            validate_part(part, jig)
+            for a in f.alphas_deg:
+                pose = PartPose(alpha_rad=math.radians(a), push_depth_mm=f.push_depth_mm)
+                check_reachable(jig, FrameSpec(part, pose))
+        except InputError as exc:
+            raise ConfigError(
+                f"frames: the {d:g} mm part does not fit the design {_where(spec, values)}: {exc}"
+            ) from None
+
+
+def build_designs(spec: StudySpec) -> tuple[Design, ...]:
+    """Every design of the study, in order, each jig validated and every frame's part checked on it.
+
+    Raises
+    ------
+    ConfigError
+        The first impossible design, naming the field and the design's values.
+    """
+    designs = []
+    checked: set[tuple[Any, ...]] = set()  # the parts' fit depends on the membrane and the plate only
+    for design_id, values in enumerate(itertools.product(*(v for _, v in spec.vary))):
+        jig = design_jig(spec, values)
+        key = (jig.membrane, jig.plate)
+        if key not in checked:
+            _check_frames(spec, jig, values)
+            checked.add(key)
+        designs.append(Design(design_id, tuple(values), jig))
+    return tuple(designs)
+
+
+@dataclass(frozen=True)
+class Study:
+    """A validated study and its designs (:func:`load_study`)."""
+
+    spec: StudySpec
+    designs: tuple[Design, ...] = field(repr=False)

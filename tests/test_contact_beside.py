@@ -1,0 +1,79 @@
+"""Holes beside the contact (:func:`softjig.sensing.contact.holes_beside`) on synthetic markers: a strip
+of wall fitted beside a deeper face has them, a real face with its lift-off side and its wall does not."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from softjig.geometry import fit_plane_svd, normal_from_tilt_angles
+from softjig.sensing.contact import Indentation, contact_violations, holes_beside
+
+PITCH = 8.0
+REST_Z = 30.0  # a flat unloaded membrane
+THRESHOLD = 0.5  # the contact plane's inlier band (mm), 2.5 sigmas of 0.2 mm
+
+
+def _grid(radius_mm: float) -> np.ndarray:
+    r = np.arange(-radius_mm, radius_mm + 1e-9, PITCH)
+    x, y = np.meshgrid(r, r)
+    xy = np.column_stack([x.ravel(), y.ravel()])
+    return xy[np.hypot(*xy.T) <= radius_mm]
+
+
+def _membrane(alpha_deg: float, push_mm: float, radius_mm: float, wall_mm: float):
+    """A face of ``radius_mm`` tilted towards +x, centred on the axis ``push_mm`` below the rest membrane;
+    beside it, the membrane rises linearly from the face's edge to the rest level over ``wall_mm``, and
+    where the face rises out of the membrane (face above rest) the membrane is at rest."""
+    xy = _grid(60.0)
+    normal = normal_from_tilt_angles(0.0, np.radians(alpha_deg))
+    face_z = REST_Z - push_mm - (normal[0] * xy[:, 0] + normal[1] * xy[:, 1]) / normal[2]
+    r = np.hypot(*xy.T)
+    on_face = (r <= radius_mm) & (face_z < REST_Z)
+    # Beside the face: the depth of the face's edge along the same ray, decaying to 0 over wall_mm.
+    edge_xy = xy * (radius_mm / np.maximum(r, 1e-9))[:, None]
+    edge_z = REST_Z - push_mm - (normal[0] * edge_xy[:, 0] + normal[1] * edge_xy[:, 1]) / normal[2]
+    edge_depth = np.clip(REST_Z - edge_z, 0.0, None)
+    wall_depth = edge_depth * np.clip(1.0 - (r - radius_mm) / wall_mm, 0.0, 1.0)
+    z = np.where(on_face, face_z, REST_Z - np.where(r > radius_mm, wall_depth, 0.0))
+    points = np.column_stack([xy, z])
+    return points, Indentation(REST_Z - z, 0.0, 0.05), on_face
+
+
+def test_a_face_with_its_wall_and_lift_off_has_no_hole_beside():
+    points, dent, on_face = _membrane(alpha_deg=15.0, push_mm=4.0, radius_mm=25.0, wall_mm=12.0)
+    plane = fit_plane_svd(points[on_face])
+    beside = holes_beside(points, dent, on_face, plane, threshold_mm=THRESHOLD, pitch_mm=PITCH)
+    assert not beside.any()
+    assert contact_violations(points, on_face, plane, threshold_mm=THRESHOLD, pitch_mm=PITCH, dent=dent) == 0
+
+
+def test_a_shallow_strip_beside_a_deeper_face_has_holes_beside():
+    """The wall of the raised side (at rest, shallow) fitted instead of the face: the face's markers next
+    to it lie deep below that plane, where the plane still presses into the membrane."""
+    points, dent, on_face = _membrane(alpha_deg=15.0, push_mm=10.0, radius_mm=20.0, wall_mm=20.0)
+    x, r = points[:, 0], np.hypot(*points[:, :2].T)
+    strip = ~on_face & (x <= -20.0) & (r <= 45.0) & (dent.depth_mm > 0.3)  # the raised side's wall
+    assert strip.sum() >= 6
+    plane = fit_plane_svd(points[strip])
+    beside = holes_beside(points, dent, strip, plane, threshold_mm=THRESHOLD, pitch_mm=PITCH)
+    assert beside.any() and (beside & on_face).sum() == beside.sum()  # the holes are the face's markers
+    without = contact_violations(points, strip, plane, threshold_mm=THRESHOLD, pitch_mm=PITCH)
+    with_dent = contact_violations(points, strip, plane, threshold_mm=THRESHOLD, pitch_mm=PITCH, dent=dent)
+    assert with_dent == without + int(beside.sum())
+
+
+def test_markers_below_a_plane_but_shallower_than_the_contact_are_no_holes():
+    """Just outside the contact and below its plane, but not deeper than the contact beside them (the
+    membrane falling away where the face rises out of it): not a hole."""
+    xy = _grid(40.0)
+    contact = xy[:, 0] <= 0.0
+    z = np.where(contact, REST_Z - 3.0, REST_Z - 2.0)  # a level face 3 mm deep; beside it 2 mm deep
+    points = np.column_stack([xy, z])
+    # The plane of the contact, tilted so that it rises over the markers beside: they lie below it.
+    plane = fit_plane_svd(np.column_stack([xy[contact], z[contact] + 0.3 * xy[contact, 0]]))
+    dent = Indentation(REST_Z - z, 0.0, 0.05)
+    assert not holes_beside(points, dent, contact, plane, threshold_mm=THRESHOLD, pitch_mm=PITCH).any()
+    deeper = np.where(contact, z, REST_Z - 5.0)  # now deeper than the contact next to them: holes
+    points = np.column_stack([xy, deeper])
+    dent = Indentation(REST_Z - deeper, 0.0, 0.05)
+    assert holes_beside(points, dent, contact, plane, threshold_mm=THRESHOLD, pitch_mm=PITCH).any()
