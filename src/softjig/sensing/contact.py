@@ -9,6 +9,11 @@ Markers indented beyond the noise are *candidates*; the contact is grown from th
 the neighbours on their plane (:func:`grow_contact`, robust fits from :mod:`softjig.sensing.robust`),
 rejecting the membrane that the indentation drags down around it.
 
+A plane is the face of its contact only if no marker contradicts it (:func:`contact_violations`): none
+penetrates it inside the contact, none lies far below it inside the contact's hull (:func:`holes`), and
+none beside the contact lies deep below it where it would still press into the membrane, deeper than the
+contact next to it (:func:`holes_beside`: the part's real face beside a strip of wall fitted instead).
+
 The **footprint** of the contact is the convex hull of the contact markers dilated by half a marker pitch
 (each marker stands for one cell of the grid; by Steiner's formula the area grows by
 ``perimeter * p / 2 + pi (p / 2)^2``). Contact is **partial** when, on some side, the fitted plane rises to
@@ -441,9 +446,9 @@ def holes_beside(
     lies below a plane above it). A marker below a plane that would still press into the membrane, and
     deeper than the contact beside it, was pushed by something deeper than the plane: the plane is a
     strip of the membrane's wall, and the part's real, deeper face lies beside it. On the design zoo
-    (seed 0, 5 frames per design, the four ways), such a wall fitted beside a small or off-centre contact,
-    10-30 deg off, passed every check of the contact's own markers in 14 estimates; 7 had a hole beside,
-    none of 887 estimates within 3 deg did.
+    (seed 0: frames 1-5 of its 50 designs and its 14 silent failures, the four ways), such a wall fitted
+    beside a small or off-centre contact, 10-30 deg off, passed every check of the contact's own markers
+    in 14 estimates; 7 had a hole beside, none of the other 887 estimates reported "ok" did.
     """
     height = (points_J - plane.centroid_mm) @ plane.normal
     return _holes_beside(points_J, dent, contact, plane, height, threshold_mm, pitch_mm)

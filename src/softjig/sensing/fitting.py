@@ -88,6 +88,9 @@ FACE_CENTRE_TOLERANCE_PITCHES = 0.25
 # searched from there too (a centred face covers its own dent's centroid: a small part steeply tilted
 # drags the membrane down mostly beside its lowered edge, 0.5-1 radius off).
 OFF_AXIS_DENT_RADII = 1.0
+# A dent whose centroid lies this many pitches or more off the axis (but under a radius) is also searched
+# from there, as a rival only: a face searched from the axis that it contradicts makes the estimate suspect.
+RIVAL_SEARCH_PITCHES = 1.0
 # The search starts on the jig axis and stays there when the contact found puts the face's centre within
 # this share of the part's radius of it.
 CENTRED_SHARE = 0.5
@@ -524,6 +527,12 @@ class ContactPlaneFitter:
           size-free growth takes the wall beside a small, steeply tilted part.
         - When no search finds a face, or only one of fewer than :data:`SELF_CHECK_MIN_POINTS` markers
           (too few to check), **the size-free contact cut to the face** (:meth:`_size_free_cut`).
+        - **Rivals** (:meth:`_rival`): two searched faces, or a search's face and the cut, that no marker
+          contradicts but whose normals disagree beyond their noise
+          (:func:`~softjig.sensing.selfcheck.agreement`): the frame holds two plausible faces (the part's
+          and a strip of the membrane's wall beside a small contact), and the estimate is suspect
+          whichever is reported. A dent :data:`RIVAL_SEARCH_PITCHES` pitches or more off the axis (but
+          under :data:`OFF_AXIS_DENT_RADII` radii) is searched from its centroid too, as a rival only.
         """
         points_J, candidates = dent.points_J, dent.candidates
         dent_centre = points_J[candidates, :2].mean(axis=0) if candidates.any() else np.zeros(2)
@@ -549,9 +558,14 @@ class ContactPlaneFitter:
             if scores[1 - best][0] == 0:  # the other one no marker contradicts either
                 rival = self._rival(points_J, searches[best], searches[1 - best], dent.threshold_mm)
             searches = [searches[best]]
+        elif len(searches) == 1 and np.hypot(*dent_centre) >= RIVAL_SEARCH_PITCHES * self._pitch:
+            rival = self._rival_search(dent, radius_mm, fit, searches[0], dent_centre)
         if not searches or searches[0][0].sum() < SELF_CHECK_MIN_POINTS:
-            cut = self._size_free_cut(dent, radius_mm, size_free, search=searches[0] if searches else None)
+            search = searches[0] if searches else None
+            cut = self._size_free_cut(dent, radius_mm, size_free, search=search)
             if cut:
+                if search is not None:  # suspect if it contradicts a face no marker contradicts either
+                    rival = self._plausible_rival(points_J, search, cut, dent)
                 return cut, rival
         if not searches:
             return Refusal(
@@ -559,6 +573,30 @@ class ContactPlaneFitter:
                 "pushed-in markers lie under it (sensing.min_points); is the part's size right?"
             )
         return searches[0], rival
+
+    def _rival_search(
+        self, dent: Dent, radius_mm: float, fit: PlaneFitFunction, search: Contact, start_xy: np.ndarray
+    ) -> SplitCheck | None:
+        """The face searched from ``start_xy`` as a rival of ``search`` (:meth:`_plausible_rival`), or
+        ``None`` (no face there, or one some marker contradicts)."""
+        other = self._search_face(dent, radius_mm, fit, start_xy)
+        if not other:
+            return None
+        violations = contact_violations(
+            dent.points_J, *other, threshold_mm=dent.threshold_mm, pitch_mm=self._pitch, dent=dent.indentation
+        )
+        return None if violations else self._plausible_rival(dent.points_J, search, other, dent)
+
+    def _plausible_rival(
+        self, points_J: np.ndarray, search: Contact, cut: Contact, dent: Dent
+    ) -> SplitCheck | None:
+        """The ``search``'s face's disagreement with the ``cut`` (:meth:`_rival`), when no marker
+        contradicts the search's face either; else ``None``."""
+        used, plane = search
+        violations = contact_violations(
+            points_J, used, plane, threshold_mm=dent.threshold_mm, pitch_mm=self._pitch, dent=dent.indentation
+        )
+        return None if violations else self._rival(points_J, cut, search, dent.threshold_mm)
 
     def _rival(
         self, points_J: np.ndarray, chosen: Contact, other: Contact, threshold_mm: float
@@ -581,8 +619,8 @@ class ContactPlaneFitter:
         """The size-free contact (made only when needed: it costs more than a search) cut to the face: the
         face placed where that contact puts it (:func:`~softjig.sensing.contact.face_centre_xy`), and that
         contact's markers under it. Beside a ``search``'s contact (too small to check), it is taken only
-        when it has enough markers to check, passes the checks (no violations, halves that agree) and does
-        not contradict the search's face (which is then kept: too few markers to check, so suspect)."""
+        when it has enough markers to check and passes the checks (no violations, halves that agree); the
+        caller makes it suspect when it contradicts a search's face that no marker contradicts either."""
         points_J = dent.points_J
         try:
             grown, grown_plane = size_free()
@@ -618,8 +656,6 @@ class ContactPlaneFitter:
         )
         if check is None or check.suspect or violations > 0:
             return Refusal("the grown contact under the face fails the self-check")
-        if self._rival(points_J, search, cut, dent.threshold_mm) is not None:
-            return Refusal("the grown contact under the face contradicts the search's face")
         return cut  # a larger contact that passes the self-check
 
     def _search_face(
