@@ -38,7 +38,12 @@ from softjig.config import CylinderPart, default_jig  # noqa: E402
 from softjig.sensing import detect, jigframe, subpixel  # noqa: E402
 from softjig.sensing._detect_kernels import coarse_peaks  # noqa: E402
 from softjig.sensing._fiducial_kernels import locate  # noqa: F401, E402  (loaded before timing)
-from softjig.sensing.fiducials import detect_fiducials, locate_quads_near  # noqa: E402
+from softjig.sensing.fiducials import (  # noqa: E402
+    capture_table,
+    cell_patterns,
+    detect_fiducials,
+    locate_quads_near,
+)
 from softjig.sensing.pipeline import sensing_setup  # noqa: E402
 from softjig.sim.asbuilt import draw_as_built  # noqa: E402
 from softjig.sim.parts import PartPose  # noqa: E402
@@ -74,14 +79,16 @@ def _numpy_peaks(response: np.ndarray, threshold: float, half_width: int) -> Non
     detect._refine_quadratic(response, rows, cols)
 
 
-def _numpy_product(gray: np.ndarray, start: np.ndarray, model: subpixel.MarkerModel) -> None:
+def _numpy_product(
+    gray: np.ndarray, start: np.ndarray, model: subpixel.MarkerModel, tables: np.ndarray
+) -> None:
     half = model.half_width_px
     centre = np.floor(start + 0.5).astype(np.intp)
     r = np.arange(-half, half + 1)
     rows = np.clip(centre[:, 1, None, None] + r[None, :, None], 0, gray.shape[0] - 1)
     cols = np.clip(centre[:, 0, None, None] + r[None, None, :], 0, gray.shape[1] - 1)
     windows = gray[rows, cols].reshape(len(start), -1).astype(np.float32)
-    windows @ subpixel.fit_tables(model)
+    windows @ tables
 
 
 def _median_us(fn: Callable[[], object], samples: list[float]) -> None:
@@ -105,7 +112,11 @@ def _cases(pair, jig) -> list[tuple[str, int, Callable[[], object], Callable[[],
         detect_fiducials(pair.left, jig.fiducials, expected_quads_px=frame.fiducial_quads_left_px),
         detect_fiducials(pair.right, jig.fiducials, expected_quads_px=frame.fiducial_quads_right_px),
     ]
-    corners = jigframe._corners_J_by_id(jig)
+    constants = jigframe.frame_constants(jig)  # what an estimator builds once
+    corners = constants.corners_J_by_id
+    tables, fit = subpixel.kernel_tables(setup.marker), subpixel.fit_tables(setup.marker)
+    table = capture_table(quads_bytes, len(quads), gray.shape)
+    white = cell_patterns(jig.fiducials.dictionary, tuple(jig.fiducials.ids))
     obj = [np.concatenate([corners[i] for i in f]) for f in found]
     img = [np.concatenate([f[i] for i in f]) for f in found]
     h, w = gray.shape
@@ -119,20 +130,20 @@ def _cases(pair, jig) -> list[tuple[str, int, Callable[[], object], Callable[[],
         (
             "subpixel refine_all",
             2,
-            lambda: subpixel.refine_centres(gray, start, setup.marker),
-            lambda: _numpy_product(gray, start, setup.marker),
+            lambda: subpixel.refine_centres(gray, start, setup.marker, tables=tables),
+            lambda: _numpy_product(gray, start, setup.marker, fit),
         ),
         (
             "fiducials locate",
             2,
-            lambda: locate_quads_near(gray, jig.fiducials, quads_bytes),
+            lambda: locate_quads_near(gray, jig.fiducials, quads_bytes, table=table, white=white),
             lambda: detect_fiducials(gray, jig.fiducials, expected_quads_px=quads),
         ),
         (
             "jigframe gauss_newton",
             1,
-            lambda: jigframe._fit_pose_gauss_newton(obj, img, jig),
-            lambda: jigframe._fit_pose_lm(obj, img, jig),
+            lambda: jigframe._fit_pose_gauss_newton(obj, img, jig, constants),
+            lambda: jigframe._fit_pose_lm(obj, img, jig, constants),
         ),
         (
             "jigframe inside_quads",

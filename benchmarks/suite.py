@@ -52,6 +52,7 @@ from softjig.config import CylinderPart, JigConfig, default_jig  # noqa: E402
 from softjig.sensing.detect import DEFAULT_THRESHOLD, detect_markers  # noqa: E402
 from softjig.sensing.estimator import Estimator  # noqa: E402
 from softjig.sensing.pipeline import sensing_setup  # noqa: E402
+from softjig.sensing.subpixel import MarkerModel, kernel_tables  # noqa: E402
 from softjig.sim.asbuilt import draw_as_built  # noqa: E402
 from softjig.sim.parts import PartPose  # noqa: E402
 from softjig.sim.render import RenderedPair, render_pair  # noqa: E402
@@ -177,6 +178,9 @@ def our_detectors(jig: JigConfig) -> dict[str, tuple[Detector, str]]:
     for name in ("candidates", "refine", "model"):
         if name in params and getattr(setup, name, None) is not None:
             base[name] = getattr(setup, name)
+    if "tables" in params and base.get("refine", params["refine"].default) == "model":
+        # the sub-pixel tables read once, as the estimator's detector does (not from disk per call)
+        base["tables"] = kernel_tables(base.get("model") or MarkerModel.for_sigma(setup.sigma_px))
     notes = []
     for name in ("candidates", "refine"):
         if name not in params:
@@ -197,6 +201,7 @@ def our_detectors(jig: JigConfig) -> dict[str, tuple[Detector, str]]:
     if "refine" in params and base.get("refine", params["refine"].default) != "quadratic":
         quadratic = {**base, "refine": "quadratic"}
         quadratic.pop("model", None)
+        quadratic.pop("tables", None)
         out["ours refine=quadratic"] = (
             lambda im: detect_markers(im, **quadratic).xy_px,
             "the former refinement (3x3 quadratic fit of the LoG response)",

@@ -32,7 +32,6 @@ MAX_BODY_LINES = 80
 #: moving there.
 LONG_BODY_ALLOWED = {
     "softjig/sensing/_jigframe_kernels.py::gauss_newton": "numeric kernel (Numba)",
-    "softjig/sim/render.py::_render_view": "being rewritten with the faster renderer (issue 17)",
 }
 
 
