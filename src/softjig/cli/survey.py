@@ -147,6 +147,12 @@ def survey_cmd(
     _check_out(out, rig_sources, overwrite, "--out")
     if markers_csv is not None:
         _check_out(markers_csv, [*rig_sources, out], overwrite, "--markers-csv")
+    from softjig.io.outputs import check_output
+
+    images = inputs if len(inputs) == 2 else []  # the images, and a dataset's files: never, even --overwrite
+    for option, path in (("--out", out), ("--markers-csv", markers_csv)):
+        if path is not None:
+            check_output(path, option, images, datasets=[dataset] if len(inputs) == 1 else [])
     estimator = Estimator(nominal)
     survey = survey_markers(
         [estimator.reference_from_pair(left, right) for left, right in pairs],

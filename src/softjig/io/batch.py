@@ -241,11 +241,11 @@ def _warms_up(frame: Frame, settings: BatchSettings) -> bool:
 
 
 def dataset_reference(dataset: Dataset, jig: JigConfig) -> ReferenceMarkers | None:
-    """The reference markers from the dataset's first unloaded reference frame, if it has one."""
-    for frame in dataset:
-        if frame.reference:
-            return Estimator(jig).reference_from_pair(frame.load_left(), frame.load_right())
-    return None
+    """The reference markers from the dataset's first unloaded reference frame, if it has one
+    (:func:`softjig.io.reference.dataset_reference`: a dataset of another rig is refused)."""
+    from softjig.io.reference import dataset_reference as reference_of
+
+    return reference_of(dataset, jig)
 
 
 def estimate_dataset(
