@@ -94,7 +94,7 @@ from softjig.sensing.jigframe import JigFrame, inside_fiducials, resolve_jig_fra
 from softjig.sensing.rectify import rectify_pair
 from softjig.sensing.refractive import triangulate_refracted
 from softjig.sensing.robust import fit_plane_robust
-from softjig.sensing.selfcheck import SplitCheck, agreement, split_halves
+from softjig.sensing.selfcheck import MIN_HALF_POINTS, SplitCheck, agreement, split_halves
 from softjig.sensing.stereo import StereoMatches, match_rectified, triangulate_rectified
 from softjig.sensing.subpixel import MIN_MODEL_BLUR_PX, MarkerModel
 from softjig.sensing.uncertainty import (
@@ -160,6 +160,9 @@ OFF_AXIS_DENT_RADII = 1.0
 # A dent whose centroid lies this many pitches or more off the axis (but under a radius) is also searched
 # from there, as a rival only: a face searched from the axis that it contradicts makes the estimate suspect.
 RIVAL_SEARCH_PITCHES = 1.0
+# ... when the face found from the axis has fewer markers than SELF_CHECK_MIN_POINTS and one more half of
+# the split check (MIN_HALF_POINTS): the self-check has little power there (the zoo's two such silent
+# failures had 15), while a larger face is placed by its own markers. The search costs 0.2-0.5 ms.
 # The search starts on the jig axis and stays there when the contact found puts the face's centre within
 # this share of the part's radius of it.
 CENTRED_SHARE = 0.5
@@ -822,7 +825,11 @@ def _contact_under_known_face(
             else None
         )
         searches = [searches[best]]
-    elif len(searches) == 1 and np.hypot(*dent_centre) >= RIVAL_SEARCH_PITCHES * pitch:
+    elif (
+        len(searches) == 1
+        and searches[0][0].sum() < SELF_CHECK_MIN_POINTS + MIN_HALF_POINTS
+        and np.hypot(*dent_centre) >= RIVAL_SEARCH_PITCHES * pitch
+    ):
         rival = _rival_search(
             points_J,
             dent,
@@ -883,17 +890,17 @@ def _rival_search(
 ):
     """The robust plane of the pushed-in markers within ``radius_mm`` of ``start`` (one fit, not a
     :func:`_search_face`: that cost 1.1 ms on the default pair, measured), as a rival of ``search``
-    (:func:`_plausible_rival`) when no marker contradicts it either; else ``None``."""
+    when the two disagree and no marker contradicts either; else ``None``."""
     selection = (dent.depth_mm > dent.noise_mm) & _within(points_J, start, radius_mm)
     if selection.sum() < minimum:
         return None
     inliers, plane = fit(points_J[selection])
     used = np.zeros(len(points_J), dtype=bool)
     used[np.flatnonzero(selection)[inliers]] = True
+    if used.sum() < minimum or _rival(points_J, search, (used, plane), threshold_mm) is None:
+        return None  # they agree: the violations (0.2 ms) are not counted
     pitch = jig.markers.pitch_mm
-    if used.sum() < minimum or contact_violations(
-        points_J, used, plane, threshold_mm=threshold_mm, pitch_mm=pitch, dent=dent
-    ):
+    if contact_violations(points_J, used, plane, threshold_mm=threshold_mm, pitch_mm=pitch, dent=dent):
         return None
     return _plausible_rival(points_J, search, (used, plane), threshold_mm, pitch, dent)
 
