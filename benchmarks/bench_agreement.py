@@ -2,18 +2,22 @@
 
 Run: ``python benchmarks/bench_agreement.py SWEEP [--method refractive|paper] [--workers N]``, with SWEEP a
 dataset from ``softjig simulate --scenario paper-sweep`` (the default sweep: ``--seed 0``). Every loaded
-frame is estimated twice, with ``estimate_pair(fast=True)`` (pyramid candidates, fiducials read near their
-expected place, Numba matching and closed-form triangulation) and ``fast=False`` (full-resolution LoG, full
-ArUco detection, the reference matching, Newton triangulation), and the angle between the two normals is
-reported: its maximum, 99th percentile and median, and the frames above 0.05 deg. The two implementations'
-markers are compared too (each fast marker with the nearest straightforward one in the same image): the
-largest distance between markers found by both (within 1 px), and the markers found by one only.
+frame is estimated twice, by the standard :class:`~softjig.sensing.estimator.Estimator` (pyramid
+candidates, fiducials read near their expected place, the sparse matching, closed-form refracted rays) and
+by one composed of the straightforward stages of ``tests/oracles/stages.py`` (full-resolution LoG, full
+ArUco detection, the dense assignment, rays traced interface by interface), and the angle between the two
+normals is reported: its maximum, 99th percentile and median, and the frames above 0.05 deg. The two
+implementations' markers are compared too (each fast marker with the nearest straightforward one in the
+same image): the largest distance between markers found by both (within 1 px), and the markers found by one
+only.
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -21,7 +25,10 @@ from scipy.spatial import cKDTree
 from softjig.geometry import angle_between
 from softjig.io.batch import dataset_reference
 from softjig.io.dataset import Dataset, Frame
-from softjig.sensing.pipeline import estimate_pair
+from softjig.sensing.estimator import Estimator
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from oracles.stages import straightforward_estimator
 
 LIMIT_DEG = 0.05
 _STATE: dict = {}
@@ -32,11 +39,9 @@ def _init(path: str, method: str) -> None:
 
     cv2.setNumThreads(1)
     dataset = Dataset.open(path)
-    _STATE.update(
-        jig=dataset.jig,
-        method=method,
-        reference=dataset_reference(dataset, dataset.jig) if method == "refractive" else None,
-    )
+    reference = dataset_reference(dataset, dataset.jig) if method == "refractive" else None
+    standard = Estimator(dataset.jig, method=method, reference=reference)
+    _STATE.update(estimators=(standard, straightforward_estimator(standard)))
 
 
 def _both(frame: Frame) -> tuple[int, float | None, float, int]:
@@ -45,19 +50,9 @@ def _both(frame: Frame) -> tuple[int, float | None, float, int]:
     left, right = frame.load_left(), frame.load_right()
     diameter = None if frame.part is None else float(frame.part.diameter_mm)
     results = []
-    for fast in (True, False):
+    for estimator in _STATE["estimators"]:
         try:
-            results.append(
-                estimate_pair(
-                    left,
-                    right,
-                    _STATE["jig"],
-                    part_diameter_mm=diameter,
-                    method=_STATE["method"],
-                    reference=_STATE["reference"],
-                    fast=fast,
-                )
-            )
+            results.append(estimator.estimate(left, right, part_diameter_mm=diameter))
         except Exception:  # a frame either implementation cannot estimate is counted, not compared
             return frame.index, None, 0.0, 0
     normals = [np.asarray(result.estimate.normal) for result in results]

@@ -68,18 +68,20 @@ def dump(frames_file: Path, out: Path) -> None:
     ``out`` (pickle)."""
     from softjig.config import default_jig
     from softjig.errors import SoftjigError
-    from softjig.sensing.pipeline import estimate_pair, reference_from_pair
+    from softjig.sensing.estimator import Estimator
 
     jig = default_jig()
     reference_pair, frames = pickle.loads(frames_file.read_bytes())
-    reference = reference_from_pair(reference_pair.left, reference_pair.right, jig)
+    rest_shape = Estimator(jig)
+    reference = rest_shape.reference_from_pair(reference_pair.left, reference_pair.right)
+    estimators = {"reference": rest_shape.with_reference(reference), "rest shape": rest_shape}
     results = {}
     for name, pair, diameter in frames:
         for size in (diameter, None):
-            for ref_name, ref in (("reference", reference), ("rest shape", None)):
+            for ref_name in ("reference", "rest shape"):
                 key = f"{name} size={size} {ref_name}"
                 try:
-                    result = estimate_pair(pair.left, pair.right, jig, part_diameter_mm=size, reference=ref)
+                    result = estimators[ref_name].estimate(pair.left, pair.right, part_diameter_mm=size)
                     e = result.estimate
                 except SoftjigError as exc:
                     results[key] = ("error", type(exc).__name__, str(exc))

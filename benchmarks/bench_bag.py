@@ -4,8 +4,8 @@ Simulates a paper sweep (1280x720 mono8, the default jig), converts it to a bag 
 :func:`~softjig.io.bag_convert.dataset_to_bag`, zstd chunks), then for each source times, per frame:
 
 * ``read``: getting the pair's two images into memory (PNG decode; bag: zstd chunk, CDR, pairing),
-* ``read + estimate``: that and :func:`~softjig.sensing.pipeline.estimate_pair` (refractive method,
-  against the reference frame), what ``softjig estimate --workers 1`` spends per frame.
+* ``read + estimate``: that and one :class:`~softjig.sensing.estimator.Estimator`'s ``estimate`` (refractive
+  method, against the reference frame), what ``softjig estimate --workers 1`` spends per frame.
 
 One warm-up pass first (Numba caches, per-jig tables), then one timed run; medians over the loaded
 frames. Target (issue 15): a bag's ``read + estimate`` at most 6 ms a frame.
@@ -33,8 +33,9 @@ def _time_source(frames, jig, reference, *, estimate: bool) -> tuple[list[float]
     estimate). The source's opening (a bag's metadata and type definitions, ~0.1-0.3 s once) falls on the
     first frame, which the medians ignore."""
     from softjig.errors import SoftjigError
-    from softjig.sensing.pipeline import estimate_pair
+    from softjig.sensing.estimator import Estimator
 
+    estimator = Estimator(jig, reference=reference, method="refractive")  # once, as estimate_dataset does
     wall, cpu = [], []
     it = iter(frames)
     while True:
@@ -45,7 +46,7 @@ def _time_source(frames, jig, reference, *, estimate: bool) -> tuple[list[float]
         left, right = frame.load_left(), frame.load_right()
         if not frame.reference and estimate:
             with contextlib.suppress(SoftjigError):
-                estimate_pair(left, right, jig, reference=reference, method="refractive")
+                estimator.estimate(left, right)
         if not frame.reference:
             wall.append(time.perf_counter() - t0)
             cpu.append(time.process_time() - c0)

@@ -36,7 +36,7 @@ import softjig.sim.render as render  # noqa: E402
 from softjig.config import CameraConfig, CylinderPart, StereoConfig, default_jig  # noqa: E402
 from softjig.errors import SoftjigError  # noqa: E402
 from softjig.geometry import angle_between, normal_from_tilt  # noqa: E402
-from softjig.sensing.pipeline import estimate_pair, reference_from_pair  # noqa: E402
+from softjig.sensing.estimator import Estimator  # noqa: E402
 from softjig.sim.asbuilt import draw_as_built  # noqa: E402
 from softjig.sim.parts import PartPose  # noqa: E402
 
@@ -101,9 +101,12 @@ def run(seed: int, frames: int) -> list[dict]:
         as_built = draw_as_built(jig, rng=seed)
         with static_speckle(seed):
             unloaded = render.render_pair(as_built, None, None, rng=seed + 999)
+            rest_shape = Estimator(jig)  # built once per design and reference
             references = {
-                "reference frame": reference_from_pair(unloaded.left, unloaded.right, jig),
-                "rest shape": None,
+                "reference frame": rest_shape.with_reference(
+                    rest_shape.reference_from_pair(unloaded.left, unloaded.right)
+                ),
+                "rest shape": rest_shape,
             }
             for i in range(frames):
                 off = (0.0, 0.0) if rng.random() < 0.6 else tuple(float(v) for v in rng.uniform(-15, 15, 2))
@@ -126,12 +129,8 @@ def run(seed: int, frames: int) -> list[dict]:
                             sized=sized,
                         )
                         try:
-                            e = estimate_pair(
-                                pair.left,
-                                pair.right,
-                                jig,
-                                part_diameter_mm=d if sized else None,
-                                reference=reference,
+                            e = reference.estimate(
+                                pair.left, pair.right, part_diameter_mm=d if sized else None
                             ).estimate
                             err = float(np.degrees(angle_between(np.array(e.normal), truth)))
                             row.update(err=err, sigma=e.tilt_sigma_deg, quality=getattr(e, "quality", "ok"))

@@ -24,7 +24,7 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
 from softjig.config import CameraConfig, CylinderPart, StereoConfig, default_jig  # noqa: E402
-from softjig.sensing.pipeline import _refractive_estimate, _StageClock, observe_pair  # noqa: E402
+from softjig.sensing.estimator import Estimator  # noqa: E402
 from softjig.sim.asbuilt import draw_as_built  # noqa: E402
 from softjig.sim.parts import PartPose  # noqa: E402
 from softjig.sim.render import render_pair  # noqa: E402
@@ -55,19 +55,27 @@ def main() -> None:
     cv2.setNumThreads(1)
     jig = fine_grid_jig()
     as_built = draw_as_built(jig, rng=0)
+    estimator = Estimator(jig)
     print(f"{'part':>6} {'size':>5} {'contact':>7} {'CPU ms':>8} {'IQR':>13} {'us/marker':>9}")
     for diameter in DIAMETERS_MM:
         pose = PartPose(np.radians(10.0), np.radians(30.0), 4.0)
         pair = render_pair(as_built, CylinderPart(float(diameter)), pose, rng=diameter)
-        observation = observe_pair(pair.left, pair.right, jig)
+        observation = estimator.observe(pair.left, pair.right)
         for sized in (False, True):
             size = float(diameter) if sized else None
-            result = _refractive_estimate(observation, jig, size, None, None, _StageClock(None))  # warm
+
+            def triangulate_and_fit(size=size, observation=observation):
+                points = estimator.triangulator.triangulate(
+                    observation.left_xy_px, observation.right_xy_px, observation.frame
+                )
+                return estimator.fitter.fit(observation, points, size)
+
+            result = triangulate_and_fit()  # warm
             times = []
             for _ in range(args.repeats):
                 # CPU time of this thread: on a shared machine, wall time counts the other processes'
                 t0 = time.thread_time()
-                result = _refractive_estimate(observation, jig, size, None, None, _StageClock(None))
+                result = triangulate_and_fit()
                 times.append((time.thread_time() - t0) * 1e3)
             n_contact = result.estimate.n_points
             q1, med, q3 = np.percentile(times, [25, 50, 75])

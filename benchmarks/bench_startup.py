@@ -1,21 +1,24 @@
 """Start-up of the command line: ``softjig --help`` and a single-pair ``softjig estimate``.
 
 Run: ``python benchmarks/bench_startup.py [--runs 9] [--src PATH ...]``. Each command runs as a fresh
-process ``--runs`` times, interleaved (bare, help, estimate, bare, ...), so that a busy machine slows
-all three alike; the script prints each one's median wall time and the ratios to the bare
-``python -c "import numpy, cv2, scipy.linalg"``. The goals (issue 14): ``--help`` within 2x and a
-single-pair estimate within 3x of the bare imports.
+process ``--runs`` times, interleaved (bare, then help and estimate of each source, bare, ...), so that a
+busy machine slows every command and source alike; the script prints each one's median wall time and
+the ratios to the bare ``python -c "import numpy, cv2, scipy.linalg"``. The goals (issue 14): ``--help``
+within 2x and a single-pair estimate within 3x of the bare imports.
 
 ``--src`` runs the commands with ``PYTHONPATH`` set to each given source folder in turn (for example
 ``--src src /work/main/src`` to set this tree beside another); by default, the softjig importable here.
 The stereo pair is one simulated default frame (``softjig simulate --scenario single``), rendered once
 into a temporary folder. Each source gets one untimed warm-up run of every command first, which fills
-the caches a first run builds once per machine (Numba's compiled kernels, the sub-pixel tables).
+the caches a first run builds once per machine (Numba's compiled kernels, the sub-pixel tables). Then, per
+source, the estimate's Numba share in one process (medians of a few runs): ``import numba``, the first
+kernel's load from the cache (which initialises Numba's CPU target), the other kernels' loads.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import statistics
 import subprocess
@@ -26,6 +29,34 @@ from pathlib import Path
 
 BARE = [sys.executable, "-c", "import numpy, cv2, scipy.linalg"]
 SOFTJIG = [sys.executable, "-c", "from softjig.cli import main; main()"]
+# The estimate in one process with Numba's share timed: its import, then every compiled kernel loaded from
+# the cache (the first load also initialises Numba's CPU target). Prints one JSON line on stderr.
+BREAKDOWN = """
+import json, sys, time
+t0 = time.perf_counter()
+import numba
+import numba.core.caching as caching
+t1 = time.perf_counter()
+loads = []
+original = caching.Cache.load_overload
+def load_overload(self, sig, target_context):
+    start = time.perf_counter()
+    try:
+        return original(self, sig, target_context)
+    finally:
+        loads.append(time.perf_counter() - start)
+caching.Cache.load_overload = load_overload
+from softjig.cli import main
+sys.argv = ["softjig", *sys.argv[1:]]
+try:
+    main()
+except SystemExit:
+    pass
+figures = {"numba import": t1 - t0, "first kernel (target init)": loads[0] if loads else 0.0}
+figures.update({"other kernel loads": sum(loads[1:]), "kernels": len(loads)})
+figures["in-process total"] = time.perf_counter() - t0
+sys.stderr.write(json.dumps(figures))
+"""
 
 
 def _env(src: str | None) -> dict[str, str]:
@@ -42,6 +73,18 @@ def _run(argv: list[str], env: dict[str, str]) -> float:
     if done.returncode != 0:
         raise SystemExit(f"{' '.join(argv[3:]) or argv}: exit {done.returncode}\n{done.stderr}")
     return seconds
+
+
+def _breakdown(argv: list[str], env: dict[str, str], runs: int) -> dict[str, float]:
+    """Medians over ``runs`` of the :data:`BREAKDOWN` figures for ``softjig`` arguments ``argv``."""
+    rows = []
+    for _ in range(runs):
+        argv_breakdown = [sys.executable, "-c", BREAKDOWN, *argv]
+        done = subprocess.run(
+            argv_breakdown, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, check=True
+        )
+        rows.append(json.loads(done.stderr.strip().splitlines()[-1]))
+    return {key: statistics.median(row[key] for row in rows) for key in rows[0]}
 
 
 def main() -> None:
@@ -62,26 +105,36 @@ def main() -> None:
         )
         estimate = [*SOFTJIG, "estimate", str(data / "left/000000.png"), str(data / "right/000000.png")]
         estimate += ["--config", str(data / "rig.toml"), "--part-diameter", "50", "--json"]
-        commands = {"bare imports": BARE, "softjig --help": [*SOFTJIG, "--help"], "single estimate": estimate}
+        commands = {"softjig --help": [*SOFTJIG, "--help"], "single estimate": estimate}
+        envs = {src or "the installed package": _env(src) for src in args.src}
         print(f"python {sys.version.split()[0]}, {os.cpu_count()} CPUs, {args.runs} runs each (medians, s)")
-        for src in args.src:
-            env = _env(src)
-            for argv in commands.values():  # warm-up: caches filled once per machine
+        for env in envs.values():  # warm-up: caches filled once per machine
+            for argv in commands.values():
                 _run(argv, env)
-            times: dict[str, list[float]] = {name: [] for name in commands}
-            for _ in range(args.runs):
+        bare: list[float] = []
+        times = {(src, name): [] for src in envs for name in commands}
+        for _ in range(args.runs):  # interleaved: a busy machine slows every command and source alike
+            bare.append(_run(BARE, _env(None)))
+            for src, env in envs.items():
                 for name, argv in commands.items():
-                    times[name].append(_run(argv, env))
-            medians = {name: statistics.median(values) for name, values in times.items()}
-            bare = medians["bare imports"]
-            print(f"\nsoftjig from {src or 'the installed package'}")
+                    times[src, name].append(_run(argv, env))
+        bare_s = statistics.median(bare)
+        print(f"\n  bare imports      {bare_s:6.3f} s  (range {max(bare) - min(bare):5.3f})")
+        for src in envs:
+            medians = {name: statistics.median(times[src, name]) for name in commands}
+            print(f"\nsoftjig from {src}")
             for name, value in medians.items():
-                spread = max(times[name]) - min(times[name])
-                print(f"  {name:16s} {value:6.3f} s  (range {spread:5.3f})  {value / bare:4.1f}x bare")
+                spread = max(times[src, name]) - min(times[src, name])
+                print(f"  {name:16s} {value:6.3f} s  (range {spread:5.3f})  {value / bare_s:4.1f}x bare")
             print(
-                f"  goals: --help {medians['softjig --help'] / bare:.1f}x (<= 2x), "
-                f"estimate {medians['single estimate'] / bare:.1f}x (<= 3x)"
+                f"  goals: --help {medians['softjig --help'] / bare_s:.1f}x (<= 2x), "
+                f"estimate {medians['single estimate'] / bare_s:.1f}x (<= 3x)"
             )
+            parts = _breakdown(estimate[3:], envs[src], max(3, args.runs // 3))
+            kernels = int(parts.pop("kernels"))
+            print(f"  the estimate in one process ({kernels} compiled kernels loaded):")
+            for name, value in parts.items():
+                print(f"    {name:28s} {value:6.3f} s")
 
 
 if __name__ == "__main__":

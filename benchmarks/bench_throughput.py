@@ -218,10 +218,11 @@ def frame_breakdown(dataset: Dataset, n: int = 12, method: str = "refractive") -
     import cv2
 
     from softjig.io.batch import dataset_reference
-    from softjig.sensing.pipeline import estimate_pair
+    from softjig.sensing.estimator import Estimator
 
     cv2.setNumThreads(1)
     reference = dataset_reference(dataset, dataset.jig) if method == "refractive" else None
+    estimator = Estimator(dataset.jig, method=method, reference=reference)  # once, as estimate_dataset does
     records: dict[str, list[float]] = {}
     loaded = [f for f in dataset if not f.reference][:n]
     for frame in [loaded[0], *loaded]:  # the first one warms the caches
@@ -230,15 +231,7 @@ def frame_breakdown(dataset: Dataset, n: int = 12, method: str = "refractive") -
         decode = time.perf_counter() - t0
         timings: dict[str, float] = {}
         diameter = frame.part.diameter_mm if frame.part else None
-        estimate_pair(
-            left,
-            right,
-            dataset.jig,
-            part_diameter_mm=diameter,
-            method=method,
-            reference=reference,
-            timings=timings,
-        )
+        estimator.estimate(left, right, part_diameter_mm=diameter, timings=timings)
         timings = {"PNG decode (2 images)": decode, **timings}
         for stage, seconds in timings.items():
             records.setdefault(stage, []).append(seconds * 1e3)

@@ -11,10 +11,11 @@ What it does
    frame and ``--frames`` loaded frames of random parts. Each design is rendered exactly as
    ``softjig simulate --scenario zoo`` would write it (the as-built jig drawn from the design's seed,
    frame ``i`` rendered from ``SeedSequence(seed, spawn_key=(1, i))``).
-2. Estimates every loaded frame with the default method (:func:`softjig.sensing.pipeline.estimate_pair`)
-   four ways: with the part's size (``part_diameter_mm``: the part's ``diameter_mm``) or without it
-   (``None``), each with the design's reference frame (:func:`reference_from_pair`) or with the nominal
-   rest shape (``reference=None``).
+2. Estimates every loaded frame with the default method (an :class:`~softjig.sensing.estimator.Estimator`
+   per design and reference) four ways: with the part's size (``part_diameter_mm``: the part's
+   ``diameter_mm``) or without it (``None``), each with the design's reference frame
+   (:meth:`~softjig.sensing.estimator.Estimator.reference_from_pair`) or with the nominal rest shape
+   (``reference=None``).
 3. Reports, per design family and overall, for each of the four ways:
 
    - **RMSE**, **p95** and **max** of the angular error: the angle (deg) between the estimated and the
@@ -66,7 +67,7 @@ import numpy as np  # noqa: E402
 
 from softjig.config import JigConfig, default_jig  # noqa: E402
 from softjig.errors import EstimationError, InputError  # noqa: E402
-from softjig.sensing.pipeline import estimate_pair, reference_from_pair  # noqa: E402
+from softjig.sensing.estimator import Estimator  # noqa: E402
 from softjig.sim.asbuilt import draw_as_built  # noqa: E402
 from softjig.sim.render import render_pair  # noqa: E402
 from softjig.sim.scenarios import FrameSpec, frame_truth, paper_sweep  # noqa: E402
@@ -155,14 +156,16 @@ def evaluate_design(
     )
     rows: list[Row] = []
     reference = None
+    estimators = {False: Estimator(nominal), True: None}  # built once per design (with_reference: by key)
     for index, spec in enumerate(specs):
         rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(1, index)))
         pair = render_pair(as_built, spec.part, spec.pose, rng)
         if spec.part is None:
             try:
-                reference = reference_from_pair(pair.left, pair.right, nominal)
+                reference = estimators[False].reference_from_pair(pair.left, pair.right)
             except (EstimationError, InputError):
                 reference = None
+            estimators[True] = estimators[False].with_reference(reference) if reference is not None else None
             continue
         truth = frame_truth(as_built.jig, spec.pose)["normal"]
         m = pair.markers
@@ -196,13 +199,11 @@ def evaluate_design(
                 continue
             t0 = time.perf_counter()
             try:
-                est = estimate_pair(
-                    pair.left,
-                    pair.right,
-                    nominal,
-                    part_diameter_mm=size if with_size else None,
-                    reference=reference if with_reference else None,
-                ).estimate
+                est = (
+                    estimators[bool(with_reference)]
+                    .estimate(pair.left, pair.right, part_diameter_mm=size if with_size else None)
+                    .estimate
+                )
             except (EstimationError, InputError) as exc:
                 rows.append(
                     Row(

@@ -50,7 +50,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import peers  # noqa: E402
 from softjig.config import CylinderPart, JigConfig, default_jig  # noqa: E402
 from softjig.sensing.detect import DEFAULT_THRESHOLD, detect_markers  # noqa: E402
-from softjig.sensing.pipeline import estimate_pair, sensing_setup  # noqa: E402
+from softjig.sensing.estimator import Estimator  # noqa: E402
+from softjig.sensing.pipeline import sensing_setup  # noqa: E402
+from softjig.sensing.subpixel import MarkerModel, kernel_tables  # noqa: E402
 from softjig.sim.asbuilt import draw_as_built  # noqa: E402
 from softjig.sim.parts import PartPose  # noqa: E402
 from softjig.sim.render import RenderedPair, render_pair  # noqa: E402
@@ -176,6 +178,9 @@ def our_detectors(jig: JigConfig) -> dict[str, tuple[Detector, str]]:
     for name in ("candidates", "refine", "model"):
         if name in params and getattr(setup, name, None) is not None:
             base[name] = getattr(setup, name)
+    if "tables" in params and base.get("refine", params["refine"].default) == "model":
+        # the sub-pixel tables read once, as the estimator's detector does (not from disk per call)
+        base["tables"] = kernel_tables(base.get("model") or MarkerModel.for_sigma(setup.sigma_px))
     notes = []
     for name in ("candidates", "refine"):
         if name not in params:
@@ -196,6 +201,7 @@ def our_detectors(jig: JigConfig) -> dict[str, tuple[Detector, str]]:
     if "refine" in params and base.get("refine", params["refine"].default) != "quadratic":
         quadratic = {**base, "refine": "quadratic"}
         quadratic.pop("model", None)
+        quadratic.pop("tables", None)
         out["ours refine=quadratic"] = (
             lambda im: detect_markers(im, **quadratic).xy_px,
             "the former refinement (3x3 quadratic fit of the LoG response)",
@@ -312,15 +318,17 @@ def run_detectors(
 def time_estimates(
     pairs: Sequence[RenderedPair], jig: JigConfig, method: str, repeats: int
 ) -> dict[str, np.ndarray]:
-    """Seconds per stage (``timings`` of :func:`estimate_pair`) and in total over ``repeats`` runs cycling
-    through the pairs (one warm-up run first)."""
-    estimate_pair(pairs[0].left, pairs[0].right, jig, part_diameter_mm=50.0, method=method)
+    """Seconds per stage (``timings`` of an :class:`~softjig.sensing.estimator.Estimator` built once, as
+    every caller estimating frames builds it) and in total over ``repeats`` runs cycling through the pairs
+    (one warm-up run first)."""
+    estimator = Estimator(jig, method=method)
+    estimator.estimate(pairs[0].left, pairs[0].right, part_diameter_mm=50.0)
     records: dict[str, list[float]] = {}
     for k in range(repeats):
         pair = pairs[k % len(pairs)]
         timings: dict[str, float] = {}
         t0 = time.perf_counter()
-        estimate_pair(pair.left, pair.right, jig, part_diameter_mm=50.0, method=method, timings=timings)
+        estimator.estimate(pair.left, pair.right, part_diameter_mm=50.0, timings=timings)
         total = time.perf_counter() - t0
         for stage, value in timings.items():
             records.setdefault(stage, []).append(value)

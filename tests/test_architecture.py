@@ -31,11 +31,7 @@ MAX_BODY_LINES = 80
 #: function is split (the test below says which). An entry whose module does not exist yet is a kernel
 #: moving there.
 LONG_BODY_ALLOWED = {
-    "softjig/sensing/jigframe.py::_gauss_newton_kernel": "numeric kernel (Numba), moving (issue 16)",
     "softjig/sensing/_jigframe_kernels.py::gauss_newton": "numeric kernel (Numba)",
-    "softjig/sensing/subpixel.py::_solve": "being split with the sub-pixel stage (issue 16)",
-    "softjig/sensing/pipeline.py::_refractive_estimate": "being split into the Estimator (issue 16)",
-    "softjig/sim/render.py::_render_view": "being rewritten with the faster renderer (issue 17)",
 }
 
 

@@ -266,14 +266,3 @@ def test_a_moved_fiducial_is_not_trusted(default_pair):
     assert any("reprojecting" in w for w in est.warnings)
 
 
-@pytest.mark.parametrize("method", ["refractive", "paper"])
-def test_fast_and_straightforward_implementations_agree(method):
-    """The fast path (pyramid candidates, fiducials read near their expected place, Numba matching and
-    closed-form triangulation) against the straightforward one (full-resolution LoG, full ArUco, the
-    reference matching, Newton triangulation): the same markers and the same normal within 0.05 deg."""
-    jig = default_jig()
-    pair = render_pair(draw_as_built(jig, 3), CylinderPart(60.0), PartPose(np.radians(15), np.radians(70)), 3)
-    fast = _estimate_pair(pair.left, pair.right, jig, part_diameter_mm=60, method=method)
-    slow = _estimate_pair(pair.left, pair.right, jig, part_diameter_mm=60, method=method, fast=False)
-    assert len(fast.matches) == len(slow.matches)
-    assert np.degrees(angle_between(np.array(fast.estimate.normal), np.array(slow.estimate.normal))) < 0.05

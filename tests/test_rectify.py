@@ -11,7 +11,7 @@ from softjig.errors import InputError
 from softjig.optics import project_points
 from softjig.rig import flat_layers
 from softjig.sensing.pipeline import estimate_pair
-from softjig.sensing.rectify import rectification, rectify_pair
+from softjig.sensing.rectify import rectification, rectified_jig, rectify_pair
 from softjig.sim.asbuilt import nominal_as_built
 from softjig.sim.parts import PartPose
 from softjig.sim.render import idealised, render_pair
@@ -84,8 +84,22 @@ def test_rectified_config_is_returned_untouched():
     assert left is a and right is b and jig is BASE
 
 
-def test_maps_are_cached():
-    assert rectification(RAW.cameras) is rectification(RAW.cameras)
+def test_an_estimator_rectifies_with_maps_it_computed_once(monkeypatch):
+    """No cache on the side: the estimator of a raw rig holds its rectification (maps and rectified jig)."""
+    from softjig.sensing import setup
+    from softjig.sensing.estimator import Estimator
+
+    estimator = Estimator(RAW)
+    assert estimator.model.rectification is not None and estimator.jig == rectified_jig(RAW)
+    np.testing.assert_array_equal(
+        estimator.model.rectification.maps_left[0], rectification(RAW.cameras).maps_left[0]
+    )
+
+    def no_rectification(*args, **kwargs):
+        raise AssertionError("rectified again")
+
+    monkeypatch.setattr(setup, "rectification", no_rectification)
+    assert Estimator(RAW, model=estimator.model).model.rectification is estimator.model.rectification
 
 
 def test_swapped_cameras_are_an_input_error():

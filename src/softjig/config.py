@@ -312,6 +312,8 @@ class SensingConfig:
     # Where the cameras' pose in J comes from: "fiducials" (measured in every pair, required), "config"
     # (the fixed extrinsics above, calibrated once), or "auto" (fiducials when found, else the config).
     extrinsics: Literal["auto", "fiducials", "config"] = "auto"
+    # The marker detector, by name (softjig.sensing.stages.DETECTORS; "log": the LoG and the model fit).
+    detector: str = "log"
 
 
 @dataclass(frozen=True)

@@ -23,8 +23,7 @@ pixels) are accepted and results keep the leading shape.
 from __future__ import annotations
 
 import itertools
-from dataclasses import dataclass
-from functools import lru_cache
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -89,6 +88,7 @@ class FlatLayers:
 
     interfaces_z_mm: tuple[float, ...]
     refractive_indices: tuple[float, ...]
+    _constants: tuple = field(init=False, repr=False, compare=False)  # layer_constants, made with it
 
     def __post_init__(self) -> None:
         try:
@@ -115,6 +115,7 @@ class FlatLayers:
             raise ValueError(f"FlatLayers: refractive indices must all be >= 1, got {n}")
         object.__setattr__(self, "interfaces_z_mm", z)
         object.__setattr__(self, "refractive_indices", n)
+        object.__setattr__(self, "_constants", _layer_constants(z, n))
 
     @classmethod
     def plate_under_oil(
@@ -805,12 +806,17 @@ def rays_in_top_region_normalized(
     return origins, directions
 
 
-@lru_cache(maxsize=16)
 def layer_constants(layers: FlatLayers) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-    """Read-only constants of the layers (cached): interface heights, ``n_0 / n_i`` per region, its square
-    in regions ``1 ..``, and ``h_i n_0 / n_i`` of the regions between two interfaces."""
-    z_if = np.asarray(layers.interfaces_z_mm, dtype=float)
-    ratio = layers.refractive_indices[0] / np.asarray(layers.refractive_indices, dtype=float)
+    """Read-only constants of the layers (made with them): interface heights, ``n_0 / n_i`` per region,
+    its square in regions ``1 ..``, and ``h_i n_0 / n_i`` of the regions between two interfaces."""
+    return layers._constants
+
+
+def _layer_constants(
+    interfaces_z_mm: tuple[float, ...], refractive_indices: tuple[float, ...]
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    z_if = np.asarray(interfaces_z_mm, dtype=float)
+    ratio = refractive_indices[0] / np.asarray(refractive_indices, dtype=float)
     constants = (z_if, ratio, ratio[1:] ** 2, np.diff(z_if) * ratio[1:-1])
     for array in constants:
         array.flags.writeable = False

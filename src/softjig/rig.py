@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from functools import lru_cache
-
 import numpy as np
 
 from softjig.config import CameraConfig, JigConfig
@@ -12,11 +10,10 @@ from softjig.optics import FlatLayers
 AIR_REFRACTIVE_INDEX = 1.000293
 
 
-@lru_cache(maxsize=16)
 def flat_layers(jig: JigConfig) -> FlatLayers:
     """Air below the plate, the plate (``-thickness < z < 0``), the oil above it (``DESIGN.md`` §2).
 
-    Cached per jig (``FlatLayers`` is immutable): every triangulation asks for it."""
+    ``FlatLayers`` is immutable and cheap to make; an estimator makes it once."""
     return FlatLayers(
         interfaces_z_mm=(-jig.plate.thickness_mm, 0.0),
         refractive_indices=(

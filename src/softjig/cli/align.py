@@ -59,7 +59,9 @@ def align_jig(
     from softjig.config import CameraConfig
     from softjig.files import write_text_atomic
     from softjig.io.dataset import load_image
+    from softjig.io.outputs import check_output
 
+    check_output(out, "--out", [image, camera, flange, config])
     jig = load_config(config)
     cam_data = read_json_file(camera, "--camera")
     T_flange_cam = pose_from_json(cam_data, "T_flange_cam", camera)

@@ -59,6 +59,9 @@ def calibrate(
 
     method, frames = Method(method).value, FrameSelection(frames).value
     ds = Dataset.open(dataset)
+    from softjig.io.outputs import check_output
+
+    check_output(out, "--out", [results], datasets=(ds,))
     t0 = time.perf_counter()
     rows = load_result_rows(results) if results is not None else None
     with Progress(console=stderr_console(), disable=not progress or rows is not None, transient=True) as bar:

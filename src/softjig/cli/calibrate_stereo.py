@@ -97,6 +97,11 @@ def calibrate_stereo(
             f"LEFT_GLOB matches {len(lefts)} files but RIGHT_GLOB {len(rights)}: the images are paired in "
             "sorted order, so give one right image per left image"
         )
+    from softjig.io.outputs import check_output
+
+    for option, path in (("--out", out), ("--report", report)):
+        if path is not None:  # a calibration photo is never overwritten
+            check_output(path, option, [*lefts, *rights, config])
     cal = calibrate_stereo(
         [load_image(p) for p in lefts],
         [load_image(p) for p in rights],

@@ -42,7 +42,9 @@ def config_cmd(
     file (a hand-made membrane). The file is complete: every section is named, as loading requires.
     """
     from softjig.config import load_marker_csv, save_jig, with_explicit_markers
+    from softjig.io.outputs import check_output
 
+    check_output(out, "--out", [markers_csv])  # --config itself may be replaced, with --overwrite
     if out.exists() and out.is_dir():
         raise InputError(f"{out} is a folder: give a file name such as {out / 'rig.toml'}")
     if out.exists() and not overwrite:

@@ -69,6 +69,9 @@ def convert(
         raise InputError(f"{src} does not exist: give a dataset folder or a ROS 2 bag")
     if Path(out).resolve() == Path(src).resolve():
         raise InputError("OUT must differ from SRC: convert writes a new folder and never replaces its input")
+    from softjig.io.outputs import check_output
+
+    check_output(out, "OUT", [src, config])  # nor writes inside it, nor replaces a folder holding it
     jig = load_config(config) if config else None
     if is_bag(src):
         if repair:

@@ -163,6 +163,10 @@ def estimate(
 
         if is_bag(inputs[0]):  # a ROS 2 bag: its folder or its .mcap (softjig.cli.estimate_bag)
             from softjig.cli.estimate_bag import estimate_bag
+            from softjig.io.outputs import check_output
+
+            if out is not None:
+                check_output(out, "--out", [config, calibration])
 
             estimate_bag(
                 inputs[0], config, part_diameter, cal, method_name, out, workers, progress, use_reference,
@@ -180,22 +184,25 @@ def estimate(
         inputs, config, reference_left, reference_right, out=out, workers=workers, part_size=part_size
     )
     from softjig.io.dataset import load_image
-    from softjig.sensing.pipeline import estimate_pair, reference_from_pair
+    from softjig.io.outputs import check_output
+    from softjig.sensing.estimator import Estimator
 
+    given = (*inputs, config, calibration, reference_left, reference_right)
+    for option, path in (("--overlay", overlay), ("--displacements", displacements)):
+        if path is not None:  # before any work: nothing the user recorded is overwritten
+            check_output(path, option, given)
     jig = load_config(config)
     left, right = load_image(inputs[0]), load_image(inputs[1])
-    reference = None
-    if reference_left is not None and reference_right is not None:
-        reference = reference_from_pair(load_image(reference_left), load_image(reference_right), jig)
-    result = estimate_pair(
-        left,
-        right,
-        jig,
-        part_diameter_mm=part_diameter,
-        calibration=cal,
-        method=method_name,
-        reference=reference,
-    )
+    estimator = Estimator(jig, method=method_name, calibration=cal)
+    if reference_left is not None and reference_right is not None:  # checked unloaded, of this rig
+        from softjig.io.reference import reference_from_pair
+
+        reference = reference_from_pair(
+            load_image(reference_left), load_image(reference_right), jig, estimator=estimator,
+            where="--reference-left/--reference-right",
+        )  # fmt: skip
+        estimator = estimator.with_reference(reference)
+    result = estimator.estimate(left, right, part_diameter_mm=part_diameter)
     if overlay is not None:
         from softjig.evaluation.overlay import draw_overlay
         from softjig.files import write_bytes_atomic
@@ -348,24 +355,9 @@ def _estimate_dataset(
 def _refuse_to_overwrite_an_input(out: Path, dataset, inputs: tuple[Path | None, ...]) -> None:
     """An InputError if ``out`` is not a results file name, is one of the dataset's (or another
     dataset's) own files, or one of the command's input files."""
-    import os
+    from softjig.io.outputs import check_output
 
-    from softjig.io.dataset import is_dataset_member
-
-    if dataset.owns(out) or is_dataset_member(out):
-        raise InputError(
-            f"--out {out} is one of the dataset's own files: writing there would destroy it; give a "
-            "new file name (e.g. DATASET/estimates.jsonl, the default)"
-        )
-    for given in inputs:
-        if given is None:
-            continue
-        try:
-            same = Path(out).resolve() == Path(given).resolve() or os.path.samefile(out, given)
-        except OSError:
-            same = False
-        if same:
-            raise InputError(f"--out {out} is an input of this command ({given}): give a new file name")
+    check_output(out, "--out", inputs, datasets=(dataset,))
     if Path(out).is_dir():
         raise InputError(f"cannot write {out}: it is a folder; give a file name inside it")
     if Path(out).suffix.lower() not in (".jsonl", ".json", ".ndjson", ".csv"):

@@ -198,6 +198,8 @@ def _check_out(out: Path, bag: Path) -> None:
     """An InputError if ``out`` is not a results file name or is one of the bag's own files."""
     if out.suffix.lower() not in (".jsonl", ".json", ".ndjson", ".csv"):
         raise InputError(f"--out {out}: the results file must end in .jsonl or .csv")
+    from softjig.io.outputs import same_path
+
     members = [bag] if bag.is_file() else [p for p in bag.iterdir() if p.is_file()]
-    if any(out.resolve() == member.resolve() for member in members):
+    if any(same_path(out, member) for member in members):  # links too
         raise InputError(f"--out {out} is one of the bag's own files: writing there would destroy it")

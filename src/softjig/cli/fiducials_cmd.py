@@ -47,7 +47,11 @@ def sheet(
     from softjig.calibration.fiducial_layout import fiducial_sheet, projected_fiducials, with_fiducials
     from softjig.config import save_jig
     from softjig.files import write_bytes_atomic
+    from softjig.io.outputs import check_output
 
+    check_output(out, "--out", [config, config_out])
+    if config_out is not None:
+        check_output(config_out, "--config-out", [out])  # the input rig may be replaced, as asked
     jig = load_config(config)
     jig = with_fiducials(
         jig,

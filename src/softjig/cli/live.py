@@ -22,6 +22,12 @@ from softjig.cli.options import (
     ReplayRateOption,
     SourceOption,
 )
+from softjig.cli.reference import (
+    ReferenceFromOption,
+    ReferenceLeftOption,
+    ReferenceRightOption,
+    UseReferenceOption,
+)
 from softjig.errors import InputError
 
 
@@ -58,6 +64,10 @@ def live(
     part_diameter: PartDiameterOption = None,
     calibration: CalibrationOption = None,
     method: MethodOption = DEFAULT_METHOD,
+    reference_left: ReferenceLeftOption = None,
+    reference_right: ReferenceRightOption = None,
+    reference_from: ReferenceFromOption = None,
+    use_reference: UseReferenceOption = True,
     rate: ReplayRateOption = ReplayRate.recorded,
     fps: FpsOption = DEFAULT_FPS,
     mcap: Annotated[
@@ -98,6 +108,13 @@ def live(
         raise InputError(
             "give --record DIR or --record-bag OUT, not both (softjig convert turns one into the other)"
         )
+    from softjig.io.outputs import check_output
+
+    given = [config, calibration, reference_left, reference_right, reference_from]  # the replay: below
+    for option, path in (("--record", record), ("--record-bag", record_bag), ("--mcap", mcap),
+                         ("--rerun-save", rerun_save)):  # fmt: skip
+        if path is not None:
+            check_output(path, option, given)
     cal = load_tilt_calibration(calibration) if calibration else None
     if replay is not None:
         cameras, jig = _open_replay(replay, rate=rate, fps=fps, config=config, record=record)
@@ -105,11 +122,18 @@ def live(
         cameras, jig = _open_cameras(
             source, rate=rate, fps=fps, config=config, method=method, part_diameter=part_diameter
         )
+    from softjig.cli.reference import announced_reference
+
+    reference = announced_reference(
+        jig, method, left=reference_left, right=reference_right, from_dataset=reference_from,
+        replay=cameras.dataset if replay is not None else None, use_reference=use_reference,
+    )  # fmt: skip
     settings = LiveSettings(
         jig=jig,
         part_diameter_mm=part_diameter,
         calibration=cal,
         method=method,
+        reference=reference,
         max_frames=max_frames,
         health_period_s=health_period,
     )

@@ -20,6 +20,13 @@ from softjig.cli.options import (
     ReplayRateOption,
     SourceOption,
 )
+from softjig.cli.reference import (
+    ReferenceFromOption,
+    ReferenceLeftOption,
+    ReferenceRightOption,
+    UseReferenceOption,
+    announced_reference,
+)
 from softjig.errors import InputError
 
 
@@ -43,6 +50,10 @@ def serve(
     part_diameter: PartDiameterOption = None,
     calibration: CalibrationOption = None,
     method: MethodOption = DEFAULT_METHOD,
+    reference_left: ReferenceLeftOption = None,
+    reference_right: ReferenceRightOption = None,
+    reference_from: ReferenceFromOption = None,
+    use_reference: UseReferenceOption = True,
     rate: ReplayRateOption = ReplayRate.recorded,
     loop: Annotated[bool, typer.Option(help="Replay: start again at the first frame after the last.")] = True,
     fps: FpsOption = DEFAULT_FPS,
@@ -70,7 +81,9 @@ def serve(
         ),
     ] = True,
 ) -> None:
-    """Answer estimate, settled, fix, release and health requests (JSON over ZeroMQ REP) until Ctrl-C."""
+    """Answer estimate, settled, fix, release and health requests (JSON over ZeroMQ REP) until Ctrl-C.
+
+    A reference request, while the jig is empty, makes the next pair the reference frame."""
     from softjig.calibration.tilt import load_tilt_calibration
     from softjig.io.cameras import ReplaySource, open_source
     from softjig.io.dataset import Dataset
@@ -99,7 +112,7 @@ def serve(
         pump_timeout_s=pump_timeout,
     )
     cal = load_tilt_calibration(calibration) if calibration else None
-    first_pair = None
+    first_pair = dataset = None
     if replay is not None:
         dataset = Dataset.open(replay)  # once: each lap of a looping replay starts on the same index
 
@@ -119,7 +132,11 @@ def serve(
             raise InputError("the paper's method on live cameras needs --part-diameter MM")
         cam = jig.cameras.left
         cameras = open_source(source, width_px=cam.width_px, height_px=cam.height_px, fps=fps)
-    live = LiveSettings(jig=jig, part_diameter_mm=part_diameter, calibration=cal, method=method)
+    reference = announced_reference(
+        jig, method, left=reference_left, right=reference_right, from_dataset=reference_from,
+        replay=dataset, use_reference=use_reference,
+    )  # fmt: skip
+    live = LiveSettings(jig, part_diameter, cal, method, reference)
     pump_adapter = PumpAdapter(pump, timeout_s=pump_timeout) if pump else None
     try:
         service = EstimationService(

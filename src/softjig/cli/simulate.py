@@ -99,6 +99,10 @@ def simulate(
             f"{', '.join(stray)} do(es) not apply to --scenario {scenario.value} "
             f"(it takes {', '.join(sorted(allowed))})"
         )
+    from softjig.io.outputs import check_output
+
+    if out is not None:  # an --overwrite never replaces a folder holding the config it reads
+        check_output(out, "--out", [config])
     if scenario is Scenario.zoo:
         if config is not None:
             raise InputError("--config does not apply to --scenario zoo (each design draws its own jig)")

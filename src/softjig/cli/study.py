@@ -40,9 +40,11 @@ def study(
     Every design is built and validated before any work starts; each finished task is written to
     OUT/parts/ at once, so a stopped study continues with --resume and recomputes nothing it finished."""
     from softjig.cli.app import stderr_console
+    from softjig.io.outputs import check_output
     from softjig.study.execute import run_study
     from softjig.study.spec import load_study
 
+    check_output(out, "--out", [study_file])
     loaded = load_study(study_file)
     spec = loaded.spec
     stderr_console().print(

@@ -113,7 +113,7 @@ def survey_cmd(
     from softjig.config import marker_csv_text, save_jig
     from softjig.files import write_text_atomic
     from softjig.io.dataset import Dataset, load_image
-    from softjig.sensing.pipeline import observe_pair, reference_from_pair
+    from softjig.sensing.estimator import Estimator
     from softjig.sensing.survey import survey_markers
 
     if not (np.isfinite(max_deviation) and 0 <= max_deviation <= 50):
@@ -147,14 +147,21 @@ def survey_cmd(
     _check_out(out, rig_sources, overwrite, "--out")
     if markers_csv is not None:
         _check_out(markers_csv, [*rig_sources, out], overwrite, "--markers-csv")
+    from softjig.io.outputs import check_output
+
+    images = inputs if len(inputs) == 2 else []  # the images, and a dataset's files: never, even --overwrite
+    for option, path in (("--out", out), ("--markers-csv", markers_csv)):
+        if path is not None:
+            check_output(path, option, images, datasets=[dataset] if len(inputs) == 1 else [])
+    estimator = Estimator(nominal)
     survey = survey_markers(
-        [reference_from_pair(left, right, nominal) for left, right in pairs],
+        [estimator.reference_from_pair(left, right) for left, right in pairs],
         nominal,
         fit_profile=not keep_profile,
         smooth=not raw_heights,
         max_deviation_mm=max_deviation,
     )
-    frame_source = observe_pair(*pairs[0], nominal).frame.source
+    frame_source = estimator.observe(*pairs[0]).frame.source
     save_jig(survey.jig, out)
     if markers_csv is not None:
         write_text_atomic(

@@ -55,10 +55,14 @@ def sweep_plan(
 ) -> None:
     """Write the tilt sweep's poses (position, quaternion x,y,z,w) in J and the robot frame, in order."""
     from softjig.files import write_text_atomic
+    from softjig.io.outputs import check_output
     from softjig.planning import sweep_plan as make_plan
     from softjig.planning import sweep_plan_rows
     from softjig.planning.contact import CONTACT_THRESHOLD_N
 
+    check_output(out, "--out", [config, robot_jig, csv_out])
+    if csv_out is not None:
+        check_output(csv_out, "--csv-out", [config, robot_jig])
     jig = load_config(config)
     T = None
     if robot_jig:

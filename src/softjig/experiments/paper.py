@@ -88,7 +88,7 @@ from softjig.io.dataset import (
     encode_png,
 )
 from softjig.io.simulated import simulate_dataset
-from softjig.sensing.pipeline import estimate_pair
+from softjig.sensing.estimator import Estimator
 from softjig.sim.scenarios import FrameSpec, cube_experiment, paper_sweep
 
 __all__ = ["run_experiment"]
@@ -235,18 +235,14 @@ def _stereo_pair_figure(
     diameters = {int(i): float(d) for i, d in zip(samples.index, samples.diameter_mm, strict=True)}
     wanted = [i for i in candidates if i in diameters]
     frames = {f.index: f for f in dataset if f.index in set(wanted)}  # one pass, the candidates kept
+    estimator = Estimator(
+        dataset.jig, method=method, reference=reference if method == DEFAULT_METHOD else None
+    )
     for index in wanted:
         frame = frames[index]
         try:
             left, right = frame.load_left(), frame.load_right()
-            result = estimate_pair(
-                left,
-                right,
-                dataset.jig,
-                part_diameter_mm=diameters[index],
-                method=method,
-                **({"reference": reference} if method == DEFAULT_METHOD else {}),
-            )
+            result = estimator.estimate(left, right, part_diameter_mm=diameters[index])
         except (EstimationError, InputError):
             continue
         write_bytes_atomic(path, encode_png(draw_overlay(left, right, result, dataset.jig)))

@@ -122,7 +122,7 @@ def dataset_to_bag(
     on an error later, the frames written so far stay a readable bag.
     """
     from softjig.io.batch import BatchSettings, dataset_reference, frame_part_diameter_mm
-    from softjig.sensing.pipeline import DEFAULT_METHOD, estimate_pair
+    from softjig.sensing.estimator import DEFAULT_METHOD, Estimator
 
     dataset = dataset if isinstance(dataset, Dataset) else Dataset.open(dataset)
     jig = jig or dataset.jig
@@ -132,6 +132,7 @@ def dataset_to_bag(
     if estimate and use_reference and method == "refractive":
         reference = dataset_reference(dataset, jig)
     settings = BatchSettings(jig=jig, method=method, reference=reference)
+    estimator = Estimator(jig, method=method, reference=reference) if estimate else None
     n_estimated = n_failed = n_frames = 0
     notes: list[str] = []
     with BagWriter(out, jig, overwrite=overwrite) as writer:
@@ -142,13 +143,8 @@ def dataset_to_bag(
             n_frames += 1
             if estimate and not frame.reference:
                 try:
-                    result = estimate_pair(
-                        left,
-                        right,
-                        jig,
-                        part_diameter_mm=frame_part_diameter_mm(frame, settings),
-                        method=method,
-                        reference=reference,
+                    result = estimator.estimate(
+                        left, right, part_diameter_mm=frame_part_diameter_mm(frame, settings)
                     )
                 except (EstimationError, InputError) as exc:
                     n_failed += 1

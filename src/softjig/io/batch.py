@@ -41,7 +41,7 @@ import os
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import Future
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from itertools import islice
 from pathlib import Path
 from types import TracebackType
@@ -60,8 +60,8 @@ from softjig.errors import EstimationError, InputError
 from softjig.files import fsync_folder, remove_stale_temporaries, temp_file_beside
 from softjig.io.dataset import Dataset, Frame
 from softjig.io.workers import worker_pool
+from softjig.sensing.estimator import DEFAULT_METHOD, Estimator
 from softjig.sensing.identities import ReferenceMarkers
-from softjig.sensing.pipeline import DEFAULT_METHOD, estimate_pair, reference_from_pair, sensing_setup
 
 __all__ = [
     "CSV_COLUMNS",
@@ -96,7 +96,10 @@ class SizedFrames(Protocol):
 
 @dataclass(frozen=True)
 class BatchSettings:
-    """What every frame of a batch shares (``frame_part_size``: use each frame's recorded part size)."""
+    """What every frame of a batch shares (``frame_part_size``: use each frame's recorded part size).
+
+    ``estimator`` is the :class:`~softjig.sensing.estimator.Estimator` of these settings, once built
+    (:meth:`with_estimator`; :func:`estimate_dataset` and each worker build it once)."""
 
     jig: JigConfig
     part_diameter_mm: float | None = None
@@ -104,6 +107,20 @@ class BatchSettings:
     method: str = DEFAULT_METHOD
     reference: ReferenceMarkers | None = None
     frame_part_size: bool = True
+    estimator: Estimator | None = field(default=None, compare=False, repr=False)
+
+    def with_estimator(self) -> BatchSettings:
+        """These settings with their estimator built (as they are when it is, or when the settings do not
+        make one: each frame's row then reports why, as :func:`estimate_frame` does)."""
+        if self.estimator is not None:
+            return self
+        try:
+            estimator = Estimator(
+                self.jig, method=self.method, reference=self.reference, calibration=self.calibration
+            )
+        except InputError:
+            return self
+        return replace(self, estimator=estimator)
 
 
 def frame_part_diameter_mm(frame: Frame, settings: BatchSettings) -> float | None:
@@ -123,15 +140,15 @@ def estimate_frame(frame: Frame, settings: BatchSettings) -> dict:
         return {"index": frame.index, "reference": True}
     try:
         diameter = frame_part_diameter_mm(frame, settings)
-        result = estimate_pair(
-            frame.load_left(),
-            frame.load_right(),
-            settings.jig,
-            part_diameter_mm=diameter,
-            calibration=settings.calibration,
-            method=settings.method,
-            reference=settings.reference,
-        )
+        estimator = settings.estimator
+        if estimator is None:  # built here for one frame: estimate_dataset builds it once for all
+            estimator = Estimator(
+                settings.jig,
+                method=settings.method,
+                reference=settings.reference,
+                calibration=settings.calibration,
+            )
+        result = estimator.estimate(frame.load_left(), frame.load_right(), part_diameter_mm=diameter)
     except EstimationError as exc:
         return {"index": frame.index, "error": str(exc), "exit_code": 3}
     except InputError as exc:
@@ -147,8 +164,8 @@ _WORKER_DATASET: Dataset | None = None
 
 def _init_worker(settings: BatchSettings, dataset: Dataset | None) -> None:
     """Per-worker state, set once: the settings, the dataset whose frames the chunks name (or ``None``
-    when chunks carry their frames), one OpenCV thread (the workers are the parallelism) and the sensing
-    setup derived from the jig (cached for the worker's life; a forked worker inherits it).
+    when chunks carry their frames), one OpenCV thread (the workers are the parallelism) and the
+    settings' estimator (built once for the worker's life; a forked worker inherits the parent's).
 
     A forked worker inherits one OpenCV thread from :func:`_one_thread_per_worker` and must not call
     ``cv2.setNumThreads`` itself: in a forked copy of a parent whose OpenCV thread pool ran, it can wait
@@ -158,9 +175,7 @@ def _init_worker(settings: BatchSettings, dataset: Dataset | None) -> None:
 
     if cv2.getNumThreads() != 1:
         cv2.setNumThreads(1)
-    _WORKER_SETTINGS, _WORKER_DATASET = settings, dataset
-    with contextlib.suppress(Exception):  # a warm-up only: each frame reports its own problem
-        sensing_setup(settings.jig)
+    _WORKER_SETTINGS, _WORKER_DATASET = settings.with_estimator(), dataset
 
 
 def _pool_context() -> multiprocessing.context.BaseContext:
@@ -226,11 +241,11 @@ def _warms_up(frame: Frame, settings: BatchSettings) -> bool:
 
 
 def dataset_reference(dataset: Dataset, jig: JigConfig) -> ReferenceMarkers | None:
-    """The reference markers from the dataset's first unloaded reference frame, if it has one."""
-    for frame in dataset:
-        if frame.reference:
-            return reference_from_pair(frame.load_left(), frame.load_right(), jig)
-    return None
+    """The reference markers from the dataset's first unloaded reference frame, if it has one
+    (:func:`softjig.io.reference.dataset_reference`: a dataset of another rig is refused)."""
+    from softjig.io.reference import dataset_reference as reference_of
+
+    return reference_of(dataset, jig)
 
 
 def estimate_dataset(
@@ -264,6 +279,7 @@ def estimate_dataset(
     workers = workers or os.cpu_count() or 1
     if workers < 1:
         raise InputError(f"workers must be at least 1, got {workers}")
+    settings = settings.with_estimator()
     n_frames = len(dataset)
     in_process = workers == 1 or n_frames <= 1
     # Lead: estimate here up to the first loaded frame, so the forked workers inherit a warm process

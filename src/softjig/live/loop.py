@@ -11,8 +11,8 @@ Two threads share one slot:
   closed, and re-opened after a back-off (0.5 s doubling to 5 s) until it delivers again: the loop never
   dies of it. A replay's frame that cannot be read (:class:`~softjig.io.cameras.BadFrame`: a missing or
   corrupt image) is not a camera failure: it is skipped at once and counted (``bad_frames``).
-* the **estimator** (the caller's thread) takes the newest pair, runs
-  :func:`~softjig.sensing.pipeline.estimate_pair`, builds the estimate message (:func:`estimate_message`)
+* the **estimator** (the caller's thread) takes the newest pair, runs the loop's one
+  :class:`~softjig.sensing.estimator.Estimator`, builds the estimate message (:func:`estimate_message`)
   and hands it to the sinks (the ZeroMQ publisher, the viewer). The *latency* of a frame is the time from
   the pair's arrival to its message being ready. Health messages (:func:`health_message`) go out every
   ``health_period_s`` and whenever the camera's health changes.
@@ -45,6 +45,7 @@ from softjig.calibration.tilt import TiltCalibration
 from softjig.config import JigConfig
 from softjig.errors import EstimationError, InputError
 from softjig.io.cameras import BadFrame, SourceExhausted, StereoFrame, StereoSource
+from softjig.sensing.identities import ReferenceMarkers
 
 __all__ = [
     "HealthSnapshot",
@@ -75,6 +76,9 @@ class LiveSettings:
     calibration : the tilt calibration to apply, if any.
     method : the estimation method (:data:`softjig.sensing.pipeline.METHODS`); ``None``: the pipeline's
         default.
+    reference : the unloaded jig's markers the refractive method measures indentations against
+        (:mod:`softjig.io.reference`: a reference frame); ``None``: the nominal rest shape. Each
+        estimate's ``indentation_reference`` says which.
     max_frames : stop after this many captured pairs (``None``: until the source ends or Ctrl-C).
     read_timeout_s : a camera that delivers nothing for this long is unhealthy (s).
     reopen_after_timeouts : consecutive silent time-outs after which the source is re-opened.
@@ -86,6 +90,7 @@ class LiveSettings:
     part_diameter_mm: float | None = None
     calibration: TiltCalibration | None = None
     method: str | None = None
+    reference: ReferenceMarkers | None = None
     max_frames: int | None = None
     read_timeout_s: float = 1.0
     reopen_after_timeouts: int = 3
@@ -459,6 +464,9 @@ class LiveLoop:
         self._estimate_seq = 0
         self._rate_mark = (time.monotonic(), 0)
         self._sink_errors: list[str] = []
+        self._estimator: Any = None  # built on the first pair (estimator())
+        self._reference = settings.reference  # replaced by use_reference
+        self._estimator_lock = threading.Lock()  # the estimator's thread builds, a request replaces
 
     # -- control
     def stop(self) -> None:
@@ -556,26 +564,49 @@ class LiveLoop:
         return float(part_from_dict(part).diameter_mm)  # a box's is its inscribed circle's
 
     def _estimate(self, frame: StereoFrame) -> FrameOutcome:
-        from softjig.sensing.pipeline import estimate_pair
-
         result, error, code = None, None, 0
-        kwargs: dict[str, Any] = {}
-        if self.settings.method is not None:
-            kwargs["method"] = self.settings.method
         try:
-            result = estimate_pair(
-                frame.left,
-                frame.right,
-                self.settings.jig,
-                part_diameter_mm=self._part_diameter_mm(frame),
-                calibration=self.settings.calibration,
-                **kwargs,
+            estimator = self.estimator()
+            result = estimator.estimate(
+                frame.left, frame.right, part_diameter_mm=self._part_diameter_mm(frame)
             )
         except EstimationError as exc:
             error, code = str(exc), 3
         except InputError as exc:
             error, code = str(exc), 2
         return FrameOutcome(frame, result, error, code, time.monotonic() - frame.received_s)
+
+    def estimator(self) -> Any:
+        """The settings' :class:`~softjig.sensing.estimator.Estimator`, built on the first pair (by the one
+        thread that estimates) and kept for the loop's life; a settings error is each pair's error."""
+        estimator = self._estimator
+        if estimator is not None:
+            return estimator
+        with self._estimator_lock:
+            if self._estimator is None:
+                from softjig.sensing.estimator import DEFAULT_METHOD, Estimator
+
+                self._estimator = Estimator(
+                    self.settings.jig,
+                    method=self.settings.method or DEFAULT_METHOD,
+                    reference=self._reference,
+                    calibration=self.settings.calibration,
+                )
+            return self._estimator
+
+    def use_reference(self, reference: ReferenceMarkers) -> None:
+        """Estimate against ``reference`` from the next pair on (thread-safe: the estimator is replaced
+        whole, its jig's model shared; a pair being estimated keeps the one it started with)."""
+        estimator = self.estimator()
+        with self._estimator_lock:
+            self._reference = reference
+            self._estimator = estimator.with_reference(reference)
+
+    @property
+    def reference_source(self) -> str:
+        """What the loop's refractive estimates measure indentations against: ``"reference frame"`` or
+        ``"rest shape"``."""
+        return "rest shape" if self._reference is None else self._reference.source
 
     def snapshot(self, *, stopped: bool = False) -> HealthSnapshot:
         """The loop's counters now (thread-safe)."""

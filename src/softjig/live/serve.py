@@ -11,8 +11,12 @@ own books: it asks, and gets the answer to its question. Requests (one JSON obje
   ``{"ok": false, "error": "timeout ..."}``;
 - ``{"op": "fix"}``, ``{"op": "release"}`` -> ``"pump"``: the pump controller's state once the jig holds
   (or its error: the jig is then in its safe state);
+- ``{"op": "reference", "timeout_s": T}`` -> ``"reference"``: the first pair captured after the request
+  becomes the unloaded reference the estimates measure their indentations against from then on (ask it
+  while the jig is empty and released); a pair with a part pressed in, or not of this rig, is refused
+  (:func:`softjig.io.reference.reference_from_pair`) and the reference in use is kept;
 - ``{"op": "health"}`` -> ``"health"``: the live loop's health message (``docs/live.md``), ``"pump"``,
-  ``"settle_s"``.
+  ``"settle_s"``, ``"reference"`` (``"reference frame"`` or ``"rest shape"``).
 
 Every reply carries ``"ok"``, ``"schema": "softjig.reply"`` and ``"version": 1``. A failure is
 ``{"ok": false, "schema": ..., "version": ..., "error": "..."}`` (and ``"exit_code"`` 2 or 3
@@ -64,7 +68,7 @@ __all__ = [
 
 REPLY_SCHEMA = "softjig.reply"
 REPLY_VERSION = 1
-OPS = ("estimate", "settled", "fix", "release", "health")
+OPS = ("estimate", "settled", "fix", "release", "health", "reference")
 #: Largest request answered (bytes); longer ones get an error reply.
 DEFAULT_MAX_REQUEST_BYTES = 64 * 1024
 #: Largest message ZeroMQ accepts at all (bytes; ``ZMQ_MAXMSGSIZE``): the sender of a longer one is
@@ -72,6 +76,9 @@ DEFAULT_MAX_REQUEST_BYTES = 64 * 1024
 HARD_MAX_MESSAGE_BYTES = 1024 * 1024
 #: Outcomes kept for ``settled`` (at 90 Hz, 11 s).
 HISTORY = 1024
+#: Pairs (their images) kept for a ``reference`` request: the newest few, so a request finds the first
+#: pair after it however soon after the estimator's thread its own thread wakes.
+PAIRS_KEPT = 4
 
 
 @dataclass(frozen=True)
@@ -174,6 +181,11 @@ class PumpAdapter:
             self._holding.clear()
             return self._pump.release(wait=True, timeout_s=self.timeout_s).to_dict()
 
+    @property
+    def holding(self) -> bool:
+        """Whether the jig was fixed and not released since (the heartbeat keeps it so)."""
+        return self._holding.is_set()
+
     def status(self) -> dict[str, Any]:
         with self._lock:
             status = self._pump.status().to_dict()
@@ -254,6 +266,7 @@ class OutcomeBoard:
     def __init__(self, history: int = HISTORY) -> None:
         self._cond = threading.Condition()
         self._posted: deque[_Posted] = deque(maxlen=history)
+        self._pairs: deque[StereoFrame] = deque(maxlen=PAIRS_KEPT)
         self.ended: str | None = None
 
     def post(self, outcome: FrameOutcome, message: dict[str, Any]) -> None:
@@ -265,6 +278,7 @@ class OutcomeBoard:
         )
         with self._cond:
             self._posted.append(_Posted(outcome.frame.received_s, sample, message))
+            self._pairs.append(outcome.frame)
             self._cond.notify_all()
 
     def end(self, why: str) -> None:
@@ -273,10 +287,10 @@ class OutcomeBoard:
             self.ended = why
             self._cond.notify_all()
 
-    def _wait(self, pick: Callable[[list[_Posted]], _Posted | None], deadline: float) -> _Posted | None:
+    def _wait(self, pick: Callable[[list[Any]], Any], deadline: float, *, pairs: bool = False) -> Any:
         with self._cond:
             while True:
-                found = pick([p for p in self._posted])
+                found = pick(list(self._pairs if pairs else self._posted))
                 if found is not None or self.ended is not None:
                     return found
                 left = deadline - time.monotonic()
@@ -292,6 +306,14 @@ class OutcomeBoard:
 
         found = self._wait(pick, deadline)
         return None if found is None else found.message
+
+    def pair_after(self, t_s: float, deadline: float) -> StereoFrame | None:
+        """The first pair captured after ``t_s`` (its images), or ``None`` at ``deadline``."""
+
+        def pick(pairs: list[StereoFrame]) -> StereoFrame | None:
+            return next((p for p in pairs if p.received_s > t_s), None)
+
+        return self._wait(pick, deadline, pairs=True)
 
     def settled_after(self, t_s: float, settle_s: float, k: float, deadline: float) -> dict[str, Any] | None:
         """The message of the first pair at which the estimates since ``t_s`` have stayed within ``k`` of
@@ -519,12 +541,19 @@ class EstimationService:
                     pump = {"error": str(exc)}
             health = health_message(snapshot, seq=self.answered, time_unix_s=time.time())
             return _reply(
-                True, health=health, pump=pump, settle_s=self.settings.settle_s, ended=self.board.ended
+                True,
+                health=health,
+                pump=pump,
+                settle_s=self.settings.settle_s,
+                ended=self.board.ended,
+                reference=self.loop.reference_source,
             )
         if op in ("fix", "release"):
             if self.pump is None:
                 return _error(f"{op}: this service drives no pump; start it with --pump PORT")
             return _reply(True, pump=self.pump.fix() if op == "fix" else self.pump.release())
+        if op == "reference":
+            return self._take_reference(request)
         timeout = self._timeout(request)
         t_request = time.monotonic()
         deadline = t_request + timeout
@@ -555,3 +584,40 @@ class EstimationService:
                 **fields,
             )
         return _reply(True, estimate=message["estimate"], **fields)
+
+    def _take_reference(self, request: dict[str, Any]) -> dict[str, Any]:
+        """The ``reference`` op: the first pair captured after the request, checked unloaded and of this
+        rig, becomes the loop's reference; a refused pair leaves the reference in use as it was."""
+        from softjig.io.reference import reference_from_pair
+
+        method = self.live.method or "refractive"
+        if method == "paper":
+            return _error(
+                "reference: the paper's method measures no indentations, so it uses no reference frame "
+                "(serve with --method refractive)"
+            )
+        if self.pump is not None and self.pump.holding:
+            return _error(
+                'reference: the jig holds a part; release it ({"op": "release"}) and remove the part'
+            )
+        timeout = self._timeout(request)
+        t_request = time.monotonic()
+        pair = self.board.pair_after(t_request, t_request + timeout)
+        if pair is None:
+            if self.board.ended is not None:
+                return _error(f"reference: {self.board.ended}; no more pairs come")
+            return _error(f"timeout after {timeout:g} s waiting for a pair captured after the request")
+        frame = {"seq": pair.seq, "index": pair.source_index, "capture_time_unix_s": pair.wall_time_s}
+        try:
+            reference = reference_from_pair(
+                pair.left,
+                pair.right,
+                self.live.jig,
+                estimator=self.loop.estimator(),
+                where="the pair captured for the reference",
+            )
+        except InputError as exc:
+            kept = self.loop.reference_source
+            return _error(f"reference refused, still estimating against the {kept}: {exc}", frame=frame)
+        self.loop.use_reference(reference)
+        return _reply(True, reference={"source": reference.source, "markers": len(reference)}, frame=frame)

@@ -7,7 +7,7 @@ scale is matched to the marker size in the image. Two ways to find them:
 
 * ``candidates="full"`` (the straightforward path, Sakuma et al.'s): the LoG of the whole
   image at full resolution;
-* ``candidates="pyramid"`` (the default, ~20x faster): the LoG of the image averaged down
+* ``candidates="pyramid"`` (the default, an order of magnitude faster): the LoG of the image averaged down
   by 2 or 4 (``cv2.resize``, ``INTER_AREA``), at the correspondingly smaller scale; only
   the candidates are then refined at full resolution, in small windows.
 
@@ -36,7 +36,6 @@ from dataclasses import dataclass
 from typing import Literal
 
 import cv2
-import numba
 import numpy as np
 import numpy.typing as npt
 
@@ -72,6 +71,10 @@ DEFAULT_CANDIDATES = "pyramid"
 REFINE_METHODS = ("model", "quadratic", None)
 DEFAULT_REFINE = "model"
 _MIN_COARSE_SIGMA_PX = 1.2  # the pyramid level is the coarsest where the LoG scale stays above this
+#: The 5-point discrete Laplacian of a Gaussian of scale ``s`` underestimates the continuous one by
+#: about ``LAPLACIAN_BIAS / s^2``.
+LAPLACIAN_BIAS = 0.125
+_GAUSSIAN_TRUNCATION = 4  # cv2.GaussianBlur's kernel for float32 images reaches 4 sigma each side
 _LOCAL_HALF_WIDTH = 3  # pyramid + quadratic: full-resolution LoG in 7x7 windows around the candidates
 _CANDIDATE_MARGIN = 0.7  # pyramid + quadratic: coarse candidates down to this fraction of the threshold
 _FIT_HALF_WIDTH = 1  # quadratic fit on the (2*1+1) x (2*1+1) = 3x3 neighbourhood
@@ -371,6 +374,7 @@ def detect_markers(
     candidates: Literal["pyramid", "full"] = DEFAULT_CANDIDATES,
     model: MarkerModel | None = None,
     exclude: Callable[[np.ndarray], np.ndarray] | None = None,
+    tables: np.ndarray | None = None,
 ) -> Markers:
     """Detect bright circular markers as maxima of the scale-normalised LoG.
 
@@ -399,21 +403,21 @@ def detect_markers(
         because the refinement needs the 3x3 neighbourhood. With ``refine="model"`` the
         fitted centres are tested (the pixel nearest each), not the candidates, and a
         candidate whose fit failed within the fit's window of the edge is dropped: both
-        ``candidates`` then keep the same markers, as their fits agree to rounding.
+        ``candidates`` then keep the same markers.
     refine : {"model", "quadratic", None}, optional
         ``"model"`` (default): prewhitened least-squares fit of the marker's image model to
         the ``(2 h + 1)^2`` pixels around each peak (:func:`softjig.sensing.subpixel.refine_centres`,
-        ``h = model.half_width_px``). On the simulator's default frames its error is about
-        0.16 px RMS against 0.27 px for ``"quadratic"`` (mostly the bead speckle, see Notes),
-        and the tilt error of the estimated normal drops from 0.5 to 0.15 deg. A fit that
-        fails (not a bright marker, or moving more than 2.5 px) keeps its candidate position.
+        ``h = model.half_width_px``): near the Cramer-Rao bound, well below ``"quadratic"``'s
+        error, which the bead speckle dominates (see Notes; the figures are in
+        benchmarks/RESULTS.md). A fit that fails (not a bright marker, or moving more than
+        2.5 px) keeps its candidate position.
         ``"quadratic"``: sub-pixel centre from a least-squares fit of
         ``z = a + b x + c y + d x^2 + e x y + f y^2`` to the 3x3 response neighbourhood
         of each peak; the centre is the stationary point of the fit. If the fit is not a
         maximum (``d < 0`` and ``4 d f - e^2 > 0``) or the stationary point is more than
         1 px from the peak pixel in ``u`` or ``v``, the integer peak is kept (the marker
-        is not dropped). The response is smooth at the marker scale, so a 5x5 window
-        was measured to be no more accurate (bias below 0.005 px RMS for both).
+        is not dropped). The response is smooth at the marker scale, so a larger window
+        would be no more accurate.
         ``None``: integer peak positions.
     candidates : {"pyramid", "full"}, optional
         ``"pyramid"`` (default): peaks of the LoG of the image averaged down by ``F`` (4, or
@@ -423,7 +427,7 @@ def detect_markers(
         refinement there. With ``refine="quadratic"`` or ``None`` the LoG is then evaluated
         at full resolution in a 7x7 window around each candidate, so positions and
         responses are those of ``"full"``. ``"full"``: the LoG of the whole image at full
-        resolution (the straightforward path; about 20x slower).
+        resolution (the straightforward path; an order of magnitude slower).
     model : MarkerModel, optional
         The marker and noise model of ``refine="model"``. Default
         ``MarkerModel.for_sigma(sigma_px)``: the nominal marker (blur 0.4 of the radius)
@@ -433,6 +437,10 @@ def detect_markers(
         of the candidates to drop before the refinement (e.g. those on the fiducials); the
         refinement does not move a marker by more than 2.5 px, so testing the candidate
         is testing the marker.
+    tables : numpy.ndarray, optional
+        :func:`softjig.sensing.subpixel.kernel_tables` of ``model`` for ``refine="model"`` (read
+        for each call when not given: a detector reads them once).
+
     Returns
     -------
     Markers
@@ -473,10 +481,9 @@ def detect_markers(
     With ``candidates="pyramid"`` and ``refine="model"``, ``R`` is that of the coarse
     level at its quadratically interpolated peak, times ``(1 + 1 / (8 s^2)) / (1 + 1 / (8
     sigma^2))`` (``s`` the coarse scale in coarse pixels), which undoes most of the coarser
-    discrete Laplacian's larger underestimate: it is 1-3.5 % below the full-resolution ``R``
-    (2.3 % on average on the simulator's default frames, measured), so the threshold means
-    practically the same (the default markers' ``R`` is about 0.25, five times the
-    threshold).
+    discrete Laplacian's larger underestimate: it is a few percent below the full-resolution
+    ``R``, so the threshold means practically the same (the default markers' ``R`` is about
+    0.25, five times the threshold).
 
     Speckle on and around a marker also shifts its LoG peak: with the nominal speckle
     the centre error is about 0.35 px RMS at contrast 120/255 (0.03 px with camera noise
@@ -509,8 +516,8 @@ def detect_markers(
     gray, full_scale = gray_image(image)
     border = max(int(border_px), 1)
     # The model fit's centres are tested against the border instead of the candidates, which differ
-    # between the pyramid and the full-resolution LoG (23 markers at the image edge of the default sweep
-    # were kept by one and not the other, measured).
+    # between the pyramid and the full-resolution LoG: markers at the image's edge would be kept by one
+    # and not the other.
     model_fit = refine == "model"
     candidate_border = 1 if model_fit else border
     if candidates == "full":
@@ -522,7 +529,7 @@ def detect_markers(
         xy, peak = xy[keep], peak[keep]
     if model_fit and len(xy) > 0:
         model = model if model is not None else MarkerModel.for_sigma(sigma)
-        fit = refine_centres(gray, xy, model)
+        fit = refine_centres(gray, xy, model, tables=tables)
         xy = fit.xy_px
         # A failed fit keeps its candidate; one whose window was cut by the image's edge is dropped.
         h, w = gray.shape
@@ -581,11 +588,14 @@ def _pyramid_candidates(
     # -sigma^2 LoG in full-resolution px of the image scaled to [0, 1]: the coarse Laplacian is factor^2
     # times the fine one, and the coarser discrete Laplacian underestimates by 1/(8 s^2) instead of
     # 1/(8 sigma^2). Scales folded into the Laplacian's (one pass over the level instead of three).
-    gain = (sigma / factor) ** 2 * (1.0 + 0.125 / s_coarse**2) / (1.0 + 0.125 / sigma**2) / full_scale
+    bias = (1.0 + LAPLACIAN_BIAS / s_coarse**2) / (1.0 + LAPLACIAN_BIAS / sigma**2)
+    gain = (sigma / factor) ** 2 * bias / full_scale
     smoothed = _coarse_blur(small, s_coarse)
     response = cv2.Laplacian(smoothed, cv2.CV_32F, ksize=1, scale=-gain, borderType=cv2.BORDER_REFLECT)
     exact = refine != "model"  # positions and responses from the full-resolution LoG
-    coarse_xy, peak = _coarse_peaks(
+    from softjig.sensing._detect_kernels import coarse_peaks  # Numba is imported on first use
+
+    coarse_xy, peak = coarse_peaks(
         response,
         np.float32(thr * _CANDIDATE_MARGIN if exact else thr),
         max(1, half_width // factor),
@@ -601,111 +611,27 @@ def _pyramid_candidates(
     return xy[keep], peak[keep]
 
 
+def gaussian_ksize(sigma: float) -> int:
+    """The (odd) kernel size ``cv2.GaussianBlur`` chooses for a float32 image and ``sigma`` (px)."""
+    return round(sigma * _GAUSSIAN_TRUNCATION * 2 + 1) | 1
+
+
 def _coarse_blur(small: np.ndarray, sigma: float) -> np.ndarray:
     """``cv2.GaussianBlur`` of ``small`` (any dtype) as float32 at ``sigma`` (px), reflected border.
 
     The same kernel (``cv2.getGaussianKernel`` of ``cv2.GaussianBlur``'s size for float32 images) applied
     by ``cv2.sepFilter2D`` straight from the integer level: the same values as blurring its float32
-    copy (``tests/test_detect.py``), 0.05 ms sooner on the 320x180 level (measured).
+    copy (``tests/test_detect.py``), without making the copy.
     """
-    ksize = round(sigma * 4 * 2 + 1) | 1
-    kernel = cv2.getGaussianKernel(ksize, sigma, cv2.CV_32F)
+    kernel = cv2.getGaussianKernel(gaussian_ksize(sigma), sigma, cv2.CV_32F)
     return cv2.sepFilter2D(small, cv2.CV_32F, kernel, kernel, borderType=cv2.BORDER_REFLECT)
 
 
-@numba.njit(cache=True, nogil=True)
-def _inside_border(xy, w, h, border):
+def _inside_border(xy: np.ndarray, w: int, h: int, border: int) -> np.ndarray:
     """Whether the pixel nearest each ``(u, v)`` is at least ``border`` px from the image's edges."""
-    keep = np.empty(xy.shape[0], np.bool_)
-    for i in range(xy.shape[0]):
-        u, v = math.floor(xy[i, 0] + 0.5), math.floor(xy[i, 1] + 0.5)
-        keep[i] = border <= u < w - border and border <= v < h - border
-    return keep
-
-
-@numba.njit(cache=True, nogil=True)
-def _coarse_peaks(response, threshold, half_width, fit_pinv, max_offset):
-    """Peaks of the coarse response, quadratic-refined: ``(u, v)`` (M, 2) coarse px and values (M,).
-
-    In one call, what :func:`_local_maxima` and :func:`_refine_quadratic` do (border 1): a pixel
-    above ``threshold`` is a peak if no pixel within ``half_width`` (Chebyshev) is larger, nor equal
-    and earlier in row-major order (on an exact plateau the first pixel is kept). A fit that is not a
-    maximum within ``max_offset`` keeps the pixel and its value. Replaces 0.6 ms of NumPy and
-    k-d tree calls on the 320x180 level by 0.05 ms (measured). The scan (:func:`_flank_free`) and the
-    peaks' tests are separate loops: in one loop the whole took twice as long (0.2 against 0.1 ms a
-    frame on the loaded machine, measured).
-    """
-    rows, cols = _flank_free(response, threshold)
-    xy = np.empty((len(rows), 2))
-    vals = np.empty(len(rows))
-    window = np.empty(9)
-    fit = np.empty(6)
-    n = 0
-    for i in range(len(rows)):
-        r, c = rows[i], cols[i]
-        if not _is_peak(response, r, c, half_width):
-            continue
-        k = 0
-        for dr in range(-1, 2):
-            for dc in range(-1, 2):
-                window[k] = response[r + dr, c + dc]
-                k += 1
-        fit[:] = 0.0  # fit_pinv @ window, written out (a BLAS call per peak cost 1 us)
-        for a in range(6):
-            for j in range(9):
-                fit[a] += fit_pinv[a, j] * window[j]
-        x, y, peak = _quadratic_maximum(fit, float(response[r, c]), max_offset)
-        xy[n, 0], xy[n, 1], vals[n] = c + x, r + y, peak
-        n += 1
-    return xy[:n].copy(), vals[:n].copy()
-
-
-@numba.njit(cache=True, nogil=True)
-def _flank_free(response, threshold):
-    """Row-major rows and columns of the pixels above ``threshold`` with no larger 4-neighbour (border 1).
-
-    Written without short-circuits: a pixel in eight above the threshold sits on a peak's flank, and
-    the mispredicted branches of ``and``/``or`` cost 0.1 ms a frame (0.03 ms without them; measured).
-    """
-    h, w = response.shape
-    rows, cols = [], []
-    for r in range(1, h - 1):
-        up, row, down = response[r - 1], response[r], response[r + 1]
-        for c in range(1, w - 1):
-            value = row[c]
-            flank = (row[c + 1] > value) | (down[c] > value) | (row[c - 1] > value) | (up[c] > value)
-            if (value > threshold) & (not flank):
-                rows.append(r)
-                cols.append(c)
-    return rows, cols
-
-
-@numba.njit(cache=True, nogil=True)
-def _is_peak(response, r, c, half_width):
-    """Whether no pixel within ``half_width`` (Chebyshev) of ``(r, c)`` is larger, nor equal and earlier
-    in row-major order."""
-    h, w = response.shape
-    value = response[r, c]
-    for rr in range(max(r - half_width, 0), min(r + half_width + 1, h)):
-        for cc in range(max(c - half_width, 0), min(c + half_width + 1, w)):
-            other = response[rr, cc]
-            if other > value or (other == value and (rr < r or (rr == r and cc < c))):
-                return False
-    return True
-
-
-@numba.njit(cache=True, nogil=True)
-def _quadratic_maximum(fit, value, max_offset):
-    """Offset ``(x, y)`` and value of the maximum of ``a + b x + c y + d x^2 + e x y + f y^2``
-    (``fit``); ``(0, 0, value)`` if it is not a maximum within ``max_offset`` per axis."""
-    a, b, cq, d, e, f = fit[0], fit[1], fit[2], fit[3], fit[4], fit[5]
-    det = 4.0 * d * f - e * e
-    if d < 0.0 and det > 0.0:
-        xf = (e * cq - 2.0 * f * b) / det
-        yf = (e * b - 2.0 * d * cq) / det
-        if abs(xf) <= max_offset and abs(yf) <= max_offset:
-            return xf, yf, a + b * xf + cq * yf + d * xf * xf + e * xf * yf + f * yf * yf
-    return 0.0, 0.0, value
+    nearest = np.floor(xy + 0.5)
+    u, v = nearest[:, 0], nearest[:, 1]
+    return (u >= border) & (u < w - border) & (v >= border) & (v < h - border)
 
 
 def _full_resolution_peaks(
@@ -742,7 +668,7 @@ def _local_log(
     """``-sigma^2 LoG`` at full resolution in ``(2 half + 1)^2`` windows around integer ``centre``
     (N, 2) ``(u, v)``: the same values as :func:`_log_response` of the whole image (same Gaussian
     kernel, 5-point Laplacian, reflected border), float32 ``(N, 2 half + 1, 2 half + 1)``."""
-    ksize = round(sigma * 4 * 2 + 1) | 1  # cv2.GaussianBlur's size for float32 images
+    ksize = gaussian_ksize(sigma)
     radius = ksize // 2
     kernel = cv2.getGaussianKernel(ksize, sigma, cv2.CV_32F).ravel()
     k = 2 * half + 3  # smoothed values needed: the window and a 1-px ring for the Laplacian
@@ -797,8 +723,8 @@ def _local_maxima(
     tied = (value == around)[is_peak]
     rows, cols = rows[is_peak], cols[is_peak]  # row-major order
     # Plateaus (exactly equal neighbouring values) give several pixels per peak: keep the
-    # first of each group in row-major order. Only tied peaks can be in one (the k-d tree on
-    # all the peaks cost 0.2 ms for 360 coarse peaks; on the tied ones, nothing).
+    # first of each group in row-major order. Only tied peaks can be in one, so only those
+    # go into the k-d tree.
     if np.count_nonzero(tied) > 1:
         tie = np.flatnonzero(tied)
         from scipy.spatial import cKDTree  # on first use: scipy.spatial costs 0.2 s to import

@@ -11,10 +11,9 @@ the same corners (to ~1e-3 px, their convergence tolerance).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import cache, lru_cache
+from functools import cache
 
 import cv2
-import numba
 import numpy as np
 
 from softjig.aruco import aruco_dictionary
@@ -31,6 +30,9 @@ def fiducial_corners_J(fiducials: FiducialConfig) -> np.ndarray:
     xy = centers[:, None, :] + offsets[None, :, :]
     z = np.full((*xy.shape[:2], 1), fiducials.z_mm)
     return np.concatenate([xy, z], axis=2)
+
+
+MIN_SEARCH_WINDOW_PX = 8  # a search window narrower than this (cut by the image's edge) is skipped
 
 
 def detect_fiducials(
@@ -59,7 +61,7 @@ def detect_fiducials(
             side = float(np.ptp(quad, axis=0).max())
             lo = np.floor(quad.min(axis=0) - side).astype(int).clip(0, [w, h])
             hi = np.ceil(quad.max(axis=0) + side).astype(int).clip(0, [w, h])
-            if np.any(hi - lo < 8):
+            if np.any(hi - lo < MIN_SEARCH_WINDOW_PX):
                 continue
             window = np.ascontiguousarray(gray_u8[lo[1] : hi[1], lo[0] : hi[0]])
             for marker_id, corners in _detect(window, fiducials).items():
@@ -110,9 +112,8 @@ def locate_fiducials_near(
     -------
     dict or None
         ``{id: (4, 2) corners in px}`` for every configured id, or ``None`` if any one was not found
-        there as expected (then search with :func:`detect_fiducials`). Measured on default pairs: the
-        same corners as the ArUco detector to 0.0013 px, in ~0.1 ms for four fiducials against ~7 ms
-        for the detector in windows around them.
+        there as expected (then search with :func:`detect_fiducials`). Both refine the corners with the
+        same iteration to convergence, so they give the same corners to its tolerance.
     """
     gray_u8 = np.asarray(gray_u8)
     quads = np.asarray(expected_quads_px, dtype=float).reshape(-1, 4, 2)
@@ -123,17 +124,27 @@ def locate_fiducials_near(
 
 
 def locate_quads_near(
-    gray_u8: np.ndarray, fiducials: FiducialConfig, expected_quads: bytes
+    gray_u8: np.ndarray,
+    fiducials: FiducialConfig,
+    expected_quads: bytes,
+    *,
+    table: CaptureTable | None = None,
+    white: np.ndarray | None = None,
 ) -> np.ndarray | None:
     """:func:`locate_fiducials_near` for a C-contiguous uint8 image and the expected quads as the bytes of a
-    float64 (M, 4, 2) array (the key of the cached scanlines), giving the (M, 4, 2) corners or ``None``."""
+    float64 (M, 4, 2) array, giving the (M, 4, 2) corners or ``None``. ``table`` (:func:`capture_table`
+    of these quads and the image's shape) and ``white`` (:func:`cell_patterns` of the fiducials) are made
+    here when not given (a frame finder makes them once)."""
     n_quads = len(expected_quads) // (8 * 8)
-    table = _capture_table(expected_quads, n_quads, gray_u8.shape)
+    table = table if table is not None else capture_table(expected_quads, n_quads, gray_u8.shape)
     if table is None:
         return None
     corners = np.empty((n_quads, 4, 2))
-    white = _cell_patterns(fiducials.dictionary, tuple(fiducials.ids))
-    found = _locate_kernel(
+    if white is None:
+        white = cell_patterns(fiducials.dictionary, tuple(fiducials.ids))
+    from softjig.sensing._fiducial_kernels import locate  # Numba is imported on first use
+
+    found = locate(
         gray_u8,
         table.index,
         table.shape[2],
@@ -142,6 +153,9 @@ def locate_quads_near(
         table.normals,
         table.offsets,
         MIN_CELL_CONTRAST / 2,
+        MIN_SCANLINES,
+        SCANLINE_AGREEMENT_PX,
+        MAX_SIZE_CHANGE_PX,
         table.window,
         CORNER_CRITERIA[1],
         CORNER_CRITERIA[2],
@@ -153,24 +167,8 @@ def locate_quads_near(
     return corners if found else None
 
 
-@numba.njit(cache=True, nogil=True)
-def _locate_kernel(
-    image, index, n_lines, n_samples, midpoints, normals, offsets, min_rise, half, max_iters, eps, weights,
-    white, min_contrast, corners,
-):  # fmt: skip
-    """The three steps of :func:`locate_quads_near` in one call (each Python-level call costs ~10-50 us
-    in the pipeline, where the caches are cold after marker detection; measured)."""
-    if not _capture_kernel(
-        image.ravel(), index, n_lines, n_samples, midpoints, normals, offsets, min_rise, corners
-    ):
-        return False
-    if not _corner_subpix(image, corners.reshape(-1, 2), half, max_iters, eps):
-        return False
-    return _cells_kernel(image, corners, weights, white, min_contrast)
-
-
 @dataclass(frozen=True)
-class _CaptureTable:
+class CaptureTable:
     """What the capture step needs of a set of expected quads in an image of a given size (cached).
 
     Attributes
@@ -191,8 +189,7 @@ class _CaptureTable:
     window: int
 
 
-@lru_cache(maxsize=32)
-def _capture_table(quads_bytes: bytes, n_quads: int, image_shape: tuple[int, int]) -> _CaptureTable | None:
+def capture_table(quads_bytes: bytes, n_quads: int, image_shape: tuple[int, int]) -> CaptureTable | None:
     """The capture step's constants for these expected quads (``None`` if a scanline leaves the image)."""
     quads = np.frombuffer(quads_bytes, dtype=float).reshape(n_quads, 4, 2)
     along = quads[:, [1, 2, 3, 0]] - quads  # side k runs from corner k to corner k + 1
@@ -209,7 +206,7 @@ def _capture_table(quads_bytes: bytes, n_quads: int, image_shape: tuple[int, int
     h, w = image_shape
     if pix.min() < 0 or pix[..., 0].max() >= w or pix[..., 1].max() >= h:
         return None
-    table = _CaptureTable(
+    table = CaptureTable(
         index=(pix[..., 1] * w + pix[..., 0]).ravel(),
         shape=pix.shape[:4],
         midpoints=(steps[:-1] + steps[1:]) / 2,
@@ -220,134 +217,6 @@ def _capture_table(quads_bytes: bytes, n_quads: int, image_shape: tuple[int, int
     for value in (table.index, table.midpoints, table.normals, table.offsets):
         value.flags.writeable = False
     return table
-
-
-@numba.njit(cache=True, nogil=True)
-def _capture_kernel(image, index, n_lines, n_samples, midpoints, normals, offsets, min_rise, corners):
-    """The capture step: where each side is, and the quads' corners where those sides meet, into
-    ``corners`` (Q, 4, 2); False if a side was not found, or a quad's opposite sides moved unlike (one
-    of them took another edge).
-
-    On each scanline (``index`` into the flat image, ``n_samples`` each, :data:`CAPTURE_STEP_PX` apart,
-    ``n_lines`` per side), the side is the outermost rise between two samples of at least half the
-    largest (and ``min_rise``); the side moves along its normal by the median of its scanlines, at
-    least :data:`MIN_SCANLINES` of which must agree to :data:`SCANLINE_AGREEMENT_PX`. A Numba loop
-    (measured: ~10 us against ~0.2 ms for the same on NumPy arrays, mostly call overhead).
-    """
-    n_quads = normals.shape[0]
-    shift = np.empty((n_quads, 4))
-    found = np.empty(n_lines)
-    profile = np.empty(n_samples)
-    for q in range(n_quads):
-        for side in range(4):
-            n_found = 0
-            for line in range(n_lines):
-                base = ((q * 4 + side) * n_lines + line) * n_samples
-                for i in range(n_samples):
-                    profile[i] = image[index[base + i]]
-                top = -1.0e9
-                for i in range(n_samples - 1):
-                    top = max(top, profile[i + 1] - profile[i])
-                if top < min_rise:
-                    continue
-                threshold = max(float(int(top) // 2), min_rise)
-                for i in range(n_samples - 2, -1, -1):
-                    if profile[i + 1] - profile[i] >= threshold:
-                        found[n_found] = midpoints[i]
-                        n_found += 1
-                        break
-            if n_found < MIN_SCANLINES:
-                return False
-            for i in range(1, n_found):  # insertion sort of the few votes
-                v, j = found[i], i - 1
-                while j >= 0 and found[j] > v:
-                    found[j + 1] = found[j]
-                    j -= 1
-                found[j + 1] = v
-            median = found[(n_found - 1) // 2]
-            agree = 0
-            for i in range(n_found):
-                if abs(found[i] - median) <= SCANLINE_AGREEMENT_PX:
-                    agree += 1
-            if agree < MIN_SCANLINES:
-                return False
-            shift[q, side] = median
-        for side in range(2):  # opposite sides move alike (the quad's size changes by ~1 px)
-            if abs(shift[q, side] + shift[q, side + 2]) > MAX_SIZE_CHANGE_PX:
-                return False
-        for c in range(4):  # corner c: where side c - 1 meets side c
-            a, b = (c + 3) % 4, c
-            na0, na1, nb0, nb1 = normals[q, a, 0], normals[q, a, 1], normals[q, b, 0], normals[q, b, 1]
-            ra, rb = offsets[q, a] + shift[q, a], offsets[q, b] + shift[q, b]
-            det = na0 * nb1 - na1 * nb0
-            if abs(det) < 1e-6:
-                return False
-            corners[q, c, 0] = (ra * nb1 - na1 * rb) / det
-            corners[q, c, 1] = (na0 * rb - ra * nb0) / det
-    return True
-
-
-@numba.njit(cache=True, nogil=True)
-def _corner_subpix(image, corners, half, max_iters, eps):
-    """OpenCV's ``cornerSubPix`` (no dead zone) on ``corners`` (N, 2) px, in place; False if a corner
-    moved more than ``half`` px (OpenCV then puts it back: here the caller gives up).
-
-    The same iteration as OpenCV's (Gaussian-weighted gradients of a bilinearly resampled window around
-    the current estimate, the point where the window's edges meet, until a step is below ``eps`` px or
-    ``max_iters`` steps), so it converges to the same corners (to ~``eps``); ported to run inside the
-    fused kernel (measured: ``cv2.cornerSubPix`` costs ~60-200 us for 16 corners, mostly per call).
-    """
-    h, w = image.shape
-    n = 2 * half + 1
-    mask = np.empty((n, n))
-    for i in range(n):
-        y = (i - half) / half
-        for j in range(n):
-            x = (j - half) / half
-            mask[i, j] = np.exp(-y * y) * np.exp(-x * x)
-    patch = np.empty((n + 2, n + 2))
-    for k in range(corners.shape[0]):
-        x0, y0 = corners[k, 0], corners[k, 1]
-        cx, cy = x0, y0
-        for _ in range(max_iters):
-            # the (n + 2)^2 window centred at (cx, cy), bilinear (as cv2.getRectSubPix)
-            left, top = cx - (half + 1), cy - (half + 1)
-            ix, iy = int(np.floor(left)), int(np.floor(top))
-            a, b = left - ix, top - iy
-            if ix < 0 or iy < 0 or ix + n + 2 >= w or iy + n + 2 >= h:
-                return False
-            for i in range(n + 2):
-                for j in range(n + 2):
-                    patch[i, j] = (1.0 - b) * (
-                        (1.0 - a) * image[iy + i, ix + j] + a * image[iy + i, ix + j + 1]
-                    ) + b * ((1.0 - a) * image[iy + i + 1, ix + j] + a * image[iy + i + 1, ix + j + 1])
-            sxx, sxy, syy, bx, by = 0.0, 0.0, 0.0, 0.0, 0.0
-            for i in range(n):
-                py = i - half
-                for j in range(n):
-                    px = j - half
-                    gx = patch[i + 1, j + 2] - patch[i + 1, j]
-                    gy = patch[i + 2, j + 1] - patch[i, j + 1]
-                    m = mask[i, j]
-                    gxx, gxy, gyy = gx * gx * m, gx * gy * m, gy * gy * m
-                    sxx += gxx
-                    sxy += gxy
-                    syy += gyy
-                    bx += gxx * px + gxy * py
-                    by += gxy * px + gyy * py
-            det = sxx * syy - sxy * sxy
-            if abs(det) <= 1e-300:
-                break
-            nx = cx + (syy * bx - sxy * by) / det
-            ny = cy + (sxx * by - sxy * bx) / det
-            step2 = (nx - cx) ** 2 + (ny - cy) ** 2
-            cx, cy = nx, ny
-            if cx < 0 or cx >= w or cy < 0 or cy >= h or step2 <= eps * eps:
-                break
-        if abs(cx - x0) > half or abs(cy - y0) > half:
-            return False
-        corners[k, 0], corners[k, 1] = cx, cy
-    return True
 
 
 def _refinement_window(quads: np.ndarray) -> int:
@@ -361,53 +230,6 @@ def _refinement_window(quads: np.ndarray) -> int:
     )
 
 
-@numba.njit(cache=True, nogil=True)
-def _cells_kernel(image, quads, weights, white, min_contrast):
-    """Whether every fiducial's 6x6 cells (black border and 4x4 bits) read as ``white`` (M, 36) says, in
-    the quads' orientation.
-
-    Each cell is sampled at the points ``weights`` (36 * 3, 4) gives (bilinear in the quad: perspective
-    is negligible over one fiducial); a fiducial reads when all cells are on their side of the midpoint
-    between its black and white means, with at least ``min_contrast`` between them. Measured: ~5 us
-    against ~0.1 ms for the same on NumPy arrays.
-    """
-    h, w = image.shape
-    n_cells = white.shape[1]
-    per_cell = weights.shape[0] // n_cells
-    cells = np.empty(n_cells)
-    for q in range(quads.shape[0]):
-        for cell in range(n_cells):
-            total = 0.0
-            for k in range(per_cell):
-                row = cell * per_cell + k
-                x, y = 0.0, 0.0
-                for c in range(4):
-                    x += weights[row, c] * quads[q, c, 0]
-                    y += weights[row, c] * quads[q, c, 1]
-                col, line = int(np.rint(x)), int(np.rint(y))
-                if col < 0 or line < 0 or col >= w or line >= h:
-                    return False
-                total += image[line, col]
-            cells[cell] = total / per_cell
-        white_sum, black_sum, n_white = 0.0, 0.0, 0.0
-        for cell in range(n_cells):
-            if white[q, cell] > 0.5:
-                white_sum += cells[cell]
-                n_white += 1.0
-            else:
-                black_sum += cells[cell]
-        if n_white == 0.0 or n_white == n_cells:
-            return False
-        white_mean, black_mean = white_sum / n_white, black_sum / (n_cells - n_white)
-        if not white_mean - black_mean >= min_contrast:
-            return False
-        middle = (white_mean + black_mean) / 2.0
-        for cell in range(n_cells):
-            if (cells[cell] > middle) != (white[q, cell] > 0.5):
-                return False
-    return True
-
-
 @cache
 def _cell_weights() -> np.ndarray:
     """(36 * 3, 4) bilinear weights of the corners (TL, TR, BR, BL) at the cells' sample points."""
@@ -419,8 +241,7 @@ def _cell_weights() -> np.ndarray:
     return weights
 
 
-@cache
-def _cell_patterns(dictionary: str, ids: tuple[int, ...]) -> np.ndarray:
+def cell_patterns(dictionary: str, ids: tuple[int, ...]) -> np.ndarray:
     """(M, 36) which cells of each fiducial are white (1.0; border included, row by row), as drawn."""
     d = aruco_dictionary(dictionary)
     size = d.markerSize + 2
@@ -442,7 +263,6 @@ def _detect(gray_u8: np.ndarray, fiducials: FiducialConfig) -> dict[int, np.ndar
     return found
 
 
-@cache
 def _detector(dictionary: str) -> cv2.aruco.ArucoDetector:
     return cv2.aruco.ArucoDetector(aruco_dictionary(dictionary), _detector_parameters())
 

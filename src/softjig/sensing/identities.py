@@ -14,7 +14,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from softjig.caching import cached_by_identity
 from softjig.config import JigConfig
 from softjig.jig_shape import rest_marker_points_mm
 from softjig.sensing._identities_kernels import one_to_one_nearest
@@ -26,39 +25,35 @@ class ReferenceMarkers:
 
     Attributes
     ----------
-    xyz_mm : (K, 3) each reference marker's position (mm); not to be modified once made (what is
-        derived from it, such as its k-d tree, is cached with it).
+    xyz_mm : (K, 3) each reference marker's position (mm); not to be modified once made (its sort by
+        ``x``, for :func:`identify_markers`, is made with it).
     source : ``"reference frame"`` or ``"rest shape"``.
     """
 
     xyz_mm: np.ndarray
     source: str
-    _cache: dict = field(default_factory=dict, init=False, repr=False, compare=False)
+    _sorted_x: tuple[np.ndarray, np.ndarray, np.ndarray] = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        xyz = np.ascontiguousarray(self.xyz_mm, dtype=float).reshape(-1, 3)
+        order = np.argsort(xyz[:, 0], kind="stable")
+        object.__setattr__(self, "_sorted_x", (np.ascontiguousarray(xyz[order, 0]), order, xyz))
 
     def __len__(self) -> int:
         return len(self.xyz_mm)
 
     def sorted_x(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The markers' ``x`` ascending, their order and their positions, contiguous (for
-        :func:`identify_markers`), made once."""
-        if "sorted_x" not in self._cache:
-            xyz = np.ascontiguousarray(self.xyz_mm, dtype=float)
-            order = np.argsort(xyz[:, 0], kind="stable")
-            self._cache["sorted_x"] = (np.ascontiguousarray(xyz[order, 0]), order, xyz)
-        return self._cache["sorted_x"]
+        :func:`identify_markers`), made with the reference."""
+        return self._sorted_x
 
 
 def rest_shape_reference(jig: JigConfig) -> ReferenceMarkers:
     """The nominal markers on the nominal rest membrane (no images needed).
 
-    Made once per jig (each estimate without a reference frame needs it) and shared: its array is
+    An estimator builds it once (each estimate without a reference frame needs it); its array is
     read-only.
     """
-    return _rest_shape_reference(jig)
-
-
-@cached_by_identity()
-def _rest_shape_reference(jig: JigConfig) -> ReferenceMarkers:
     xyz = rest_marker_points_mm(jig)  # a surveyed layout's measured heights, else the rest profile's
     xyz.setflags(write=False)
     return ReferenceMarkers(xyz, "rest shape")

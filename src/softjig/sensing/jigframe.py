@@ -6,14 +6,14 @@ through air only, so a plain pinhole model is exact for them. Both cameras' view
 stereo head's pose is the one that minimises the reprojection error of every fiducial corner found in
 either image, with the right camera held at its configured pose relative to the left one.
 
-Two paths give that pose. The fast one (every frame of a working rig, ~0.3 ms) reads the fiducials near
-where the config's poses put them (:func:`softjig.sensing.fiducials.locate_fiducials_near`) and solves
-the joint stereo PnP by Gauss-Newton from the config's pose, with an analytic Jacobian (distorted
-cameras: with SciPy's LM). The general one (fiducials far off or partly hidden, ~15 ms) runs OpenCV's
-ArUco detector, OpenCV's PnP for the start and a Levenberg-Marquardt refinement with SciPy. Both refine
-the corners with the same iteration to convergence and minimise the same error, so they agree (measured
-on 196 as-built jigs: to 1.3e-4 mm and 4e-5 deg); the fast one falls back to the general one whenever it
-does not find every fiducial or its fit does not explain the corners.
+Two paths give that pose, tried in turn. The fast one (every frame of a working rig) reads the fiducials
+near where the config's poses put them (:func:`softjig.sensing.fiducials.locate_fiducials_near`) and
+solves the joint stereo PnP by Gauss-Newton from the config's pose, with an analytic Jacobian (distorted
+cameras: with SciPy's LM). The general one (fiducials far off or partly hidden; some fifty times slower)
+runs OpenCV's ArUco detector, OpenCV's PnP for the start and a Levenberg-Marquardt refinement with SciPy.
+Both refine the corners with the same iteration to convergence and minimise the same error, so they agree
+to the iterations' tolerance (``tests/test_jigframe.py``); the fast one falls back to the general one
+whenever it does not find every fiducial or its fit does not explain the corners.
 
 When the fiducials are not visible, or the user calibrated the extrinsics once, the poses in the config
 are used instead (``sensing.extrinsics``); the result says which source was used.
@@ -23,18 +23,22 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from functools import lru_cache
 
 import cv2
-import numba
 import numpy as np
 
-from softjig.caching import cached_by_identity
 from softjig.config import CameraConfig, JigConfig
 from softjig.errors import EstimationError
 from softjig.geometry import invert_pose, pose_from_rotvec_translation
 from softjig.optics import project_points
-from softjig.sensing.fiducials import detect_fiducials, fiducial_corners_J, locate_quads_near
+from softjig.sensing.fiducials import (
+    CaptureTable,
+    capture_table,
+    cell_patterns,
+    detect_fiducials,
+    fiducial_corners_J,
+    locate_quads_near,
+)
 
 MIN_FIDUCIALS_PER_IMAGE = 2  # 8 corners: a well-conditioned planar PnP
 MAX_FIDUCIAL_RMS_PX = 2.0  # above this, a corner was misread or a fiducial moved: the pose is rejected
@@ -70,10 +74,9 @@ def _projected_quads(jig: JigConfig, camera: CameraConfig, T_J_cam: np.ndarray) 
     return _project(camera, invert_pose(T_J_cam), corners).reshape(-1, 4, 2)
 
 
-@lru_cache(maxsize=16)
 def jig_frame_from_config(jig: JigConfig) -> JigFrame:
-    """The fixed extrinsics written in the config (computed once per jig: every frame asks for them, if
-    only for where its fiducials should be; the arrays are read-only)."""
+    """The fixed extrinsics written in the config (the arrays are read-only; an estimator builds them once,
+    in :func:`frame_constants`)."""
     left, right = jig.cameras.left, jig.cameras.right
     arrays = [
         left.T_J_cam,
@@ -91,8 +94,7 @@ def inside_fiducials(xy_px: np.ndarray, quads_px: np.ndarray, *, quiet_zone: flo
     size about its centre; ArUco 4x4 markers are 6 cells wide, so one cell each side is 1/3).
 
     A fiducial's image is a convex quadrilateral: a point is inside when it lies on the same side of all
-    four edges. Compiled (:func:`_inside_quads`), with a bounding-box test first: a few hundred detector
-    candidates per image are tested in about 10 us, where the vectorised NumPy test took 0.1 ms (measured).
+    four edges (a compiled loop, with a bounding-box test first).
     """
     xy = np.ascontiguousarray(np.asarray(xy_px, dtype=float).reshape(-1, 2))
     if len(quads_px) == 0 or len(xy) == 0:
@@ -100,28 +102,9 @@ def inside_fiducials(xy_px: np.ndarray, quads_px: np.ndarray, *, quiet_zone: flo
     quads = np.asarray(quads_px, dtype=float).reshape(-1, 4, 2)
     centres = quads.mean(axis=1, keepdims=True)
     grown = np.ascontiguousarray(centres + (quads - centres) * (1.0 + quiet_zone))  # (Q, 4, 2)
-    return _inside_quads(xy, grown)
+    from softjig.sensing._jigframe_kernels import inside_quads  # Numba is imported on first use
 
-
-@numba.njit(cache=True, nogil=True)
-def _inside_quads(xy, quads):
-    """Whether each point ``xy`` (N, 2) lies inside (or on the edge of) any convex quad (Q, 4, 2)."""
-    out = np.zeros(xy.shape[0], np.bool_)
-    for q in range(quads.shape[0]):
-        lo_u, hi_u = quads[q, :, 0].min(), quads[q, :, 0].max()
-        lo_v, hi_v = quads[q, :, 1].min(), quads[q, :, 1].max()
-        for i in range(xy.shape[0]):
-            u, v = xy[i, 0], xy[i, 1]
-            if out[i] or not (lo_u <= u <= hi_u and lo_v <= v <= hi_v):
-                continue
-            positive = negative = True
-            for k in range(4):
-                a, b = quads[q, k], quads[q, (k + 1) % 4]
-                cross = (b[0] - a[0]) * (v - a[1]) - (b[1] - a[1]) * (u - a[0])
-                positive &= cross >= 0.0
-                negative &= cross <= 0.0
-            out[i] = positive or negative
-    return out
+    return inside_quads(xy, grown)
 
 
 def _project(camera: CameraConfig, T_cam_J: np.ndarray, points_J: np.ndarray) -> np.ndarray:
@@ -129,75 +112,100 @@ def _project(camera: CameraConfig, T_cam_J: np.ndarray, points_J: np.ndarray) ->
     return project_points(points_J, camera.K, camera.distortion, invert_pose(T_cam_J), None)
 
 
+class FiducialMemory:
+    """Where the general path last found every fiducial of one jig (the bytes of (M, 4, 2) float64 quads
+    in each image, in the config's order), or ``None``: the fast path's second guess when the as-built
+    head is too far from the config's poses for the capture (> CAPTURE_PX), so that only the first frame
+    of such a rig takes the general path. The fast path's result does not depend on where it starts (the
+    corners and the fit are iterated to convergence): this only saves time. An estimator owns one.
+    ``tables`` are the capture tables of those quads (made on their first use)."""
+
+    __slots__ = ("quads", "tables")
+
+    def __init__(self) -> None:
+        self.quads: tuple[bytes, bytes] | None = None
+        self.tables: tuple[CaptureTable | None, CaptureTable | None] | None = None
+
+
 def jig_frame_from_fiducials(
-    left_u8: np.ndarray, right_u8: np.ndarray, jig: JigConfig, *, fast: bool = True
+    left_u8: np.ndarray,
+    right_u8: np.ndarray,
+    jig: JigConfig,
+    *,
+    constants: FrameConstants | None = None,
+    memory: FiducialMemory | None = None,
 ) -> JigFrame | None:
     """Measure the stereo head's pose in J from the fiducials seen in an 8-bit gray stereo pair.
+
+    The fast path first (fiducials read near where they are expected, Gauss-Newton), then, if it does
+    not find every fiducial or its fit fails, the general one (ArUco's detector, SciPy's
+    Levenberg-Marquardt); see the module's notes.
 
     Parameters
     ----------
     left_u8, right_u8 : (H, W) uint8 images.
     jig : the nominal jig: its fiducials and cameras (intrinsics, and poses to start from).
-    fast : try the fast path first (see the module's notes); ``False`` runs only the general one.
+    constants : :func:`frame_constants` of ``jig`` (built here when not given: an estimator builds them
+        once).
+    memory : where the general path last found the fiducials (read and updated), if kept.
 
     Returns ``None`` when fewer than :data:`MIN_FIDUCIALS_PER_IMAGE` configured fiducials are found in
     either image, or when the fitted pose does not explain the corners (the fit did not converge or the
     RMS reprojection error exceeds :data:`MAX_FIDUCIAL_RMS_PX`).
     """
-    if fast:
-        frame = _jig_frame_fast(left_u8, right_u8, jig, _fast_constants(jig).expected_quads)
-        hint = _FOUND_BEFORE.get(id(jig))
-        if frame is None and hint is not None and hint[0] is jig:
-            frame = _jig_frame_fast(left_u8, right_u8, jig, hint[1])
-        if frame is not None:
-            return frame
+    k = constants if constants is not None else frame_constants(jig)
+    frame = _jig_frame_fast(left_u8, right_u8, jig, k, k.fast.expected_quads, k.fast.capture_tables)
+    if frame is None and memory is not None and memory.quads is not None:
+        if memory.tables is None:
+            memory.tables = _capture_tables(memory.quads, k.fast.image_shape)
+        frame = _jig_frame_fast(left_u8, right_u8, jig, k, memory.quads, memory.tables)
+    if frame is not None:
+        return frame
     fid = jig.fiducials
-    expected = jig_frame_from_config(jig)
+    expected = k.config_frame
     found = [
         detect_fiducials(left_u8, fid, expected_quads_px=expected.fiducial_quads_left_px),
         detect_fiducials(right_u8, fid, expected_quads_px=expected.fiducial_quads_right_px),
     ]
     if min(len(f) for f in found) < MIN_FIDUCIALS_PER_IMAGE:
         return None
-    frame = _frame_from_corners(found, jig, _fit_pose_lm)
-    if fast and frame is not None and all(set(f) == set(fid.ids) for f in found):
-        _remember_where_found(jig, found)
+    frame = _frame_from_corners(found, jig, _fit_pose_lm, k)
+    if memory is not None and frame is not None and all(set(f) == set(fid.ids) for f in found):
+        memory.quads = tuple(np.array([f[i] for i in fid.ids], dtype=float).tobytes() for f in found)
+        memory.tables = None
     return frame
 
 
-# Where the general path last found every fiducial, per jig object: the fast path's second guess when
-# the as-built head is too far from the config's poses for the capture (> CAPTURE_PX), so that only the
-# first frame of such a rig takes the general path. The fast path's result does not depend on where it
-# starts (the corners and the fit are iterated to convergence): this only saves time.
-_FOUND_BEFORE: dict[int, tuple[JigConfig, tuple[bytes, bytes]]] = {}
-
-
-def _remember_where_found(jig: JigConfig, found: list[dict[int, np.ndarray]]) -> None:
-    """Keep every fiducial's corners in each image (in the config's order) as this jig's second guess."""
-    if len(_FOUND_BEFORE) >= 16:
-        _FOUND_BEFORE.clear()
-    quads = tuple(np.array([f[i] for i in jig.fiducials.ids], dtype=float).tobytes() for f in found)
-    _FOUND_BEFORE[id(jig)] = (jig, quads)
-
-
 def _jig_frame_fast(
-    left_u8: np.ndarray, right_u8: np.ndarray, jig: JigConfig, expected_quads: tuple[bytes, bytes]
+    left_u8: np.ndarray,
+    right_u8: np.ndarray,
+    jig: JigConfig,
+    constants: FrameConstants,
+    expected_quads: tuple[bytes, bytes],
+    tables: tuple[CaptureTable | None, CaptureTable | None],
 ) -> JigFrame | None:
     """The fast path: every fiducial read near its expected place (the bytes of (M, 4, 2) float64 quads
     in each image), and a Gauss-Newton fit; ``None`` if a fiducial is not there or the fit fails."""
-    k = _fast_constants(jig)
+    k = constants.fast
     images = [np.asarray(image) for image in (left_u8, right_u8)]
     if any(image.dtype != np.uint8 or image.ndim != 2 for image in images):
         return None
+    if any(image.shape != k.image_shape for image in images):  # not the cameras' images: tables made here
+        tables = tuple(
+            capture_table(q, len(q) // 64, image.shape)
+            for q, image in zip(expected_quads, images, strict=True)
+        )
+    if tables[0] is None or tables[1] is None:  # a scanline leaves the image: not found there
+        return None
     corners = [
-        locate_quads_near(np.ascontiguousarray(image), jig.fiducials, quads)
-        for image, quads in zip(images, expected_quads, strict=True)
+        locate_quads_near(np.ascontiguousarray(image), jig.fiducials, quads, table=table, white=k.white)
+        for image, quads, table in zip(images, expected_quads, tables, strict=True)
     ]
     if corners[0] is None or corners[1] is None:
         return None
     if k.distorted:  # the Gauss-Newton fit is for pinholes: SciPy's LM with OpenCV's distortion model
         found = [dict(zip(jig.fiducials.ids, c, strict=True)) for c in corners]
-        return _frame_from_corners(found, jig, _fit_pose_lm)
+        return _frame_from_corners(found, jig, _fit_pose_lm, constants)
     observed = np.concatenate([corners[0].reshape(-1, 2), corners[1].reshape(-1, 2)])
     fit = _gauss_newton(k.points_J, observed, k.n_left, k.pinhole)
     if fit is None:
@@ -227,39 +235,78 @@ class _FastConstants:
     sorted_ids: tuple[int, ...]
     distorted: bool
     pinhole: _PinholeConstants
+    image_shape: tuple[int, int]
+    capture_tables: tuple[CaptureTable | None, CaptureTable | None]
+    white: np.ndarray
 
 
-@cached_by_identity()
-def _fast_constants(jig: JigConfig) -> _FastConstants:
-    """The fast path's constants of this jig, built once per jig object."""
+@dataclass(frozen=True)
+class FrameConstants:
+    """What finding the jig frame needs of a jig, built once by :func:`frame_constants`: the config's
+    frame (the expected fiducial quads), the right camera's pose relative to the left one (read-only),
+    each fiducial's corners in J ((4, 3) mm, read-only) and the fast path's constants."""
+
+    config_frame: JigFrame
+    T_left_right: np.ndarray
+    corners_J_by_id: dict[int, np.ndarray]
+    fast: _FastConstants
+
+
+def frame_constants(jig: JigConfig) -> FrameConstants:
+    """The jig-frame constants of this jig (an estimator builds them once)."""
     expected = jig_frame_from_config(jig)
-    corners = fiducial_corners_J(jig.fiducials).reshape(-1, 3)
+    T_left_right = invert_pose(expected.T_J_left) @ expected.T_J_right
+    T_left_right.flags.writeable = False
+    corners_by_fiducial = fiducial_corners_J(jig.fiducials)
+    corners_by_fiducial.flags.writeable = False
+    corners = corners_by_fiducial.reshape(-1, 3)
     points = np.concatenate([corners, corners])
     points.flags.writeable = False
     n = len(corners)
-    return _FastConstants(
-        expected_quads=(
-            np.ascontiguousarray(expected.fiducial_quads_left_px, dtype=float).tobytes(),
-            np.ascontiguousarray(expected.fiducial_quads_right_px, dtype=float).tobytes(),
-        ),
+    expected_quads = (
+        np.ascontiguousarray(expected.fiducial_quads_left_px, dtype=float).tobytes(),
+        np.ascontiguousarray(expected.fiducial_quads_right_px, dtype=float).tobytes(),
+    )
+    image_shape = (jig.cameras.left.height_px, jig.cameras.left.width_px)
+    fast = _FastConstants(
+        expected_quads=expected_quads,
         points_J=points,
         n_left=n,
-        T_left_right=_T_left_right(jig),
+        T_left_right=T_left_right,
         sorted_ids=tuple(sorted(jig.fiducials.ids)),
         distorted=bool(np.any(jig.cameras.left.distortion) or np.any(jig.cameras.right.distortion)),
-        pinhole=_pinhole_constants(jig, n, n),
+        pinhole=_pinhole_constants(jig, expected, T_left_right, n, n),
+        image_shape=image_shape,
+        capture_tables=_capture_tables(expected_quads, image_shape),
+        white=cell_patterns(jig.fiducials.dictionary, tuple(jig.fiducials.ids)),
+    )
+    return FrameConstants(
+        expected, T_left_right, dict(zip(jig.fiducials.ids, corners_by_fiducial, strict=True)), fast
     )
 
 
-PoseFit = Callable[[list[np.ndarray], list[np.ndarray], JigConfig], "tuple[np.ndarray, np.ndarray] | None"]
+def _capture_tables(
+    quads: tuple[bytes, bytes], image_shape: tuple[int, int]
+) -> tuple[CaptureTable | None, CaptureTable | None]:
+    """The capture tables of the quads expected in each image
+    (:func:`~softjig.sensing.fiducials.capture_table`)."""
+    return tuple(capture_table(q, len(q) // 64, image_shape) for q in quads)
 
 
-def _frame_from_corners(found: list[dict[int, np.ndarray]], jig: JigConfig, fit: PoseFit) -> JigFrame | None:
+PoseFit = Callable[
+    [list[np.ndarray], list[np.ndarray], JigConfig, "FrameConstants | None"],
+    "tuple[np.ndarray, np.ndarray] | None",
+]
+
+
+def _frame_from_corners(
+    found: list[dict[int, np.ndarray]], jig: JigConfig, fit: PoseFit, constants: FrameConstants
+) -> JigFrame | None:
     """The JigFrame of the corners found in both images, with the pose from ``fit`` (or ``None``)."""
-    corners_J = _corners_J_by_id(jig)
+    corners_J = constants.corners_J_by_id
     obj = [np.concatenate([corners_J[i] for i in f]) for f in found]
     img = [np.concatenate([f[i] for i in f]) for f in found]
-    result = fit(obj, img, jig)
+    result = fit(obj, img, jig, constants)
     if result is None:
         return None
     T_left_J, residuals = result
@@ -269,29 +316,11 @@ def _frame_from_corners(found: list[dict[int, np.ndarray]], jig: JigConfig, fit:
     T_J_left = invert_pose(T_left_J)
     both = tuple(sorted(set(found[0]) & set(found[1])))
     quads = [np.array(list(f.values())).reshape(-1, 4, 2) for f in found]
-    return JigFrame(T_J_left, T_J_left @ _T_left_right(jig), "fiducials", rms, both, quads[0], quads[1])
-
-
-@lru_cache(maxsize=16)
-def _T_left_right(jig: JigConfig) -> np.ndarray:
-    """The right camera's pose relative to the left one, fixed by the config (the stereo calibration;
-    read-only)."""
-    frame = jig_frame_from_config(jig)
-    T = invert_pose(frame.T_J_left) @ frame.T_J_right
-    T.flags.writeable = False
-    return T
-
-
-@lru_cache(maxsize=16)
-def _corners_J_by_id(jig: JigConfig) -> dict[int, np.ndarray]:
-    """Each fiducial's corners in J, (4, 3) mm (read-only)."""
-    corners = fiducial_corners_J(jig.fiducials)
-    corners.flags.writeable = False
-    return dict(zip(jig.fiducials.ids, corners, strict=True))
+    return JigFrame(T_J_left, T_J_left @ constants.T_left_right, "fiducials", rms, both, quads[0], quads[1])
 
 
 def _fit_pose_lm(
-    obj: list[np.ndarray], img: list[np.ndarray], jig: JigConfig
+    obj: list[np.ndarray], img: list[np.ndarray], jig: JigConfig, constants: FrameConstants | None = None
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """The left camera's pose ``T_left_J`` minimising both images' reprojection errors, and the residuals
     (px): OpenCV's IPPE PnP in the left image for the start, then SciPy's Levenberg-Marquardt."""
@@ -303,8 +332,9 @@ def _fit_pose_lm(
         return None
 
     # The residual is evaluated ~30 times per frame: OpenCV's projectPoints and composeRT work on the
-    # rotation vectors directly (measured: 22 ms per frame with optics.project_points, ~3 ms with these).
-    T_right_left = invert_pose(_T_left_right(jig))
+    # rotation vectors directly, several times faster than optics.project_points on poses.
+    k = constants if constants is not None else frame_constants(jig)
+    T_right_left = invert_pose(k.T_left_right)
     rvec_rl = cv2.Rodrigues(T_right_left[:3, :3])[0]
     tvec_rl = T_right_left[:3, 3].reshape(3, 1)
     dist = [np.asarray(cam.distortion, float) for cam in cams]
@@ -325,27 +355,29 @@ def _fit_pose_lm(
 
 
 def _fit_pose_gauss_newton(
-    obj: list[np.ndarray], img: list[np.ndarray], jig: JigConfig
+    obj: list[np.ndarray], img: list[np.ndarray], jig: JigConfig, constants: FrameConstants | None = None
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """As :func:`_fit_pose_lm` for distortion-free cameras, by Gauss-Newton from the config's pose.
 
     The head's pose is updated as ``T <- exp(omega, v) T``: a point at ``X`` in the left camera moves by
     ``omega x X + v``, in the right camera by ``R_rl`` of that, and its pixel by the pinhole's Jacobian
     ``[[fx / z, 0, -fx x / z^2], [0, fy / z, -fy y / z^2]]``. Each step solves the 6x6 normal equations;
-    from the config's pose (~1 mm, 0.5 deg away) it converges in 3-4 steps. A Numba loop (measured: ~10
-    us; the same steps on NumPy arrays took ~0.3 ms, ~100 array operations of call overhead, and SciPy's
-    LM with a finite-difference Jacobian ~5 ms).
+    from the config's pose (~1 mm, 0.5 deg away) it converges in 3-4 steps
+    (:func:`softjig.sensing._jigframe_kernels.gauss_newton`).
     """
-    k = _pinhole_constants(jig, len(obj[0]), len(obj[1]))
+    c = constants if constants is not None else frame_constants(jig)
+    k = _pinhole_constants(jig, c.config_frame, c.T_left_right, len(obj[0]), len(obj[1]))
     return _gauss_newton(np.concatenate(obj), np.concatenate(img), len(obj[0]), k)
 
 
 def _gauss_newton(
     points_J: np.ndarray, observed_px: np.ndarray, n_left: int, k: _PinholeConstants
 ) -> tuple[np.ndarray, np.ndarray] | None:
-    """``T_left_J`` and the residuals (px) of :func:`_gauss_newton_kernel`, or ``None`` if it did not
-    converge."""
-    R, t, residuals, converged = _gauss_newton_kernel(
+    """``T_left_J`` and the residuals (px) of the compiled Gauss-Newton steps
+    (:func:`softjig.sensing._jigframe_kernels.gauss_newton`), or ``None`` if they did not converge."""
+    from softjig.sensing._jigframe_kernels import gauss_newton  # Numba is imported on first use
+
+    R, t, residuals, converged = gauss_newton(
         points_J,
         observed_px,
         n_left,
@@ -365,112 +397,6 @@ def _gauss_newton(
     return T_left_J, residuals
 
 
-@numba.njit(cache=True, nogil=True)
-def _gauss_newton_kernel(
-    points, observed, n_left, focal, centre, R_start, t_start, R_rl, t_rl, max_steps, tol
-):
-    """Gauss-Newton steps of the head's pose ``(R, t)`` (``T_left_J``) for corners ``points`` (N, 3) in J
-    seen at ``observed`` (N, 2) px, the first ``n_left`` in the left camera and the rest in the right one.
-
-    Returns ``R``, ``t``, the residuals (2 N,) px before the last step, and whether a step fell below
-    ``tol`` (rad, and ``100 tol`` mm) within ``max_steps``.
-    """
-    n = points.shape[0]
-    R = R_start.copy()
-    t = t_start.copy()
-    residuals = np.empty(2 * n)
-    H = np.empty((6, 6))
-    b = np.empty(6)
-    row = np.empty(6)
-    g = np.empty(3)
-    gr = np.empty(3)
-    X_left = np.empty(3)
-    X = np.empty(3)
-    rotation = np.empty((3, 3))
-    for _ in range(max_steps):
-        H[:] = 0.0
-        b[:] = 0.0
-        for k in range(n):
-            for i in range(3):
-                X_left[i] = R[i, 0] * points[k, 0] + R[i, 1] * points[k, 1] + R[i, 2] * points[k, 2] + t[i]
-            if k >= n_left:
-                for i in range(3):
-                    X[i] = R_rl[i, 0] * X_left[0] + R_rl[i, 1] * X_left[1] + R_rl[i, 2] * X_left[2] + t_rl[i]
-            else:
-                X[:] = X_left
-            inv_z = 1.0 / X[2]
-            for c in range(2):  # u, then v
-                f = focal[k, c]
-                r = f * X[c] * inv_z + centre[k, c] - observed[k, c]
-                residuals[2 * k + c] = r
-                g[:] = 0.0  # d pixel / d X in this camera
-                g[c] = f * inv_z
-                g[2] = -f * X[c] * inv_z * inv_z
-                if k >= n_left:  # to d pixel / d X_left
-                    for i in range(3):
-                        gr[i] = g[0] * R_rl[0, i] + g[1] * R_rl[1, i] + g[2] * R_rl[2, i]
-                    g[:] = gr
-                row[0] = X_left[1] * g[2] - X_left[2] * g[1]  # X_left x g: d pixel / d omega
-                row[1] = X_left[2] * g[0] - X_left[0] * g[2]
-                row[2] = X_left[0] * g[1] - X_left[1] * g[0]
-                row[3], row[4], row[5] = g[0], g[1], g[2]
-                for i in range(6):
-                    b[i] -= row[i] * r
-                    for j in range(i + 1):
-                        H[i, j] += row[i] * row[j]
-        # Cholesky H = L L^T (lower triangle of H), then two triangular solves for the step
-        for j in range(6):
-            d = H[j, j]
-            for m in range(j):
-                d -= H[j, m] * H[j, m]
-            if not d > 0.0:
-                return R, t, residuals, False
-            H[j, j] = np.sqrt(d)
-            for i in range(j + 1, 6):
-                s = H[i, j]
-                for m in range(j):
-                    s -= H[i, m] * H[j, m]
-                H[i, j] = s / H[j, j]
-        for i in range(6):
-            s = b[i]
-            for m in range(i):
-                s -= H[i, m] * b[m]
-            b[i] = s / H[i, i]
-        for i in range(5, -1, -1):
-            s = b[i]
-            for m in range(i + 1, 6):
-                s -= H[m, i] * b[m]
-            b[i] = s / H[i, i]
-        # R <- exp(omega) R, t <- exp(omega) t + v (Rodrigues' formula)
-        wx, wy, wz = b[0], b[1], b[2]
-        theta = np.sqrt(wx * wx + wy * wy + wz * wz)
-        if theta < 1e-12:
-            sa, sb = 1.0, 0.5
-        else:
-            sa, sb = np.sin(theta) / theta, (1.0 - np.cos(theta)) / (theta * theta)
-        # exp(omega) = I + sa [omega]_x + sb [omega]_x^2, with [omega]_x^2 = omega omega^T - theta^2 I
-        for i in range(3):  # b[:3] is omega
-            for j in range(3):
-                rotation[i, j] = sb * b[i] * b[j]
-            rotation[i, i] += 1.0 - sb * theta * theta
-        rotation[0, 1] -= sa * wz
-        rotation[1, 0] += sa * wz
-        rotation[0, 2] += sa * wy
-        rotation[2, 0] -= sa * wy
-        rotation[1, 2] -= sa * wx
-        rotation[2, 1] += sa * wx
-        for j in range(3):  # R <- rotation R, column by column
-            c0, c1, c2 = R[0, j], R[1, j], R[2, j]
-            for i in range(3):
-                R[i, j] = rotation[i, 0] * c0 + rotation[i, 1] * c1 + rotation[i, 2] * c2
-        c0, c1, c2 = t[0], t[1], t[2]
-        for i in range(3):
-            t[i] = rotation[i, 0] * c0 + rotation[i, 1] * c1 + rotation[i, 2] * c2 + b[3 + i]
-        if max(abs(wx), abs(wy), abs(wz)) < tol and max(abs(b[3]), abs(b[4]), abs(b[5])) < 100.0 * tol:
-            return R, t, residuals, True
-    return R, t, residuals, False
-
-
 @dataclass(frozen=True)
 class _PinholeConstants:
     """Per jig and corner count: the start pose (``T_left_J`` from the config), the right camera's pose
@@ -484,11 +410,11 @@ class _PinholeConstants:
     centre: np.ndarray
 
 
-@lru_cache(maxsize=16)
-def _pinhole_constants(jig: JigConfig, n_left: int, n_right: int) -> _PinholeConstants:
-    frame = jig_frame_from_config(jig)
-    T_left_J = invert_pose(frame.T_J_left)
-    T_rl = invert_pose(_T_left_right(jig))
+def _pinhole_constants(
+    jig: JigConfig, config_frame: JigFrame, T_left_right: np.ndarray, n_left: int, n_right: int
+) -> _PinholeConstants:
+    T_left_J = invert_pose(config_frame.T_J_left)
+    T_rl = invert_pose(T_left_right)
     left, right = jig.cameras.left, jig.cameras.right
     counts = [n_left, n_right]
     focal = np.repeat([[left.fx_px, left.fy_px], [right.fx_px, right.fy_px]], counts, axis=0)
@@ -500,13 +426,18 @@ def _pinhole_constants(jig: JigConfig, n_left: int, n_right: int) -> _PinholeCon
 
 
 def resolve_jig_frame(
-    left_u8: np.ndarray, right_u8: np.ndarray, jig: JigConfig, *, fast: bool = True
+    left_u8: np.ndarray,
+    right_u8: np.ndarray,
+    jig: JigConfig,
+    *,
+    constants: FrameConstants | None = None,
+    memory: FiducialMemory | None = None,
 ) -> tuple[JigFrame, list[str]]:
     """The jig frame as ``sensing.extrinsics`` asks, with any warning to report.
 
     ``"fiducials"`` requires them; ``"config"`` uses the fixed extrinsics; ``"auto"`` measures them when
-    found and falls back to the config with a warning. ``fast=False`` reads the fiducials with the full
-    ArUco detector only (the straightforward path, see :func:`jig_frame_from_fiducials`).
+    found and falls back to the config with a warning. See :func:`jig_frame_from_fiducials`, which also
+    says what ``constants`` and ``memory`` are.
 
     Raises
     ------
@@ -514,9 +445,10 @@ def resolve_jig_frame(
         ``sensing.extrinsics == "fiducials"`` and the fiducials were not found.
     """
     mode = jig.sensing.extrinsics
+    k = constants if constants is not None else frame_constants(jig)
     if mode == "config":
-        return jig_frame_from_config(jig), []
-    frame = jig_frame_from_fiducials(left_u8, right_u8, jig, fast=fast)
+        return k.config_frame, []
+    frame = jig_frame_from_fiducials(left_u8, right_u8, jig, constants=k, memory=memory)
     if frame is not None:
         return frame, []
     message = (
@@ -528,4 +460,4 @@ def resolve_jig_frame(
             f"{message} and sensing.extrinsics is 'fiducials': make them visible, or set "
             "sensing.extrinsics = 'config' to use the calibrated camera poses in the config"
         )
-    return jig_frame_from_config(jig), [f"{message}: used the camera poses in the config instead"]
+    return k.config_frame, [f"{message}: used the camera poses in the config instead"]

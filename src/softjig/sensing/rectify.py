@@ -18,7 +18,6 @@ once per camera configuration and cached.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
 
 import cv2
 import numpy as np
@@ -27,7 +26,7 @@ from softjig.config import CameraConfig, JigConfig, StereoConfig
 from softjig.errors import InputError
 from softjig.geometry import invert_pose, pose_from_rotation_translation
 
-__all__ = ["Rectification", "T_rect_raw", "rectification", "rectified_jig", "rectify_pair"]
+__all__ = ["Rectification", "T_rect_raw", "rectification", "rectified_jig", "rectify_images", "rectify_pair"]
 
 
 @dataclass(frozen=True)
@@ -53,7 +52,7 @@ class Rectification:
 
 
 def rectification(cameras: StereoConfig, *, alpha: float = 0.0) -> Rectification:
-    """Compute (or fetch from the cache) the rectification of a stereo configuration.
+    """Compute the rectification of a stereo configuration (tens of ms: an estimator computes it once).
 
     Parameters
     ----------
@@ -70,7 +69,6 @@ def rectification(cameras: StereoConfig, *, alpha: float = 0.0) -> Rectification
     return _rectification(cameras, float(alpha))
 
 
-@lru_cache(maxsize=8)
 def _rectification(cameras: StereoConfig, alpha: float) -> Rectification:
     left, right = cameras.left, cameras.right
     if (left.width_px, left.height_px) != (right.width_px, right.height_px):
@@ -139,11 +137,6 @@ def rectified_jig(jig: JigConfig, *, alpha: float = 0.0) -> JigConfig:
     """
     if jig.cameras.rectified:
         return jig
-    return _rectified_jig(jig, float(alpha))
-
-
-@lru_cache(maxsize=8)
-def _rectified_jig(jig: JigConfig, alpha: float) -> JigConfig:
     return jig.replace(cameras=rectification(jig.cameras, alpha=alpha).cameras)
 
 
@@ -172,6 +165,21 @@ def rectify_pair(
     if jig.cameras.rectified:
         return left, right, jig
     rect = rectification(jig.cameras, alpha=alpha)
+    left, right = rectify_images(left, right, jig, rect)
+    return left, right, jig.replace(cameras=rect.cameras)
+
+
+def rectify_images(
+    left: np.ndarray, right: np.ndarray, jig: JigConfig, rect: Rectification
+) -> tuple[np.ndarray, np.ndarray]:
+    """Rectify a raw stereo pair of ``jig``'s raw cameras with their ``rect`` (:func:`rectification`),
+    as :func:`rectify_pair` does; an estimator computes ``rect`` once.
+
+    Raises
+    ------
+    InputError
+        The images do not have the cameras' size.
+    """
     out = []
     for name, image, cam, maps in (
         ("left", left, jig.cameras.left, rect.maps_left),
@@ -185,7 +193,7 @@ def rectify_pair(
                 "took the images"
             )
         out.append(cv2.remap(image, maps[0], maps[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT))
-    return out[0], out[1], rectified_jig(jig, alpha=alpha)
+    return out[0], out[1]
 
 
 def T_rect_raw(jig: JigConfig, side: str, *, alpha: float = 0.0) -> np.ndarray:

@@ -21,7 +21,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from softjig.caching import cached_by_identity
 from softjig.config import CameraConfig, JigConfig
 from softjig.errors import InputError
 from softjig.optics import layer_constants, pixels_to_normalized
@@ -66,7 +65,12 @@ def closest_points_of_rays(
 
 
 def triangulate_refracted(
-    left_xy_px: np.ndarray, right_xy_px: np.ndarray, jig: JigConfig, frame: JigFrame
+    left_xy_px: np.ndarray,
+    right_xy_px: np.ndarray,
+    jig: JigConfig,
+    frame: JigFrame,
+    *,
+    constants: KernelConstants | None = None,
 ) -> RefractedPoints:
     """Triangulate matched markers through the jig's refracting layers.
 
@@ -75,6 +79,8 @@ def triangulate_refracted(
     left_xy_px, right_xy_px : (M, 2) matched marker centres in the left and right images (px).
     jig : the nominal jig: its cameras' intrinsics and distortion, and its layers' thicknesses and indices.
     frame : the cameras' poses in J (from the fiducials or the config).
+    constants : :func:`kernel_constants` of ``jig`` (built here when not given: an estimator builds them
+        once).
 
     Returns
     -------
@@ -96,7 +102,7 @@ def triangulate_refracted(
         )
     if len(left_xy) == 0:
         return RefractedPoints(np.zeros((0, 3)), np.zeros(0))
-    k = _kernel_constants(jig)
+    k = constants if constants is not None else kernel_constants(jig)
     pixels = [left_xy, right_xy]
     for i, camera in enumerate(k.distorted):  # undistorted first; the kernel's intrinsics are then 1
         if camera is not None:
@@ -115,7 +121,7 @@ def triangulate_refracted(
 
 
 @dataclass(frozen=True)
-class _KernelConstants:
+class KernelConstants:
     """Per jig: each camera's ``(fx, fy, cx, cy)`` (px; ``(1, 1, 0, 0)`` for a camera with distortion,
     whose pixels are undistorted first), those cameras (or ``None``), and the layers' interface heights
     (mm) and ``n_0 / n_i`` per region."""
@@ -126,9 +132,8 @@ class _KernelConstants:
     ratio: np.ndarray
 
 
-@cached_by_identity()
-def _kernel_constants(jig: JigConfig) -> _KernelConstants:
-    """The kernel's constants of this jig, built once per jig object."""
+def kernel_constants(jig: JigConfig) -> KernelConstants:
+    """The kernel's constants of this jig (an estimator builds them once)."""
     cams = jig.cameras.left, jig.cameras.right
     distorted = tuple(cam if np.any(cam.distortion) else None for cam in cams)
     intrinsics = np.array(
@@ -139,7 +144,7 @@ def _kernel_constants(jig: JigConfig) -> _KernelConstants:
     )
     intrinsics.flags.writeable = False
     z_if, ratio, _, _ = layer_constants(flat_layers(jig))
-    return _KernelConstants(intrinsics, distorted, z_if, ratio)
+    return KernelConstants(intrinsics, distorted, z_if, ratio)
 
 
 def _as_pixels(xy_px: np.ndarray, name: str) -> np.ndarray:

@@ -51,6 +51,7 @@ import numpy as np
 
 from softjig.config import JigConfig, Part
 from softjig.jig_shape import rest_inner_height_mm, rest_outer_height_mm
+from softjig.sim import _kernels
 from softjig.sim.parts import (
     bottom_face_rim,
     bottom_face_samples,
@@ -110,14 +111,10 @@ class _Surface:
         m = self.jig.membrane
         decay = np.maximum(m.decay_length_mm, self.contact_depth / np.tan(np.radians(m.max_wall_slope_deg)))
         qx, qy = x.ravel().astype(np.float32), y.ravel().astype(np.float32)
-        cx, cy = self.contact_xy.T.astype(np.float32)
+        cx, cy = np.ascontiguousarray(self.contact_xy.T, dtype=np.float32)
         log_depth = np.log(self.contact_depth).astype(np.float32)
         inverse_decay = (1.0 / decay).astype(np.float32)
-        out = np.empty(qx.size, dtype=np.float32)
-        for start in range(0, qx.size, 512):  # chunks bound the (points x samples) temporary
-            sl = slice(start, start + 512)
-            d = np.hypot(qx[sl, None] - cx, qy[sl, None] - cy)
-            out[sl] = np.max(log_depth - d * inverse_decay, axis=1)
+        out = _kernels.log_envelope(qx, qy, cx, cy, log_depth, inverse_decay)
         return np.exp(out.astype(float)).reshape(x.shape)
 
     def height_mm(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -174,12 +171,16 @@ def deform(
     rng = np.random.default_rng(rng)
     x, y = marker_xy_mm[:, 0].astype(float), marker_xy_mm[:, 1].astype(float)
     surface = _Surface(jig, part, T_J_part)
-    z, contact = surface.height_mm(x, y)
     # The hemisphere sits on a patch of the membrane as wide as itself: its axis is the patch's mean
-    # normal, from central differences half a marker radius either side.
+    # normal, from central differences half a marker radius either side. The marker and its four
+    # neighbours are evaluated in one call (each point on its own: the same numbers as five calls).
     s = jig.markers.diameter_mm / 4.0
-    zx = (surface.height_mm(x + s, y)[0] - surface.height_mm(x - s, y)[0]) / (2 * s)
-    zy = (surface.height_mm(x, y + s)[0] - surface.height_mm(x, y - s)[0]) / (2 * s)
+    heights, contacts = surface.height_mm(
+        np.stack([x, x + s, x - s, x, x]), np.stack([y, y, y, y + s, y - s])
+    )
+    z, contact = heights[0], contacts[0]
+    zx = (heights[1] - heights[2]) / (2 * s)
+    zy = (heights[3] - heights[4]) / (2 * s)
     axis = np.stack([zx, zy, -np.ones_like(zx)], axis=1)
     axis /= np.linalg.norm(axis, axis=1, keepdims=True)
     z = z.copy()

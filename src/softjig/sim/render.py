@@ -23,10 +23,11 @@ Radiance is computed in float32 on ``[0, 1]`` (fraction of full scale), in this 
    ``a`` (unit, pointing into the oil, towards the cameras). A marker spans ~15 px at ~170 mm, so the
    perspective change across it is ~1 % and a *local-affine* ray model is used: with ``p0`` the exact
    projection of ``P`` (:func:`softjig.optics.project_points`), ``J`` the 2x3 projection Jacobian at
-   ``P`` (:func:`softjig.optics.projection_jacobian`) and ``d`` the unit oil ray of ``p0``
-   (:func:`softjig.optics.backproject_pixels`), the ray through the sub-pixel ``p0 + du`` is the line
-   ``P + q + s d`` with ``q = B (J B)^{-1} du`` (``B`` a 3x2 orthonormal basis of the plane
-   perpendicular to ``d``). Since ``q ⊥ d``, it meets the sphere ``|X - P| = r`` first at
+   ``P`` and ``d`` the unit oil ray of ``p0`` (:func:`softjig.optics.rays_in_top_region`), the ray
+   through the sub-pixel ``p0 + du`` is the line ``P + q + s d`` with ``q = B (J B)^{-1} du`` (``B`` a
+   3x2 orthonormal basis of the plane perpendicular to ``d``). ``(J B)^{-1}`` is found by central
+   differences of the back-projection: the oil rays of ``p0 +- 0.01 px`` in ``u`` and in ``v`` meet that
+   plane through ``P`` at ``q(du)``. Since ``q ⊥ d``, it meets the sphere ``|X - P| = r`` first at
    ``X - P = q - sqrt(r^2 - |q|^2) d``, which counts only if it lies on the half protruding into the
    oil, ``(X - P)·a >= 0`` (otherwise the ray meets the black membrane). The shading of a hit is
 
@@ -37,8 +38,8 @@ Radiance is computed in float32 on ``[0, 1]`` (fraction of full scale), in this 
    beside the cameras plus the bead pack's scattered light. Rays are cast only in a square patch of
    half-side ``ceil(radius_px)`` around each marker's rounded centre (``radius_px``: the largest
    singular value of ``J B`` times ``r``, the largest over the markers; no pixel farther out is
-   touched), for all markers at once in cache-sized chunks; the ``S x S`` sub-samples of each pixel
-   (at the centres of its ``S x S`` cells) are averaged. With ``imaging.marker_appearance = "disc"``
+   touched; within it, only the pixels of a row that can hold a hit); the ``S x S`` sub-samples of each
+   pixel (at the centres of its ``S x S`` cells) are averaged. With ``imaging.marker_appearance = "disc"``
    the marker is instead a flat painted disc of radius ``r`` in the membrane's plane at ``P`` (normal
    ``a``): the ray meets that plane at ``X - P = q + s d`` with ``s = (q.a) / cos_axis``, inside the
    disc iff ``|q|^2 + s^2 <= r^2``, lit uniformly at ``I = b + (m - b) cos_axis`` (Lambertian, light and
@@ -96,9 +97,20 @@ Radiance is computed in float32 on ``[0, 1]`` (fraction of full scale), in this 
 Every per-frame random draw comes from ``rng = np.random.default_rng(rng)`` (the membrane's ripple, then
 the left camera's redrawn or per-frame speckle and noise, then the right camera's): a seed reproduces a
 pair bit for bit. The jig's fixed textures (static speckle, marker brightness) come from their own seeds
-in the config. Full-image
-float32 temporaries are kept per thread between frames (page faults on fresh buffers would cost more
-than the arithmetic); rendering from several threads at once is safe.
+in the config.
+
+Per-jig work is done once
+-------------------------
+Everything that depends on the jig and not on the frame (each camera's static speckle texture, the
+fiducials' composite and which pixels they cover, the fall-off map, and so the radiance of the bare
+membrane, ``((b (1 + s)) c + f) e F``, with ``c`` and ``f`` the fiducials' transmission and premultiplied
+level) is computed once by :class:`Renderer`, built from the as-built jig; a frame then only casts its
+markers, adds their blurred excess times ``(1 + s) c e F`` into a copy of that radiance, redraws the speckle
+where the part moved beads, and adds the sensor noise. This is the same image model as the steps above, in
+another order of the same float32 products: the images differ from the step-by-step order only by float
+rounding (a grey level here and there). A :class:`Renderer`'s per-jig arrays are read-only and each pair
+being rendered at once gets its own scratch buffers, so threads may share it. :func:`render_pair` and
+:func:`render_view` build one per call; reuse a :class:`Renderer` to render many frames of one jig.
 
 Ground truth and the hemisphere's bias
 --------------------------------------
@@ -118,7 +130,6 @@ import math
 import threading
 import time
 from dataclasses import dataclass, replace
-from functools import lru_cache
 
 import cv2
 import numpy as np
@@ -127,22 +138,35 @@ from scipy.special import ndtri
 from softjig.aruco import aruco_dictionary
 from softjig.config import CameraConfig, ImagingConfig, JigConfig, MediumConfig, Part, PlateConfig
 from softjig.jig_shape import rest_inner_height_mm
-from softjig.optics import backproject_pixels, project_points, projection_jacobian
+from softjig.optics import FlatLayers, project_points, rays_in_top_region
 from softjig.rig import AIR_REFRACTIVE_INDEX, distortion_of, flat_layers
 from softjig.sensing.fiducials import fiducial_corners_J
+from softjig.sim import _kernels
 from softjig.sim.asbuilt import AsBuiltJig
 from softjig.sim.membrane import MembraneState, deform
 from softjig.sim.parts import PartPose
 
-__all__ = ["MarkerTruth", "RenderedPair", "idealised", "marker_brightness", "render_pair", "render_view"]
+__all__ = [
+    "MarkerTruth",
+    "RenderedPair",
+    "Renderer",
+    "idealised",
+    "marker_brightness",
+    "render_pair",
+    "render_view",
+]
 
 _FIDUCIAL_WHITE = 0.85
 _FIDUCIAL_BLACK = 0.05
 _BLUR_TRUNCATE_SIGMAS = 3.0
-_CHUNK_SAMPLES = 100_000  # sub-samples per ray-casting chunk: its float32 temporaries stay in cache
 _MIN_MARKER_BRIGHTNESS = 0.05  # a marker's brightness factor is clipped here (a normal draw has tails)
 _MIN_ILLUMINATION = 0.02  # the fall-off map is clipped here (an off-centre spot, a steep fall-off)
+_MASK_REACH_COARSE_PX = 5.0  # the redraw mask's softening kernel (sigma 1) reaches 4 coarse px
+_MASK_SUBPIXEL_BITS = 4  # cv2.circle's fractional bits for the redraw mask's centres and radii
 _CAMERA_INDEX = {"left": 0, "right": 1}
+_PIXEL_STEP = 0.01  # px: central differences of the back-projection (a 1e-3 mm step on the membrane)
+_PIXEL_OFFSETS = np.array([[0.0, 0.0], [1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]]) * _PIXEL_STEP
+_PIXEL_OFFSETS.flags.writeable = False
 
 
 # ------------------------------------------------------------------------------------------- results
@@ -240,6 +264,111 @@ def idealised(jig: JigConfig, *, refraction: bool = True, blur: bool = True, noi
     return jig.replace(plate=plate, medium=medium, imaging=imaging)
 
 
+class Renderer:
+    """The simulator of one as-built jig: built once, then renders any number of its stereo pairs.
+
+    Building it computes what every frame of the jig shares (module docstring, "Per-jig work is done
+    once"): the markers' brightness factors and, per camera, the fiducials' corners and composite, the
+    static bead speckle, the illumination fall-off and the bare membrane's radiance. It holds only
+    read-only arrays: one renderer may serve several threads.
+
+    Parameters
+    ----------
+    as_built : AsBuiltJig
+        The jig as built and its markers' rest positions.
+
+    Examples
+    --------
+    >>> renderer = Renderer(draw_as_built(default_jig(), rng=0))  # doctest: +SKIP
+    >>> pairs = [renderer.render_pair(part, pose, seed) for seed in range(100)]  # doctest: +SKIP
+    """
+
+    def __init__(self, as_built: AsBuiltJig) -> None:
+        jig = as_built.jig
+        self.as_built = as_built
+        self._brightness = marker_brightness(jig.imaging, len(as_built.marker_xy_mm))
+        self._views = {
+            side: _CameraView.build(jig, camera, side)
+            for side, camera in (("left", jig.cameras.left), ("right", jig.cameras.right))
+        }
+        # Scratch buffers of finished pairs, for the next pair (one per thread rendering at once).
+        self._idle_scratch: list[_Scratch] = []
+        self._scratch_lock = threading.Lock()
+
+    @property
+    def jig(self) -> JigConfig:
+        """The as-built jig's configuration."""
+        return self.as_built.jig
+
+    def render_pair(
+        self,
+        part: Part | None = None,
+        pose: PartPose | None = None,
+        rng: np.random.Generator | int | None = None,
+        *,
+        color: bool = False,
+        timings: dict[str, float] | None = None,
+    ) -> RenderedPair:
+        """Render a stereo pair with a part pressed into the jig, with its ground truth.
+
+        The membrane is deformed by :func:`softjig.sim.membrane.deform` at the as-built markers
+        (``as_built.marker_xy_mm``), with the per-frame ripple and edge conformity of
+        ``jig.tolerances`` (``membrane_ripple_mm``, ``edge_conformity_mm``); then each camera renders it
+        with its own intrinsics and pose.
+
+        Parameters
+        ----------
+        part : Part or None
+            The part pressed into the jig; ``None`` renders the unloaded membrane.
+        pose : PartPose or None
+            How the part is pressed in; ``None`` with a part means ``PartPose()`` (centred, upright,
+            3 mm in). Ignored without a part.
+        rng : numpy.random.Generator, int or None
+            Seed or generator of every random draw (ripple, speckle, noise): a seed gives identical
+            images.
+        color : bool
+            Render RGB images ``(H, W, 3)`` with equal channels.
+        timings : dict or None
+            If given, the process's CPU seconds spent per stage are added into it (for benchmarks).
+
+        Returns
+        -------
+        RenderedPair
+        """
+        rng = np.random.default_rng(rng)
+        timer = _Timer(timings)
+        jig = self.jig
+        T_J_part = None if part is None else (pose or PartPose()).T_J_part(jig)
+        state = deform(
+            jig,
+            self.as_built.marker_xy_mm,
+            part,
+            T_J_part,
+            ripple_mm=jig.tolerances.membrane_ripple_mm,
+            edge_conformity_mm=jig.tolerances.edge_conformity_mm,
+            rng=rng,
+        )
+        timer.lap("deform")
+        with self._scratch_lock:
+            scratch = self._idle_scratch.pop() if self._idle_scratch else _Scratch()
+        try:
+            left = self._views["left"].render(jig, state, self._brightness, rng, color, timer, scratch)
+            right = self._views["right"].render(jig, state, self._brightness, rng, color, timer, scratch)
+        finally:
+            with self._scratch_lock:
+                self._idle_scratch.append(scratch)
+        truth = MarkerTruth(
+            xyz_mm=state.marker_xyz_mm,
+            axis=state.marker_axis,
+            in_contact=state.in_contact,
+            left_px=left.px,
+            right_px=right.px,
+            visible_left=left.visible,
+            visible_right=right.visible,
+        )
+        return RenderedPair(left.image, right.image, truth, left.corners_px, right.corners_px)
+
+
 def render_view(
     jig: JigConfig,
     camera: CameraConfig,
@@ -276,8 +405,10 @@ def render_view(
     """
     rng = np.random.default_rng(rng)
     side = "right" if camera == jig.cameras.right and camera != jig.cameras.left else "left"
-    image, px, visible, _ = _render_view(jig, camera, side, state, rng, color, _Timer(None))
-    return image, px, visible
+    brightness = marker_brightness(jig.imaging, len(state.marker_xyz_mm))
+    view = _CameraView.build(jig, camera, side)
+    result = view.render(jig, state, brightness, rng, color, _Timer(None), _Scratch())
+    return result.image, result.px, result.visible
 
 
 def render_pair(
@@ -290,10 +421,9 @@ def render_pair(
 ) -> RenderedPair:
     """Render a stereo pair of the as-built jig with a part pressed into it, with its ground truth.
 
-    The membrane is deformed by :func:`softjig.sim.membrane.deform` at the as-built markers
-    (``as_built.marker_xy_mm``), with the per-frame ripple and edge conformity of
-    ``jig.tolerances`` (``membrane_ripple_mm``, ``edge_conformity_mm``); then each camera of
-    ``as_built.jig`` renders it with its own intrinsics and pose (:func:`render_view`).
+    ``Renderer(as_built).render_pair(part, pose, rng, color=color)``: see :meth:`Renderer.render_pair`.
+    It builds the jig's renderer on every call; to render many frames of one jig, build a
+    :class:`Renderer` once and call its method.
 
     Parameters
     ----------
@@ -302,8 +432,7 @@ def render_pair(
     part : Part or None
         The part pressed into the jig; ``None`` renders the unloaded membrane.
     pose : PartPose or None
-        How the part is pressed in; ``None`` with a part means ``PartPose()`` (centred, upright,
-        3 mm in). Ignored without a part.
+        How the part is pressed in; ``None`` with a part means ``PartPose()``. Ignored without a part.
     rng : numpy.random.Generator, int or None
         Seed or generator of every random draw (ripple, speckle, noise): a seed gives identical
         images.
@@ -314,7 +443,37 @@ def render_pair(
     -------
     RenderedPair
     """
-    return _render_pair(as_built, part, pose, rng, color=color, timings=None)
+    return Renderer(as_built).render_pair(part, pose, rng, color=color)
+
+
+def marker_brightness(im: ImagingConfig, n_markers: int) -> np.ndarray:
+    """Each marker's brightness factor, ``(n_markers,)``: ``1 + imaging.marker_brightness_spread * z``
+    (clipped at 0.05), ``z`` standard normal drawn from
+    ``SeedSequence(imaging.marker_brightness_seed, spawn_key=(1,))`` in marker order, so fixed per marker
+    for a jig (the same in both cameras, every frame and every process)."""
+    if im.marker_brightness_spread == 0:
+        return np.ones(n_markers)
+    rng = np.random.default_rng(np.random.SeedSequence(im.marker_brightness_seed, spawn_key=(1,)))
+    z = rng.standard_normal(n_markers)
+    return np.maximum(1.0 + im.marker_brightness_spread * z, _MIN_MARKER_BRIGHTNESS)
+
+
+def speckle_correlation_px(jig: JigConfig, camera: CameraConfig) -> float:
+    """One bead diameter projected into ``camera`` (px) on the membrane's rest surface above it: the
+    static texture's correlation length, a property of the jig and the camera only (not of the frame, so
+    every frame's texture is the same).
+
+    Paraxially, a ray leaving the camera at a small angle ``t`` in air runs at ``t / n`` in a flat layer
+    of index ``n``, so a lateral offset ``dx`` at height ``z`` images at ``fx dx / D`` px with the
+    equivalent distance ``D = d_air + t_plate / n_plate + z / n_oil`` (``d_air`` from the camera up to
+    the plate's bottom face).
+    """
+    x, y, z_cam = (float(v) for v in camera.position_mm)
+    z = max(float(rest_inner_height_mm(jig, np.array([x]), np.array([y]))[0]), 0.0)
+    t = jig.plate.thickness_mm
+    distance = (-t - z_cam) + t / jig.plate.refractive_index + z / jig.medium.oil_refractive_index
+    corr = 0.5 * (camera.fx_px + camera.fy_px) * jig.medium.bead_diameter_mm / max(distance, 1e-6)
+    return float(corr) if math.isfinite(corr) and corr > 0 else 5.0
 
 
 # ---------------------------------------------------------------------------------------- internals
@@ -344,368 +503,428 @@ def _render_pair(
     color: bool,
     timings: dict[str, float] | None,
 ) -> RenderedPair:
-    """:func:`render_pair`, accumulating the seconds spent per stage into ``timings``."""
-    rng = np.random.default_rng(rng)
+    """:func:`render_pair`, accumulating the seconds spent per stage into ``timings`` (the renderer's
+    construction under ``"renderer"``)."""
     timer = _Timer(timings)
-    jig = as_built.jig
-    T_J_part = None
-    if part is not None:
-        T_J_part = (pose or PartPose()).T_J_part(jig)
-    state = deform(
-        jig,
-        as_built.marker_xy_mm,
-        part,
-        T_J_part,
-        ripple_mm=jig.tolerances.membrane_ripple_mm,
-        edge_conformity_mm=jig.tolerances.edge_conformity_mm,
-        rng=rng,
-    )
-    timer.lap("deform")
-    left, left_px, vis_left, fid_left = _render_view(jig, jig.cameras.left, "left", state, rng, color, timer)
-    right, right_px, vis_right, fid_right = _render_view(
-        jig, jig.cameras.right, "right", state, rng, color, timer
-    )
-    truth = MarkerTruth(
-        xyz_mm=state.marker_xyz_mm,
-        axis=state.marker_axis,
-        in_contact=state.in_contact,
-        left_px=left_px,
-        right_px=right_px,
-        visible_left=vis_left,
-        visible_right=vis_right,
-    )
-    return RenderedPair(left, right, truth, fid_left, fid_right)
+    renderer = Renderer(as_built)
+    timer.lap("renderer")
+    return renderer.render_pair(part, pose, rng, color=color, timings=timings)
 
 
-@dataclass(frozen=True)
-class _MarkerOptics:
-    """Local-affine imaging of each marker in one camera (see the module docstring)."""
-
-    px: np.ndarray  # (N, 2) projection of the base centre
-    near: np.ndarray  # (N,) within margin_px of the image: the other fields are NaN elsewhere
-    margin_px: float
-    quad: np.ndarray  # (N, 3) |q|^2 / r^2 = a0 du^2 + a1 du dv + a2 dv^2
-    lin: np.ndarray  # (N, 2) (q . axis) / r = l0 du + l1 dv
-    cos_axis: np.ndarray  # (N,) -d . axis: cosine of the angle between the axis and the view ray
-    radius_px: np.ndarray  # (N,) largest image radius of the sphere
-    scale_px_per_mm: np.ndarray  # (N,) sqrt |det J B|
-    oil_path_mm: np.ndarray  # (N,) length of the ray in the oil, z = 0 to the marker
-
-
-def _marker_optics(
-    jig: JigConfig, camera: CameraConfig, state: MembraneState, margin_px: float | None = None
-) -> _MarkerOptics:
-    """Local-affine imaging of the markers whose projection lies within ``margin_px`` of the image
-    (default: a tenth of its larger side); the others get NaN (they are neither drawn nor visible)."""
-    layers = flat_layers(jig)
-    K, dist, T = camera.K, distortion_of(camera), camera.T_J_cam
-    P = np.asarray(state.marker_xyz_mm, dtype=float)
-    axis = np.asarray(state.marker_axis, dtype=float)
-    px = project_points(P, K, dist, T, layers)
-    if margin_px is None:
-        margin_px = 0.1 * max(camera.width_px, camera.height_px)
-    near = np.all(
-        (px > -margin_px) & (px < [camera.width_px + margin_px, camera.height_px + margin_px]), axis=1
-    )
-    quad, lin = np.full((len(P), 3), np.nan), np.full((len(P), 2), np.nan)
-    cos_axis, radius, scale, oil_path = (np.full(len(P), np.nan) for _ in range(4))
-    if near.any():
-        jac = projection_jacobian(P[near], K, dist, T, layers)  # (n, 2, 3) px/mm
-        _, d = backproject_pixels(px[near], K, dist, T, layers)  # (n, 3) unit oil rays, going up
-        # Orthonormal basis (e1, e2) of the plane perpendicular to d.
-        ref = np.where(np.abs(d[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
-        e1 = np.cross(d, ref)
-        e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
-        e2 = np.cross(d, e1)
-        B = np.stack([e1, e2], axis=2)  # (n, 3, 2)
-        JB = jac @ B  # (n, 2, 2)
-        A = np.linalg.inv(JB)  # du -> in-plane mm coordinates
-        r = jig.markers.diameter_mm / 2.0
-        G = np.swapaxes(A, 1, 2) @ A / r**2  # |q|^2 / r^2 = du^T G du
-        quad[near] = np.stack([G[:, 0, 0], G[:, 0, 1] + G[:, 1, 0], G[:, 1, 1]], axis=1)
-        lin[near] = np.einsum("nk,nkj->nj", axis[near], B @ A) / r
-        cos_axis[near] = -np.sum(d * axis[near], axis=1)
-        radius[near] = r * np.linalg.svd(JB, compute_uv=False)[:, 0]
-        scale[near] = np.sqrt(np.abs(np.linalg.det(JB)))
-        oil_path[near] = np.maximum(P[near, 2], 0.0) / np.maximum(d[:, 2], 1e-9)
-    return _MarkerOptics(
-        px=px,
-        near=near,
-        margin_px=float(margin_px),
-        quad=quad,
-        lin=lin,
-        cos_axis=cos_axis,
-        radius_px=radius,
-        scale_px_per_mm=scale,
-        oil_path_mm=oil_path,
-    )
-
-
-def _cast_marker_patches(
-    optics: _MarkerOptics, idx: np.ndarray, origin: np.ndarray, size: int, ss: int, disc: bool = False
-) -> np.ndarray:
-    """Average shading factor ``1 + cos(beta)`` (0 off the marker) of each pixel of a ``size x size``
-    patch whose top-left pixel is at ``origin`` (integer px), for the markers ``idx``; with ``disc``,
-    of a flat disc of the marker's radius in the membrane's plane, ``2 cos_axis`` where it is hit.
-
-    Returns ``(len(idx), size, size)`` float32. The ``ss x ss`` sub-samples of a pixel sit at the
-    centres of its ``ss x ss`` cells. The per-sample quadratic and linear forms are rank-3 and rank-2
-    outer products (one small batched matmul each); the block average is ``cv2.resize(INTER_AREA)``
-    at an integer factor, which is exact. Markers are processed in chunks whose float32 temporaries
-    stay in the CPU's cache.
-    """
-    q = size * ss
-    sub = np.arange(q) // ss + (np.arange(q) % ss + 0.5) / ss - 0.5
-    du = ((origin[:, 0] - optics.px[idx, 0])[:, None] + sub).astype(np.float32)  # (n, q) columns
-    dv = ((origin[:, 1] - optics.px[idx, 1])[:, None] + sub).astype(np.float32)  # (n, q) rows
-    a0, a1, a2 = optics.quad[idx].astype(np.float32).T[:, :, None]
-    cos_axis = np.maximum(optics.cos_axis[idx], 1e-6)
-    l0, l1 = (optics.lin[idx] / cos_axis[:, None]).astype(np.float32).T[:, :, None]
-    ones = np.ones_like(du)
-    # cos(beta)^2 = 1 - |q|^2/r^2 = [1 - a2 dv^2, -a1 dv, -a0] . [1, du, du^2]
-    quad_rows = np.stack([1.0 - a2 * dv * dv, -a1 * dv, -a0 * ones], axis=2)
-    quad_cols = np.stack([ones, du, du * du], axis=1)
-    # On the protruding half iff (X - P).axis / r = lin.du + cos(beta) cos_axis >= 0, i.e.
-    # cos(beta) >= w = -(lin.du) / cos_axis = [-l1 dv, -l0] . [1, du]
-    side_rows = np.stack([-l1 * dv, -l0 * ones], axis=2)
-    side_cols = np.stack([ones, du], axis=1)
-    out = np.empty((len(idx), size, size), dtype=np.float32)
-    chunk = max(1, _CHUNK_SAMPLES // (q * q))
-    for start in range(0, len(idx), chunk):
-        sl = slice(start, start + chunk)
-        n = len(du[sl])
-        s = np.matmul(quad_rows[sl], quad_cols[sl], out=_WORKSPACE.get("rays_s", (n, q, q)))
-        np.maximum(s, 0.0, out=s)
-        np.sqrt(s, out=s)  # cos(beta), rows dv, columns du
-        w = np.matmul(side_rows[sl], side_cols[sl], out=_WORKSPACE.get("rays_w", (n, q, q)))
-        if disc:
-            # The ray meets the base plane at (X - P) = q + s d, s / r = -w: inside the disc iff
-            # |q|^2 / r^2 + w^2 <= 1, i.e. cos(beta) >= |w|.
-            np.abs(w, out=w)
-        else:
-            np.maximum(w, 0.0, out=w)  # so that the strict test also drops s == 0 (off the sphere)
-        hit = np.greater(s, w, out=_WORKSPACE.get("rays_hit", (n, q, q), np.bool_))
-        if disc:
-            np.copyto(s, hit)
-        else:
-            s += 1.0
-            s *= hit
-        flat = cv2.resize(s.reshape(n * q, q), (size, n * size), interpolation=cv2.INTER_AREA)
-        out[sl] = flat.reshape(n, size, size)
-    if disc:  # Lambertian: the light from beside the camera and the view both at angle acos(cos_axis)
-        out *= (2.0 * cos_axis).astype(np.float32)[:, None, None]
-    return out
-
-
-def _gaussian_matrices(sigma_px: np.ndarray, size: int, pad: int) -> np.ndarray:
-    """``(N, size + 2 pad, size)`` float32: column ``j`` spreads input pixel ``j`` over output pixels
-    ``j .. j + 2 pad`` with a Gaussian of ``sigma_px`` truncated at ``pad`` and normalised to sum 1
-    (light is conserved; the kernel is symmetric, so centroids are too)."""
-    offsets = np.arange(-pad, pad + 1, dtype=np.float64)
-    s = np.maximum(np.asarray(sigma_px, dtype=np.float64), 1e-3)[:, None]
-    kernel = np.exp(-0.5 * np.minimum((offsets / s) ** 2, 200.0))
-    kernel /= kernel.sum(axis=1, keepdims=True)
-    kernel[kernel < 1e-20] = 0.0  # float32 denormals would slow the products down tenfold
-    i = np.arange(size + 2 * pad)[:, None]
-    j = np.arange(size)[None, :]
-    k = i - j  # index into the kernel: output i, input j
-    valid = (k >= 0) & (k <= 2 * pad)
-    g = kernel.astype(np.float32)[:, np.clip(k, 0, 2 * pad)]
-    g *= valid
-    return g
-
-
-def _paste(image: np.ndarray, patches: np.ndarray, origin: np.ndarray) -> None:
-    """Add ``(N, P, P)`` patches into ``image`` with their top-left pixels at ``origin`` (clipped)."""
-    h, w = image.shape
-    size = patches.shape[1]
-    lo = np.maximum(origin, 0)
-    hi = np.minimum(origin + size, [w, h])
-    a = lo - origin
-    b = hi - origin
-    rows = np.column_stack([lo[:, 1], hi[:, 1], lo[:, 0], hi[:, 0], a[:, 1], b[:, 1], a[:, 0], b[:, 0]])
-    keep = (rows[:, 0] < rows[:, 1]) & (rows[:, 2] < rows[:, 3])
-    for k, (y0, y1, x0, x1, py0, py1, px0, px1) in zip(
-        np.flatnonzero(keep).tolist(), rows[keep].tolist(), strict=True
-    ):
-        image[y0:y1, x0:x1] += patches[k, py0:py1, px0:px1]
-
-
-@lru_cache(maxsize=32)
-def _fiducial_texture(dictionary: str, marker_id: int, cell_px: int) -> np.ndarray:
-    """``(side, side, 2)`` float32: premultiplied grey level and coverage (1) of a fiducial with its
-    one-cell white quiet zone; the black square spans pixels ``cell_px .. side - cell_px - 1``."""
-    d = aruco_dictionary(dictionary)
-    cells = d.markerSize + 2
-    img = cv2.aruco.generateImageMarker(d, int(marker_id), cells * cell_px, borderBits=1)
-    img = cv2.copyMakeBorder(img, cell_px, cell_px, cell_px, cell_px, cv2.BORDER_CONSTANT, value=255)
-    level = _FIDUCIAL_BLACK + (_FIDUCIAL_WHITE - _FIDUCIAL_BLACK) * img.astype(np.float32) / 255.0
-    tex = np.stack([level, np.ones_like(level)], axis=2)
-    tex.flags.writeable = False
-    return tex
-
-
-def _draw_fiducials(image: np.ndarray, jig: JigConfig, corners_px: np.ndarray) -> list[np.ndarray]:
-    """Composite every fiducial over ``image`` (in place); return each one's quiet-zone quad (px)."""
-    fid = jig.fiducials
-    cells = aruco_dictionary(fid.dictionary).markerSize + 2
-    h, w = image.shape
-    quads = []
-    for marker_id, corners in zip(fid.ids, corners_px, strict=True):
-        side_px = float(np.max(np.linalg.norm(corners - np.roll(corners, 1, axis=0), axis=1)))
-        cell = max(2, math.ceil(side_px / cells))
-        tex = _fiducial_texture(fid.dictionary, int(marker_id), cell)
-        lo, hi = cell - 0.5, (cells + 1) * cell - 0.5  # the black square's edges in the texture
-        src = np.array([[lo, lo], [hi, lo], [hi, hi], [lo, hi]], dtype=np.float32)
-        H = cv2.getPerspectiveTransform(src, corners.astype(np.float32))
-        e = tex.shape[0] - 0.5
-        outer = np.array([[-0.5, -0.5], [e, -0.5], [e, e], [-0.5, e]], dtype=np.float32)
-        quad = cv2.perspectiveTransform(outer[None], H)[0].astype(float)
-        quads.append(quad)
-        x0 = max(int(np.floor(quad[:, 0].min())) - 1, 0)
-        y0 = max(int(np.floor(quad[:, 1].min())) - 1, 0)
-        x1 = min(int(np.ceil(quad[:, 0].max())) + 2, w)
-        y1 = min(int(np.ceil(quad[:, 1].max())) + 2, h)
-        if x0 >= x1 or y0 >= y1:
-            continue
-        shift = np.array([[1.0, 0.0, -x0], [0.0, 1.0, -y0], [0.0, 0.0, 1.0]])
-        warped = cv2.warpPerspective(
-            tex,
-            shift @ H,
-            (x1 - x0, y1 - y0),
-            flags=cv2.INTER_LINEAR,
-            borderMode=cv2.BORDER_CONSTANT,
-            borderValue=0,
-        )
-        roi = image[y0:y1, x0:x1]
-        roi *= 1.0 - warped[..., 1]
-        roi += warped[..., 0]
-    return quads
-
-
-def _hidden_by_quads(px: np.ndarray, radius_px: np.ndarray, quads: list[np.ndarray]) -> np.ndarray:
-    """Whether the disc of ``radius_px`` around each ``px`` meets any convex quad (conservative: the
-    quad is grown by the radius along each edge's normal, which also takes its corners' squares)."""
-    hidden = np.zeros(len(px), dtype=bool)
-    for quad in quads:
-        edges = np.roll(quad, -1, axis=0) - quad
-        normals = np.stack([edges[:, 1], -edges[:, 0]], axis=1)
-        normals /= np.linalg.norm(normals, axis=1, keepdims=True)
-        centre = quad.mean(axis=0)
-        # orient the normals outwards
-        sign = np.sign(np.sum((quad - centre) * normals, axis=1))
-        normals *= sign[:, None]
-        dist = np.einsum("nk,ek->ne", px, normals) - np.sum(quad * normals, axis=1)[None, :]
-        hidden |= np.all(dist < radius_px[:, None], axis=1)
-    return hidden
-
-
-@lru_cache(maxsize=8)
-def _falloff_map(
-    width: int, height: int, falloff: float, center: tuple[float, float] = (0.0, 0.0), exposure: float = 1.0
-) -> np.ndarray:
-    """``exposure * max(1 - falloff (rho / rho_corner)^2, 0.02)``, float32 ``(H, W)``: ``rho`` from the
-    illumination's centre, ``center`` (fractions of the half-width and half-height off the image
-    centre), ``rho_corner`` the image centre's distance to a corner."""
-    half_w, half_h = (width - 1) / 2.0, (height - 1) / 2.0
-    x = np.arange(width, dtype=np.float32) - np.float32(half_w * (1.0 + center[0]))
-    y = np.arange(height, dtype=np.float32) - np.float32(half_h * (1.0 + center[1]))
-    r2_corner = half_w**2 + half_h**2
-    m = 1.0 - np.float32(falloff / r2_corner) * (y[:, None] ** 2 + x[None, :] ** 2)
-    m = (np.maximum(m, _MIN_ILLUMINATION) * exposure).astype(np.float32)
-    m.flags.writeable = False
-    return m
-
-
-class _Workspace(threading.local):
-    """Per-thread float32 image buffers reused from frame to frame.
-
-    Allocating a fresh multi-megabyte array costs about a millisecond per megabyte in page faults on
-    first touch; the renderer's full-image temporaries are therefore kept, per thread and shape.
-    """
+class _Scratch:
+    """Float32 temporaries of one pair's rendering, kept for the next pair (:class:`Renderer`): a buffer
+    per name, replaced when a frame needs another shape. Used by one thread at a time."""
 
     def __init__(self) -> None:
-        self.buffers: dict[tuple[str, tuple[int, ...]], np.ndarray] = {}
+        self._buffers: dict[str, np.ndarray] = {}
 
-    def get(self, name: str, shape: tuple[int, ...], dtype: type = np.float32) -> np.ndarray:
-        key = (name, shape)
-        buf = self.buffers.get(key)
-        if buf is None or buf.dtype != dtype:
-            if len(self.buffers) > 32:  # many image sizes in one thread: start over
-                self.buffers.clear()
-            buf = self.buffers[key] = np.empty(shape, dtype=dtype)
+    def get(self, name: str, shape: tuple[int, ...]) -> np.ndarray:
+        """The buffer ``name`` of ``shape`` (its content is left from its last use)."""
+        buf = self._buffers.get(name)
+        if buf is None or buf.shape != tuple(shape):
+            buf = self._buffers[name] = np.empty(shape, dtype=np.float32)
         return buf
 
 
-_WORKSPACE = _Workspace()
+@dataclass(frozen=True)
+class _Fiducial:
+    """One fiducial's composite in a camera: over pixels ``[y0:y1, x0:x1]`` the image becomes
+    ``image * cover + level`` (``cover`` the transmission ``1 - coverage``, ``level`` the premultiplied
+    grey level); ``quad`` is its quiet zone's outline (px)."""
+
+    y0: int
+    y1: int
+    x0: int
+    x1: int
+    cover: np.ndarray
+    level: np.ndarray
+    quad: np.ndarray
 
 
-@lru_cache(maxsize=1)
+@dataclass(frozen=True)
+class _SpeckleGrid:
+    """The static speckle's coarse grid in a camera (:func:`_coarse_grid`) and its texture there, of unit
+    standard deviation."""
+
+    factor: int
+    sigma: float
+    texture: np.ndarray
+
+
+@dataclass(frozen=True)
+class _ViewResult:
+    image: np.ndarray
+    px: np.ndarray
+    visible: np.ndarray
+    corners_px: np.ndarray
+
+
+def _read_only(*arrays: np.ndarray) -> None:
+    for a in arrays:
+        a.flags.writeable = False
+
+
+@dataclass(frozen=True, eq=False)
+class _CameraView:
+    """What one camera's images owe to the jig alone (built once by :class:`Renderer`).
+
+    ``base`` is the bare membrane's radiance after every per-pixel factor (static speckle, fiducials,
+    fall-off and exposure); ``gain`` is what a marker's excess radiance over the membrane is multiplied by
+    on its way to the same point (``(1 + s) c e F``). Without a static speckle (``speckle_static = False``
+    or ``speckle_std = 0``) ``base`` and ``gain`` leave the speckle out and each frame applies its own.
+    """
+
+    camera: CameraConfig
+    side: str
+    layers: FlatLayers
+    corners_px: np.ndarray
+    fiducials: tuple[_Fiducial, ...]
+    quad_half_planes: tuple[np.ndarray, np.ndarray]  # of the fiducials' quiet zones (_quad_half_planes)
+    speckle: _SpeckleGrid | None
+    falloff: np.ndarray | None  # (H, W) exposure times fall-off, None for a uniform exposure
+    exposure: np.float32
+    base: np.ndarray
+    gain: np.ndarray
+
+    @classmethod
+    def build(cls, jig: JigConfig, camera: CameraConfig, side: str) -> _CameraView:
+        im, md = jig.imaging, jig.medium
+        h, w = camera.height_px, camera.width_px
+        layers = flat_layers(jig)
+        corners_J = fiducial_corners_J(jig.fiducials)
+        corners_px = project_points(corners_J, camera.K, distortion_of(camera), camera.T_J_cam, layers)
+        corners_px = corners_px.reshape((*corners_J.shape[:2], 2))
+        fiducials = _fiducial_composites(jig, corners_px, (h, w))
+        k = _CAMERA_INDEX[side]
+        exposure = np.float32(im.exposure[k])
+        falloff = None
+        if im.illumination_falloff > 0:
+            cu, cv = (float(c) for c in im.illumination_center)
+            centre = (cu if k == 0 else -cu, cv)
+            falloff = _falloff_map(w, h, im.illumination_falloff, centre, float(exposure))
+        speckle = None
+        factor = np.ones((h, w), dtype=np.float32)
+        if md.speckle_std > 0 and md.speckle_static:
+            f, coarse_shape, sigma = _coarse_grid((h, w), speckle_correlation_px(jig, camera))
+            seed = np.random.SeedSequence(md.speckle_seed, spawn_key=(0, k))
+            speckle = _SpeckleGrid(
+                f, sigma, _coarse_texture(np.random.default_rng(seed), coarse_shape, sigma)
+            )
+            factor = _upsample(speckle.texture, f, (h, w), md.speckle_std)
+            factor += np.float32(1.0)
+        base = factor * np.float32(im.background_level)
+        gain = factor
+        half_planes = _quad_half_planes([f.quad for f in fiducials])
+        _read_only(*half_planes)
+        view = cls(
+            camera, side, layers, corners_px, fiducials, half_planes, speckle, falloff, exposure, base, gain
+        )
+        view._finish(base, gain, 0, 0)
+        _read_only(corners_px, base, gain, *([] if falloff is None else [falloff]))
+        if speckle is not None:
+            _read_only(speckle.texture)
+        return view
+
+    def _finish(self, radiance: np.ndarray, gain: np.ndarray, y0: int, x0: int) -> None:
+        """Apply the fiducials, fall-off and exposure to a region of the bare membrane's radiance (times the
+        speckle) and to the gain of the markers' excess there, in place (top-left pixel ``y0, x0``)."""
+        h, w = radiance.shape
+        for fid in self.fiducials:
+            ya, yb, xa, xb = max(fid.y0, y0), min(fid.y1, y0 + h), max(fid.x0, x0), min(fid.x1, x0 + w)
+            if ya >= yb or xa >= xb:
+                continue
+            cover = fid.cover[ya - fid.y0 : yb - fid.y0, xa - fid.x0 : xb - fid.x0]
+            roi = radiance[ya - y0 : yb - y0, xa - x0 : xb - x0]
+            roi *= cover
+            roi += fid.level[ya - fid.y0 : yb - fid.y0, xa - fid.x0 : xb - fid.x0]
+            gain[ya - y0 : yb - y0, xa - x0 : xb - x0] *= cover
+        if self.falloff is not None:
+            region = self.falloff[y0 : y0 + h, x0 : x0 + w]
+            radiance *= region
+            gain *= region
+        elif self.exposure != 1.0:
+            radiance *= self.exposure
+            gain *= self.exposure
+
+    def render(
+        self,
+        jig: JigConfig,
+        state: MembraneState,
+        brightness: np.ndarray,
+        rng: np.random.Generator,
+        color: bool,
+        timer: _Timer,
+        scratch: _Scratch,
+    ) -> _ViewResult:
+        """Render this camera's image of the membrane in ``state`` (module docstring, steps 1-9), its
+        temporaries in ``scratch``."""
+        im = jig.imaging
+        camera = self.camera
+        h, w = camera.height_px, camera.width_px
+        optics = _marker_optics(jig, camera, state, self.layers)
+        timer.lap("geometry")
+        excess = _marker_excess(jig, camera, state, optics, brightness, self.layers, timer, scratch)
+        if excess is not None:
+            optics = excess[2]
+        base, gain, box = self._frame_radiance(jig, state, optics, rng)
+        image = scratch.get("image", base.shape)
+        np.copyto(image, base)
+        box_gain, bx0, by0 = np.zeros((0, 0), dtype=np.float32), 0, 0
+        if box is not None:
+            box_gain, bx0, by0 = box.gain, box.x0, box.y0
+            image[by0 : by0 + box_gain.shape[0], bx0 : bx0 + box_gain.shape[1]] = box.radiance
+        timer.lap("speckle")
+        if excess is not None:
+            patches, origin, _ = excess
+            _kernels.paste_excess(image, patches, origin.astype(np.int64), gain, box_gain, bx0, by0)
+        timer.lap("paste")
+        r = optics.radius_px
+        inside = (
+            (optics.px[:, 0] - r >= -0.5)
+            & (optics.px[:, 0] + r <= w - 0.5)
+            & (optics.px[:, 1] - r >= -0.5)
+            & (optics.px[:, 1] + r <= h - 0.5)
+        )
+        visible = inside & ~_hidden_by_quads(optics.px, r, self.quad_half_planes)
+        timer.lap("fiducials")
+        out = _sensor(image, im, rng, float(im.gain[_CAMERA_INDEX[self.side]]))
+        if color:
+            out = np.repeat(out[:, :, None], 3, axis=2)
+        timer.lap("noise+quantise")
+        return _ViewResult(out, optics.px, visible, self.corners_px)
+
+    def _frame_radiance(
+        self, jig: JigConfig, state: MembraneState, optics: _MarkerOptics, rng: np.random.Generator
+    ) -> tuple[np.ndarray, np.ndarray, _Box | None]:
+        """This frame's bare-membrane radiance and the markers' gain (module docstring, steps 4-6), and
+        the box where the beads re-packed, whose radiance and gain replace them there (or None)."""
+        md = jig.medium
+        if md.speckle_std > 0 and not md.speckle_static:
+            scale = optics.scale_px_per_mm[optics.near]
+            corr_px = md.bead_diameter_mm * float(np.median(scale)) if len(scale) else 5.0
+            shape = (self.camera.height_px, self.camera.width_px)
+            factor = _speckle(rng, shape, corr_px, md.speckle_std) + np.float32(1.0)
+            radiance = factor * np.float32(jig.imaging.background_level)
+            gain = factor
+            self._finish(radiance, gain, 0, 0)
+            return radiance, gain, None
+        if self.speckle is None or md.speckle_redraw_fraction <= 0:
+            return self.base, self.gain, None
+        displaced = np.abs(np.asarray(state.indentation_mm)) > md.speckle_redraw_displacement_mm
+        moved = optics.near & displaced
+        if not moved.any():
+            return self.base, self.gain, None
+        redrawn = _redrawn_speckle(jig, self.speckle, optics, moved, rng, self.base.shape)
+        if redrawn is None:
+            return self.base, self.gain, None
+        factor, x0, y0 = redrawn
+        box_radiance = factor * np.float32(jig.imaging.background_level)
+        box_gain = factor
+        self._finish(box_radiance, box_gain, y0, x0)
+        return self.base, self.gain, _Box(box_radiance, box_gain, x0, y0)
+
+
+@dataclass(frozen=True)
+class _Box:
+    """A frame's radiance and gain over the fine pixels from ``(y0, x0)`` where they differ from the jig's."""
+
+    radiance: np.ndarray
+    gain: np.ndarray
+    x0: int
+    y0: int
+
+
+def _sensor(image: np.ndarray, im: ImagingConfig, rng: np.random.Generator, gain: float) -> np.ndarray:
+    """Shot and read noise, the camera's ``gain``, clipping to [0, 1] and rounding to the bit depth
+    (module docstring, step 7): ``sigma^2 = I / full_well + read^2`` (shot and read noise are independent
+    Gaussians: one draw, :func:`_standard_normal`'s two bytes per pixel)."""
+    hi, lo = _random_bytes(rng, image.shape)
+    noise = (_NORMAL_TABLE, np.float32(1.0 / im.full_well_electrons), np.float32(im.read_noise**2))
+    if im.bit_depth == 8:
+        return _kernels.sensor_uint8(image, hi, lo, *noise, np.float32(255.0 * gain))
+    return _kernels.sensor_uint16(image, hi, lo, *noise, np.float32(65535.0 * gain))
+
+
+def _redrawn_speckle(
+    jig: JigConfig,
+    grid: _SpeckleGrid,
+    optics: _MarkerOptics,
+    moved: np.ndarray,
+    rng: np.random.Generator,
+    shape: tuple[int, int],
+) -> tuple[np.ndarray, int, int] | None:
+    """The bead pack's speckle factor ``1 + s`` where the part re-packed beads in this frame: ``(factor,
+    x0, y0)``, ``factor`` float32 over the fine pixels from ``(y0, x0)`` that differ from the static
+    texture, or None if none do.
+
+    The static texture is drawn from ``SeedSequence(medium.speckle_seed, spawn_key=(0, camera))``, so it
+    is the same in every frame of the jig and in every process. Around each marker in ``moved`` (the
+    membrane there has moved beads), within ``pitch / sqrt(2)`` of it (the membrane between markers moved
+    too), the beads next to the membrane re-pack: the texture is a sum over the bead column's layers, of
+    which those carrying a fraction ``f = medium.speckle_redraw_fraction`` of its variance are drawn
+    anew from ``rng``, so the texture's correlation with the static one there is ``1 - f``. On the
+    coarse grid, ``s = (1 - f m) s_static + sqrt(1 - (1 - f m)^2) s_new``, ``m`` the mask (softened
+    over one coarse pixel): the variance stays ``speckle_std^2`` everywhere. The fine texture is the
+    coarse one resized up bilinearly; only the fine pixels whose interpolation reads a changed coarse
+    pixel are recomputed (from a crop two coarse pixels wider, so that they equal the whole resize).
+    """
+    md = jig.medium
+    f = grid.factor
+    centre = (optics.px[moved] + 0.5) / f - 0.5  # coarse-grid coordinates of the fine pixel
+    radius = jig.markers.pitch_mm / math.sqrt(2.0) * optics.scale_px_per_mm[moved] / f
+    # Only the box around the moved region is redrawn (its mask is zero elsewhere).
+    reach = radius + _MASK_REACH_COARSE_PX
+    hs, ws = grid.texture.shape
+    x0, y0 = (max(int(np.floor(np.min(centre[:, k] - reach))), 0) for k in (0, 1))
+    x1 = min(int(np.ceil(np.max(centre[:, 0] + reach))) + 1, ws)
+    y1 = min(int(np.ceil(np.max(centre[:, 1] + reach))) + 1, hs)
+    if x0 >= x1 or y0 >= y1:
+        return None
+    mask = np.zeros((y1 - y0, x1 - x0), dtype=np.float32)
+    sub = 1 << _MASK_SUBPIXEL_BITS
+    local = np.rint((centre - [x0, y0]) * sub).astype(int).tolist()
+    for (u, v), r in zip(local, radius.tolist(), strict=True):
+        cv2.circle(mask, (u, v), max(1, round(sub * r)), 1.0, -1, cv2.LINE_AA, _MASK_SUBPIXEL_BITS)
+    mask = cv2.GaussianBlur(mask, (0, 0), sigmaX=1.0)
+    keep = 1.0 - np.float32(md.speckle_redraw_fraction) * mask  # correlation with the static one
+    fresh = _coarse_texture(rng, mask.shape, grid.sigma)
+    fresh *= np.sqrt(np.maximum(1.0 - keep * keep, 0.0))
+    # The coarse rows/columns [a, b) around the box, resized up: fine pixels [(a + 1) f, (b - 1) f) of the
+    # crop equal the whole texture's (their bilinear neighbours lie inside the crop).
+    ya, yb, xa, xb = max(y0 - 2, 0), min(y1 + 2, hs), max(x0 - 2, 0), min(x1 + 2, ws)
+    crop = grid.texture[ya:yb, xa:xb].copy()
+    box = crop[y0 - ya : y1 - ya, x0 - xa : x1 - xa]
+    box *= keep
+    box += fresh
+    fine = _upsample(crop, f, ((yb - ya) * f, (xb - xa) * f), md.speckle_std)
+    fy0 = ya * f + (0 if ya == 0 else f)
+    fx0 = xa * f + (0 if xa == 0 else f)
+    fy1 = min(yb * f - (0 if yb == hs else f), shape[0])
+    fx1 = min(xb * f - (0 if xb == ws else f), shape[1])
+    if fy0 >= fy1 or fx0 >= fx1:
+        return None
+    factor = fine[fy0 - ya * f : fy1 - ya * f, fx0 - xa * f : fx1 - xa * f] + np.float32(1.0)
+    return factor, fx0, fy0
+
+
+def _marker_excess(
+    jig: JigConfig,
+    camera: CameraConfig,
+    state: MembraneState,
+    optics: _MarkerOptics,
+    brightness: np.ndarray,
+    layers: FlatLayers,
+    timer: _Timer,
+    scratch: _Scratch,
+) -> tuple[np.ndarray, np.ndarray, _MarkerOptics] | None:
+    """Each marker's blurred excess radiance over the membrane, ``(patches, origin, optics)`` (module
+    docstring, steps 2-3: ``(n, P, P)`` float32 patches, their top-left pixels), or None if no marker's
+    patch reaches into the image. ``optics`` is re-evaluated for every marker when one left out by
+    :func:`_marker_optics`'s margin could reach into the image."""
+    im, md = jig.imaging, jig.medium
+    h, w = camera.height_px, camera.width_px
+    if not optics.near.any():
+        return None
+    half, sigma_px, pad = _patch_extent(optics, md)
+    if half + pad + 1 >= optics.margin_px:  # a marker left out could reach into the image
+        optics = _marker_optics(jig, camera, state, layers, margin_px=np.inf)
+        half, sigma_px, pad = _patch_extent(optics, md)
+    size = 2 * half + 1
+    centre = np.rint(optics.px).astype(np.int64)
+    # Only markers whose blurred patch touches the image are cast.
+    reach = half + pad
+    on = optics.near & (
+        (centre[:, 0] + reach >= 0)
+        & (centre[:, 0] - reach < w)
+        & (centre[:, 1] + reach >= 0)
+        & (centre[:, 1] - reach < h)
+    )
+    idx = np.flatnonzero(on)
+    origin = centre[idx] - half
+    out = scratch.get("cast", (len(optics.px), size, size))[: len(idx)]
+    patches = _cast_marker_patches(
+        optics, idx, origin, size, im.supersampling, disc=im.marker_appearance == "disc", out=out
+    )
+    amplitude = 0.5 * (np.float32(im.marker_level) - np.float32(im.background_level)) * brightness[idx]
+    patches *= amplitude.astype(np.float32)[:, None, None]
+    timer.lap("markers")
+    if pad > 0:  # G P G^T, G (n, size + 2 pad, size)
+        n, t = len(idx), size + 2 * pad
+        g = _gaussian_matrices(sigma_px[idx], size, pad, scratch.get("blur_g", (len(optics.px), t, size))[:n])
+        g_t = scratch.get("blur_g_t", (len(optics.px), size, t))[:n]
+        np.copyto(g_t, np.swapaxes(g, 1, 2))
+        rows = np.matmul(g, patches, out=scratch.get("blur_rows", (len(optics.px), t, size))[:n])
+        patches = np.matmul(rows, g_t, out=scratch.get("blurred", (len(optics.px), t, t))[:n])
+        origin = origin - pad
+    timer.lap("blur")
+    return patches, origin, optics
+
+
+_NORMAL_KNOTS = 256  # equal-probability bins of the two-byte standard-normal generator
+
+
 def _normal_tables() -> tuple[np.ndarray, np.ndarray]:
     """Look-up tables of the standard-normal generator (see :func:`_standard_normal`).
 
     The inverse CDF of the normal distribution is taken piecewise linear between the 257 quantiles
     at ``k / 256``; the two unbounded tail bins end where a uniform spread keeps their conditional
     mean (``+-3.28``); the whole is rescaled to unit variance. Deviate ``(i, j)`` (bin ``i``, sub-step
-    ``j``, both bytes) is ``offset[i] + slope[i] * j``; returns ``offset, slope`` as ``(1, 256)``
+    ``j``, both bytes) is ``offset[i] + slope[i] * j``; returns ``offset, slope`` as ``(256,)``
     float32 tables.
     """
-    knots = ndtri(np.arange(257) / 256.0)
-    tail_mean = 256.0 * np.exp(-0.5 * knots[255] ** 2) / np.sqrt(2.0 * np.pi)  # E[z | z > q_255]
-    knots[256] = 2.0 * tail_mean - knots[255]
-    knots[0] = -knots[256]
+    n = _NORMAL_KNOTS
+    knots = ndtri(np.arange(n + 1) / n)
+    tail_mean = n * np.exp(-0.5 * knots[n - 1] ** 2) / np.sqrt(2.0 * np.pi)  # E[z | z > q_255]
+    knots[n] = 2.0 * tail_mean - knots[n - 1]
+    knots[0] = -knots[n]
     width = np.diff(knots)
-    values = knots[:-1, None] + width[:, None] * ((np.arange(256) + 0.5) / 256.0)[None, :]
+    values = knots[:-1, None] + width[:, None] * ((np.arange(n) + 0.5) / n)[None, :]
     scale = 1.0 / np.sqrt(np.mean(values**2))  # all 65536 outcomes: unit variance
-    offset = (knots[:-1] + width * 0.5 / 256.0) * scale
-    slope = width / 256.0 * scale
-    out = (offset.astype(np.float32).reshape(1, 256), slope.astype(np.float32).reshape(1, 256))
-    for t in out:
-        t.flags.writeable = False
-    return out
+    offset = ((knots[:-1] + width * 0.5 / n) * scale).astype(np.float32)
+    slope = (width / n * scale).astype(np.float32)
+    _read_only(offset, slope)
+    return offset, slope
 
 
-def _standard_normal(
-    rng: np.random.Generator, shape: tuple[int, int], out: np.ndarray | None = None
-) -> np.ndarray:
-    """Standard-normal float32 deviates, ``(h, w)``, written into ``out`` if given.
+_NORMAL_OFFSET, _NORMAL_SLOPE = _normal_tables()  # constants of the generator, not state
+# Every deviate of the generator, indexed by 256 hi + lo: offset[hi] + slope[hi] lo in float32.
+_NORMAL_TABLE = (_NORMAL_OFFSET[:, None] + _NORMAL_SLOPE[:, None] * np.arange(256, dtype=np.float32)).ravel()
+_read_only(_NORMAL_TABLE)
 
-    Two uniform bytes per deviate come from ``rng``'s bit generator (eight per 64-bit draw); the first
+
+def _random_bytes(rng: np.random.Generator, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """Two uniform random bytes per pixel, ``(hi, lo)`` each ``uint8 (h, w)``, from ``rng``'s bit
+    generator (eight per 64-bit draw: ``hi`` the first ``h w``, ``lo`` the next)."""
+    h, w = shape
+    count = h * w
+    raw = rng.bit_generator.random_raw((2 * count + 7) // 8).view(np.uint8)
+    return raw[:count].reshape(h, w), raw[count : 2 * count].reshape(h, w)
+
+
+def _standard_normal(rng: np.random.Generator, shape: tuple[int, int]) -> np.ndarray:
+    """Standard-normal float32 deviates, ``(h, w)``.
+
+    Two uniform bytes per deviate come from ``rng``'s bit generator (:func:`_random_bytes`); the first
     picks one of 256 equal-probability bins of the normal distribution, the second a position in it
     (:func:`_normal_tables`): mean 0, variance 1, every 1/256 quantile exact, deviates bounded by
     3.3 (the 0.1 % of a true normal beyond are drawn inside the tail bins). About 5x faster than
     ``rng.standard_normal`` for an image, which matters at 30 frames per second.
     """
-    h, w = shape
-    count = h * w
-    raw = rng.bit_generator.random_raw((2 * count + 7) // 8).view(np.uint8)
-    hi = raw[:count].reshape(h, w)
-    lo = raw[count : 2 * count].reshape(h, w)
-    offset, slope = _normal_tables()
-    if out is None:
-        out = np.empty((h, w), dtype=np.float32)
-    tmp = _WORKSPACE.get("normal_slope", (h, w))
-    sub = _WORKSPACE.get("normal_sub", (h, w))
-    cv2.LUT(hi, offset, dst=out)
-    cv2.LUT(hi, slope, dst=tmp)
-    np.copyto(sub, lo)
-    cv2.accumulateProduct(tmp, sub, out)  # out += tmp * sub
+    hi, lo = _random_bytes(rng, shape)
+    out = cv2.LUT(hi, _NORMAL_OFFSET.reshape(1, -1))
+    slope = cv2.LUT(hi, _NORMAL_SLOPE.reshape(1, -1))
+    cv2.accumulateProduct(slope, lo.astype(np.float32), out)  # out += slope * lo
     return out
 
 
 def _speckle(rng: np.random.Generator, shape: tuple[int, int], corr_px: float, std: float) -> np.ndarray:
     """A zero-mean Gaussian texture of standard deviation ``std`` and correlation length about
-    ``corr_px`` px, float32 ``(h, w)`` (a view of a reused buffer)."""
-    h, w = shape
-    f = max(1, round(corr_px / 2.0))
-    hs, ws = h // f + 2, w // f + 2
-    coarse = _standard_normal(rng, (hs, ws))
-    sigma = max(corr_px / (2.0 * f), 0.3)
+    ``corr_px`` px, float32 ``(h, w)`` (the per-frame texture of ``speckle_static = False``)."""
+    f, coarse_shape, sigma = _coarse_grid(shape, corr_px)
+    coarse = _standard_normal(rng, coarse_shape)
     coarse = cv2.GaussianBlur(coarse, (0, 0), sigmaX=sigma, borderType=cv2.BORDER_REFLECT)
     coarse *= np.float32(std / max(float(coarse.std()), 1e-12))
-    fine = _WORKSPACE.get("speckle", (hs * f, ws * f))
-    cv2.resize(coarse, (ws * f, hs * f), dst=fine, interpolation=cv2.INTER_LINEAR)
-    return fine[:h, :w]
+    return _upsample(coarse, f, shape, 1.0)
 
 
 def _coarse_grid(shape: tuple[int, int], corr_px: float) -> tuple[int, tuple[int, int], float]:
@@ -725,93 +944,15 @@ def _coarse_texture(rng: np.random.Generator, coarse_shape: tuple[int, int], sig
 
 
 def _upsample(coarse: np.ndarray, f: int, shape: tuple[int, int], std: float) -> np.ndarray:
-    """``std`` times the coarse texture resized up bilinearly by ``f``, cropped to ``shape`` (a view of a
-    reused buffer)."""
+    """``std`` times the coarse texture resized up bilinearly by ``f``, cropped to ``shape`` (a new
+    contiguous array)."""
     hs, ws = coarse.shape
     if std != 1.0:
         coarse = coarse * np.float32(std)
-    fine = _WORKSPACE.get("speckle", (hs * f, ws * f))
-    cv2.resize(coarse, (ws * f, hs * f), dst=fine, interpolation=cv2.INTER_LINEAR)
-    return fine[: shape[0], : shape[1]]
-
-
-def speckle_correlation_px(jig: JigConfig, camera: CameraConfig) -> float:
-    """One bead diameter projected into ``camera`` (px) on the membrane's rest surface above it: the
-    static texture's correlation length, a property of the jig and the camera only (not of the frame, so
-    every frame's texture is the same).
-
-    Paraxially, a ray leaving the camera at a small angle ``t`` in air runs at ``t / n`` in a flat layer
-    of index ``n``, so a lateral offset ``dx`` at height ``z`` images at ``fx dx / D`` px with the
-    equivalent distance ``D = d_air + t_plate / n_plate + z / n_oil`` (``d_air`` from the camera up to
-    the plate's bottom face).
-    """
-    x, y, z_cam = (float(v) for v in camera.position_mm)
-    z = max(float(rest_inner_height_mm(jig, np.array([x]), np.array([y]))[0]), 0.0)
-    t = jig.plate.thickness_mm
-    distance = (-t - z_cam) + t / jig.plate.refractive_index + z / jig.medium.oil_refractive_index
-    corr = 0.5 * (camera.fx_px + camera.fy_px) * jig.medium.bead_diameter_mm / max(distance, 1e-6)
-    return float(corr) if math.isfinite(corr) and corr > 0 else 5.0
-
-
-def _bead_speckle(
-    jig: JigConfig,
-    camera: CameraConfig,
-    side: str,
-    optics: _MarkerOptics,
-    moved: np.ndarray,
-    rng: np.random.Generator,
-) -> np.ndarray:
-    """The bead pack's speckle ``s`` in this frame, float32 ``(H, W)`` (a view of a reused buffer).
-
-    The static texture is drawn from ``SeedSequence(medium.speckle_seed, spawn_key=(0, camera))``, so it
-    is the same in every frame of the jig and in every process. Around each marker in ``moved`` (the
-    membrane there has moved beads), within ``pitch / sqrt(2)`` of it (the membrane between markers moved
-    too), the beads next to the membrane re-pack: the texture is a sum over the bead column's layers, of
-    which those carrying a fraction ``f = medium.speckle_redraw_fraction`` of its variance are drawn
-    anew from ``rng``, so the texture's correlation with the static one there is ``1 - f``. On the
-    coarse grid, ``s = (1 - f m) s_static + sqrt(1 - (1 - f m)^2) s_new``, ``m`` the mask (softened
-    over one coarse pixel): the variance stays ``speckle_std^2`` everywhere.
-    """
-    md = jig.medium
-    shape = (camera.height_px, camera.width_px)
-    corr_px = speckle_correlation_px(jig, camera)
-    f, coarse_shape, sigma = _coarse_grid(shape, corr_px)
-    seed = np.random.SeedSequence(md.speckle_seed, spawn_key=(0, _CAMERA_INDEX[side]))
-    coarse = _coarse_texture(np.random.default_rng(seed), coarse_shape, sigma)
-    if md.speckle_redraw_fraction > 0 and moved.any():
-        centre = (optics.px[moved] + 0.5) / f - 0.5  # coarse-grid coordinates of the fine pixel
-        radius = jig.markers.pitch_mm / math.sqrt(2.0) * optics.scale_px_per_mm[moved] / f
-        # Only the box around the moved region is redrawn (its mask is zero elsewhere).
-        reach = radius + 5.0  # the mask's softening kernel reaches 4 coarse px
-        hs, ws = coarse_shape
-        x0, y0 = (max(int(np.floor(np.min(centre[:, k] - reach))), 0) for k in (0, 1))
-        x1 = min(int(np.ceil(np.max(centre[:, 0] + reach))) + 1, ws)
-        y1 = min(int(np.ceil(np.max(centre[:, 1] + reach))) + 1, hs)
-        if x0 < x1 and y0 < y1:
-            mask = np.zeros((y1 - y0, x1 - x0), dtype=np.float32)
-            local = np.rint((centre - [x0, y0]) * 16).astype(int).tolist()
-            for (u, v), r in zip(local, radius.tolist(), strict=True):  # 4 fractional bits (shift=4)
-                cv2.circle(mask, (u, v), max(1, round(16 * r)), 1.0, -1, cv2.LINE_AA, 4)
-            mask = cv2.GaussianBlur(mask, (0, 0), sigmaX=1.0)
-            keep = 1.0 - np.float32(md.speckle_redraw_fraction) * mask  # correlation with the static one
-            fresh = _coarse_texture(rng, mask.shape, sigma)
-            fresh *= np.sqrt(np.maximum(1.0 - keep * keep, 0.0))
-            box = coarse[y0:y1, x0:x1]
-            box *= keep
-            box += fresh
-    return _upsample(coarse, f, shape, md.speckle_std)
-
-
-def marker_brightness(im: ImagingConfig, n_markers: int) -> np.ndarray:
-    """Each marker's brightness factor, ``(n_markers,)``: ``1 + imaging.marker_brightness_spread * z``
-    (clipped at 0.05), ``z`` standard normal drawn from
-    ``SeedSequence(imaging.marker_brightness_seed, spawn_key=(1,))`` in marker order, so fixed per marker
-    for a jig (the same in both cameras, every frame and every process)."""
-    if im.marker_brightness_spread == 0:
-        return np.ones(n_markers)
-    rng = np.random.default_rng(np.random.SeedSequence(im.marker_brightness_seed, spawn_key=(1,)))
-    z = rng.standard_normal(n_markers)
-    return np.maximum(1.0 + im.marker_brightness_spread * z, _MIN_MARKER_BRIGHTNESS)
+    fine = cv2.resize(coarse, (ws * f, hs * f), interpolation=cv2.INTER_LINEAR)
+    if fine.shape == tuple(shape):
+        return fine
+    return np.ascontiguousarray(fine[: shape[0], : shape[1]])
 
 
 def _patch_extent(optics: _MarkerOptics, md: MediumConfig) -> tuple[int, np.ndarray, int]:
@@ -824,116 +965,208 @@ def _patch_extent(optics: _MarkerOptics, md: MediumConfig) -> tuple[int, np.ndar
     return half, sigma_px, pad
 
 
-def _render_view(
+@dataclass(frozen=True)
+class _MarkerOptics:
+    """Local-affine imaging of each marker in one camera (see the module docstring)."""
+
+    px: np.ndarray  # (N, 2) projection of the base centre
+    near: np.ndarray  # (N,) within margin_px of the image: the other fields are NaN elsewhere
+    margin_px: float
+    quad: np.ndarray  # (N, 3) |q|^2 / r^2 = a0 du^2 + a1 du dv + a2 dv^2
+    lin: np.ndarray  # (N, 2) (q . axis) / r = l0 du + l1 dv
+    cos_axis: np.ndarray  # (N,) -d . axis: cosine of the angle between the axis and the view ray
+    radius_px: np.ndarray  # (N,) largest image radius of the sphere
+    scale_px_per_mm: np.ndarray  # (N,) sqrt |det J B|
+    oil_path_mm: np.ndarray  # (N,) length of the ray in the oil, z = 0 to the marker
+
+
+def _marker_optics(
     jig: JigConfig,
     camera: CameraConfig,
-    side: str,
     state: MembraneState,
-    rng: np.random.Generator,
-    color: bool,
-    timer: _Timer,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Render one camera; returns the image, the markers' px and visibility, the fiducials' px."""
-    im, md = jig.imaging, jig.medium
-    h, w = camera.height_px, camera.width_px
-    bg, level = np.float32(im.background_level), np.float32(im.marker_level)
-    optics = _marker_optics(jig, camera, state)
-    layers = flat_layers(jig)
-    corners_J = fiducial_corners_J(jig.fiducials)
-    corners_px = project_points(corners_J, camera.K, distortion_of(camera), camera.T_J_cam, layers).reshape(
-        (*corners_J.shape[:2], 2)
+    layers: FlatLayers,
+    margin_px: float | None = None,
+) -> _MarkerOptics:
+    """Local-affine imaging of the markers whose projection lies within ``margin_px`` of the image
+    (default: a tenth of its larger side); the others get NaN (they are neither drawn nor visible)."""
+    K, dist, T = camera.K, distortion_of(camera), camera.T_J_cam
+    P = np.asarray(state.marker_xyz_mm, dtype=float)
+    axis = np.asarray(state.marker_axis, dtype=float)
+    px = project_points(P, K, dist, T, layers)
+    if margin_px is None:
+        margin_px = 0.1 * max(camera.width_px, camera.height_px)
+    near = np.all(
+        (px > -margin_px) & (px < [camera.width_px + margin_px, camera.height_px + margin_px]), axis=1
     )
-    timer.lap("geometry")
-
-    image = _WORKSPACE.get("image", (h, w))
-    image.fill(bg)
-    if optics.near.any():
-        half, sigma_px, pad = _patch_extent(optics, md)
-        if half + pad + 1 >= optics.margin_px:  # a marker left out could reach into the image
-            optics = _marker_optics(jig, camera, state, margin_px=np.inf)
-            half, sigma_px, pad = _patch_extent(optics, md)
-        size = 2 * half + 1
-        centre = np.rint(optics.px).astype(np.int64)
-        # Only markers whose blurred patch touches the image are cast.
-        reach = half + pad
-        on = optics.near & (
-            (centre[:, 0] + reach >= 0)
-            & (centre[:, 0] - reach < w)
-            & (centre[:, 1] + reach >= 0)
-            & (centre[:, 1] - reach < h)
+    quad, lin = np.full((len(P), 3), np.nan), np.full((len(P), 2), np.nan)
+    cos_axis, radius, scale, oil_path = (np.full(len(P), np.nan) for _ in range(4))
+    if near.any():
+        # The oil rays of each marker's pixel and of its four neighbours at +-_PIXEL_STEP in u and v.
+        pixels = (px[near][:, None, :] + _PIXEL_OFFSETS).reshape(-1, 2)
+        origins, rays = (
+            a.reshape(-1, len(_PIXEL_OFFSETS), 3) for a in rays_in_top_region(pixels, K, dist, T, layers)
         )
-        idx = np.flatnonzero(on)
-        origin = centre[idx] - half
-        patches = _cast_marker_patches(
-            optics, idx, origin, size, im.supersampling, disc=im.marker_appearance == "disc"
+        r = jig.markers.diameter_mm / 2.0
+        shape = _kernels.marker_shapes(
+            np.ascontiguousarray(P[near]), np.ascontiguousarray(axis[near]), origins, rays, r, _PIXEL_STEP
         )
-        amplitude = 0.5 * (level - bg) * marker_brightness(im, len(optics.px))[idx]
-        patches *= amplitude.astype(np.float32)[:, None, None]
-        timer.lap("markers")
-        if pad > 0:
-            g = _gaussian_matrices(sigma_px[idx], size, pad)
-            patches = (g @ patches) @ np.ascontiguousarray(np.swapaxes(g, 1, 2))
-            origin = origin - pad
-        timer.lap("blur")
-        _paste(image, patches, origin)
-        timer.lap("paste")
-
-    if md.speckle_std > 0:
-        if md.speckle_static:
-            displaced = np.abs(np.asarray(state.indentation_mm)) > md.speckle_redraw_displacement_mm
-            moved = optics.near & displaced
-            speckle = _bead_speckle(jig, camera, side, optics, moved, rng)
-        else:
-            scale = optics.scale_px_per_mm[optics.near]
-            corr_px = md.bead_diameter_mm * float(np.median(scale)) if len(scale) else 5.0
-            speckle = _speckle(rng, (h, w), corr_px, md.speckle_std)
-        speckle += np.float32(1.0)
-        image *= speckle
-    timer.lap("speckle")
-
-    quads = _draw_fiducials(image, jig, corners_px)
-    r = optics.radius_px
-    inside = (
-        (optics.px[:, 0] - r >= -0.5)
-        & (optics.px[:, 0] + r <= w - 0.5)
-        & (optics.px[:, 1] - r >= -0.5)
-        & (optics.px[:, 1] + r <= h - 0.5)
+        quad[near], lin[near] = shape[:, 0:3], shape[:, 3:5]
+        cos_axis[near], radius[near], scale[near], oil_path[near] = shape[:, 5:9].T
+    return _MarkerOptics(
+        px=px,
+        near=near,
+        margin_px=float(margin_px),
+        quad=quad,
+        lin=lin,
+        cos_axis=cos_axis,
+        radius_px=radius,
+        scale_px_per_mm=scale,
+        oil_path_mm=oil_path,
     )
-    visible = inside & ~_hidden_by_quads(optics.px, r, quads)
-    timer.lap("fiducials")
-
-    k = _CAMERA_INDEX[side]
-    exposure = float(im.exposure[k])
-    if im.illumination_falloff > 0:
-        cu, cv = (float(c) for c in im.illumination_center)
-        center = (cu if k == 0 else -cu, cv)
-        image *= _falloff_map(w, h, im.illumination_falloff, center, exposure)
-    elif exposure != 1.0:
-        image *= np.float32(exposure)
-    timer.lap("falloff")
-
-    image = _sensor(image, im, rng, float(im.gain[k]))
-    if color:
-        image = np.repeat(image[:, :, None], 3, axis=2)
-    timer.lap("noise+quantise")
-    return image, optics.px, visible, corners_px
 
 
-def _sensor(image: np.ndarray, im: ImagingConfig, rng: np.random.Generator, gain: float = 1.0) -> np.ndarray:
-    """Shot and read noise, the camera's ``gain``, clipping to [0, 1] and rounding to the bit depth
-    (float32, in place)."""
-    cv2.max(image, 0.0, dst=image)
-    # sigma^2 = I / full_well + read^2 (shot and read noise are independent Gaussians: one draw)
-    sigma = _WORKSPACE.get("sigma", image.shape)
-    cv2.addWeighted(image, 1.0 / im.full_well_electrons, image, 0.0, im.read_noise**2, dst=sigma)
-    cv2.sqrt(sigma, dst=sigma)
-    z = _standard_normal(rng, image.shape, out=_WORKSPACE.get("normal", image.shape))
-    cv2.accumulateProduct(sigma, z, image)  # image += sigma * z
-    cv2.max(image, 0.0, dst=image)
-    if im.bit_depth == 8:
-        # saturates at 255 and rounds to nearest
-        return cv2.convertScaleAbs(image, alpha=255.0 * gain)
-    image *= np.float32(65535.0 * gain)
-    image += np.float32(0.5)
-    np.minimum(image, np.float32(65535.0), out=image)
-    return image.astype(np.uint16)
+def _cast_marker_patches(
+    optics: _MarkerOptics,
+    idx: np.ndarray,
+    origin: np.ndarray,
+    size: int,
+    ss: int,
+    disc: bool = False,
+    out: np.ndarray | None = None,
+) -> np.ndarray:
+    """Average shading factor ``1 + cos(beta)`` (0 off the marker) of each pixel of a ``size x size``
+    patch whose top-left pixel is at ``origin`` (integer px), for the markers ``idx``; with ``disc``,
+    of a flat disc of the marker's radius in the membrane's plane, ``2 cos_axis`` where it is hit.
+
+    Returns ``(len(idx), size, size)`` float32 (``out`` if given). The ``ss x ss`` sub-samples of a pixel
+    sit at the centres of its ``ss x ss`` cells (:func:`softjig.sim._kernels.cast_marker_patches`).
+    """
+    q = size * ss
+    sub = (np.arange(q) + 0.5) / ss - 0.5
+    du = ((origin[:, 0] - optics.px[idx, 0])[:, None] + sub).astype(np.float32)  # (n, q) columns
+    dv = ((origin[:, 1] - optics.px[idx, 1])[:, None] + sub).astype(np.float32)  # (n, q) rows
+    cos_axis = np.maximum(optics.cos_axis[idx], 1e-6)
+    quad = np.ascontiguousarray(optics.quad[idx], dtype=np.float32)
+    lin = np.ascontiguousarray(optics.lin[idx] / cos_axis[:, None], dtype=np.float32)
+    if out is None:
+        out = np.empty((len(idx), size, size), dtype=np.float32)
+    _kernels.cast_marker_patches(du, dv, quad, lin, size, ss, disc, out)
+    if disc:  # Lambertian: the light from beside the camera and the view both at angle acos(cos_axis)
+        out *= (2.0 * cos_axis).astype(np.float32)[:, None, None]
+    return out
+
+
+def _gaussian_matrices(
+    sigma_px: np.ndarray, size: int, pad: int, out: np.ndarray | None = None
+) -> np.ndarray:
+    """``(N, size + 2 pad, size)`` float32 (``out`` if given): column ``j`` spreads input pixel ``j`` over
+    output pixels ``j .. j + 2 pad`` with a Gaussian of ``sigma_px`` truncated at ``pad`` and normalised to
+    sum 1 (light is conserved; the kernel is symmetric, so centroids are too)."""
+    offsets = np.arange(-pad, pad + 1, dtype=np.float64)
+    s = np.maximum(np.asarray(sigma_px, dtype=np.float64), 1e-3)[:, None]
+    kernel = np.exp(-0.5 * np.minimum((offsets / s) ** 2, 200.0))
+    kernel /= kernel.sum(axis=1, keepdims=True)
+    kernel[kernel < 1e-20] = 0.0  # float32 denormals would slow the products down tenfold
+    i = np.arange(size + 2 * pad)[:, None]
+    j = np.arange(size)[None, :]
+    k = i - j  # index into the kernel: output i, input j
+    valid = (k >= 0) & (k <= 2 * pad)
+    g = np.take(kernel.astype(np.float32), np.clip(k, 0, 2 * pad), axis=1, out=out)
+    g *= valid
+    return g
+
+
+def _fiducial_texture(dictionary: str, marker_id: int, cell_px: int) -> np.ndarray:
+    """``(side, side, 2)`` float32: premultiplied grey level and coverage (1) of a fiducial with its
+    one-cell white quiet zone; the black square spans pixels ``cell_px .. side - cell_px - 1``."""
+    d = aruco_dictionary(dictionary)
+    cells = d.markerSize + 2
+    img = cv2.aruco.generateImageMarker(d, int(marker_id), cells * cell_px, borderBits=1)
+    img = cv2.copyMakeBorder(img, cell_px, cell_px, cell_px, cell_px, cv2.BORDER_CONSTANT, value=255)
+    level = _FIDUCIAL_BLACK + (_FIDUCIAL_WHITE - _FIDUCIAL_BLACK) * img.astype(np.float32) / 255.0
+    return np.stack([level, np.ones_like(level)], axis=2)
+
+
+def _fiducial_composites(
+    jig: JigConfig, corners_px: np.ndarray, shape: tuple[int, int]
+) -> tuple[_Fiducial, ...]:
+    """Each fiducial warped into the image (module docstring, step 5): its composite and quiet-zone quad."""
+    fid = jig.fiducials
+    cells = aruco_dictionary(fid.dictionary).markerSize + 2
+    h, w = shape
+    out = []
+    for marker_id, corners in zip(fid.ids, corners_px, strict=True):
+        side_px = float(np.max(np.linalg.norm(corners - np.roll(corners, 1, axis=0), axis=1)))
+        cell = max(2, math.ceil(side_px / cells))
+        tex = _fiducial_texture(fid.dictionary, int(marker_id), cell)
+        lo, hi = cell - 0.5, (cells + 1) * cell - 0.5  # the black square's edges in the texture
+        src = np.array([[lo, lo], [hi, lo], [hi, hi], [lo, hi]], dtype=np.float32)
+        H = cv2.getPerspectiveTransform(src, corners.astype(np.float32))
+        e = tex.shape[0] - 0.5
+        outer = np.array([[-0.5, -0.5], [e, -0.5], [e, e], [-0.5, e]], dtype=np.float32)
+        quad = cv2.perspectiveTransform(outer[None], H)[0].astype(float)
+        x0 = max(int(np.floor(quad[:, 0].min())) - 1, 0)
+        y0 = max(int(np.floor(quad[:, 1].min())) - 1, 0)
+        x1 = min(int(np.ceil(quad[:, 0].max())) + 2, w)
+        y1 = min(int(np.ceil(quad[:, 1].max())) + 2, h)
+        if x0 >= x1 or y0 >= y1:
+            empty = np.zeros((0, 0), dtype=np.float32)
+            out.append(_Fiducial(0, 0, 0, 0, empty, empty, quad))
+            continue
+        shift = np.array([[1.0, 0.0, -x0], [0.0, 1.0, -y0], [0.0, 0.0, 1.0]])
+        warped = cv2.warpPerspective(
+            tex,
+            shift @ H,
+            (x1 - x0, y1 - y0),
+            flags=cv2.INTER_LINEAR,
+            borderMode=cv2.BORDER_CONSTANT,
+            borderValue=0,
+        )
+        cover = 1.0 - warped[..., 1]
+        level = np.ascontiguousarray(warped[..., 0])
+        _read_only(cover, level, quad)
+        out.append(_Fiducial(y0, y1, x0, x1, cover, level, quad))
+    return tuple(out)
+
+
+def _quad_half_planes(quads: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Outward unit normals ``(M, 4, 2)`` and offsets ``(M, 4)`` of each convex quad's edges: a point ``p``
+    lies ``p . normal - offset`` outside an edge."""
+    normals, offsets = np.zeros((len(quads), 4, 2)), np.zeros((len(quads), 4))
+    for k, quad in enumerate(quads):
+        edges = np.roll(quad, -1, axis=0) - quad
+        n = np.stack([edges[:, 1], -edges[:, 0]], axis=1)
+        n /= np.linalg.norm(n, axis=1, keepdims=True)
+        n *= np.sign(np.sum((quad - quad.mean(axis=0)) * n, axis=1))[:, None]  # outwards
+        normals[k], offsets[k] = n, np.sum(quad * n, axis=1)
+    return normals, offsets
+
+
+def _hidden_by_quads(
+    px: np.ndarray, radius_px: np.ndarray, half_planes: tuple[np.ndarray, np.ndarray]
+) -> np.ndarray:
+    """Whether the disc of ``radius_px`` around each ``px`` meets any convex quad (conservative: the
+    quad is grown by the radius along each edge's normal, which also takes its corners' squares);
+    ``half_planes`` from :func:`_quad_half_planes`."""
+    normals, offsets = half_planes
+    if len(normals) == 0:
+        return np.zeros(len(px), dtype=bool)
+    dist = np.einsum("nk,mek->nme", px, normals) - offsets[None]
+    return np.any(np.all(dist < radius_px[:, None, None], axis=2), axis=1)
+
+
+def _falloff_map(
+    width: int, height: int, falloff: float, center: tuple[float, float] = (0.0, 0.0), exposure: float = 1.0
+) -> np.ndarray:
+    """``exposure * max(1 - falloff (rho / rho_corner)^2, 0.02)``, float32 ``(H, W)``: ``rho`` from the
+    illumination's centre, ``center`` (fractions of the half-width and half-height off the image
+    centre), ``rho_corner`` the image centre's distance to a corner."""
+    half_w, half_h = (width - 1) / 2.0, (height - 1) / 2.0
+    x = np.arange(width, dtype=np.float32) - np.float32(half_w * (1.0 + center[0]))
+    y = np.arange(height, dtype=np.float32) - np.float32(half_h * (1.0 + center[1]))
+    r2_corner = half_w**2 + half_h**2
+    m = np.add.outer(y * y, x * x)  # float32 (H, W)
+    m *= np.float32(-falloff / r2_corner)
+    m += np.float32(1.0)
+    np.maximum(m, np.float32(_MIN_ILLUMINATION), out=m)
+    return m if exposure == 1.0 else (m * exposure).astype(np.float32)

@@ -1,0 +1,385 @@
+"""The estimator: built once from a jig and a method, it turns stereo pairs into estimates.
+
+An :class:`Estimator` owns everything derived from the jig (:class:`~softjig.sensing.setup.JigModel`:
+the rectification, the layers, the detection scale and marker model, the fiducials' expected places, the
+triangulation's constants, the rest shape) and from the reference frame
+(:class:`~softjig.sensing.setup.ReferenceModel`), and runs the stages of :mod:`softjig.sensing.stages`
+on each pair: detect, frame, match, triangulate, contact and plane. A method is a composition of them
+(:data:`COMPOSITIONS`): ``"paper"`` triangulates as through air and fits the crop under the part's base,
+``"refractive"`` triangulates through the layers and fits the contact found from the indentation.
+
+Build one per jig and reuse it for every frame (building it costs more than estimating a frame). Nothing
+is cached on the side: two estimators of one jig share nothing, and an estimator's only state that
+changes is where its frame finder last found the fiducials (which only saves time).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from types import MappingProxyType
+
+import numpy as np
+
+from softjig.config import JigConfig
+from softjig.errors import EstimationError, InputError
+from softjig.sensing.detect import (
+    Markers,
+    check_image_content,
+    gray_image,
+    packed_bit_depth,
+    unpack_bit_depth,
+)
+from softjig.sensing.fitting import ContactPlaneFitter, PaperPlaneFitter
+from softjig.sensing.identities import ReferenceMarkers
+from softjig.sensing.rectify import rectify_images
+from softjig.sensing.results import Observation, Refusal, SensingResult
+from softjig.sensing.setup import JigModel, ReferenceModel
+from softjig.sensing.stages import (
+    FiducialFrameFinder,
+    FrameFinder,
+    MarkerDetector,
+    Matcher,
+    PinholeTriangulator,
+    PlaneFitter,
+    RefractedTriangulator,
+    RowMatcher,
+    Triangulator,
+    detector_for,
+    on_fiducials,
+)
+from softjig.sensing.stereo import StereoMatches
+from softjig.tilt_calibration import TiltCalibration
+
+# The best we have (DESIGN.md): on the paper's simulated sweep, uncalibrated, it beats the paper's method
+# calibrated in most cells (`softjig compare`). `--method paper` keeps the published method exactly.
+DEFAULT_METHOD = "refractive"
+# Few matches: fewer than this share of the markers of the image with fewer are matched (a warning) ...
+MIN_MATCHED_SHARE = 0.5
+# ... and the images are refused as swapped when the markers matched with the images exchanged are at
+# least this share of them ...
+SWAPPED_MATCH_SHARE = 0.5
+# ... and this many times the markers matched as given (a rectified pair's disparities are all positive).
+SWAPPED_MATCH_FACTOR = 2.0
+# The image checks compare this 1-in-N-per-axis subsample first (different images almost always differ).
+SAME_IMAGE_STRIDE = 8
+
+
+@dataclass(frozen=True)
+class Composition:
+    """A method: how its points are triangulated and its plane fitted (the front end is shared).
+
+    Attributes
+    ----------
+    triangulator : ``model -> Triangulator``.
+    fitter : ``(model, reference, calibration) -> PlaneFitter``.
+    needs_part_size : whether the method needs the part's base diameter.
+    """
+
+    triangulator: Callable[[JigModel], Triangulator]
+    fitter: Callable[[JigModel, ReferenceModel, TiltCalibration | None], PlaneFitter]
+    needs_part_size: bool
+
+
+COMPOSITIONS: Mapping[str, Composition] = MappingProxyType(
+    {
+        "refractive": Composition(RefractedTriangulator, ContactPlaneFitter, needs_part_size=False),
+        "paper": Composition(
+            PinholeTriangulator, lambda model, _, calibration: PaperPlaneFitter(model, calibration), True
+        ),
+    }
+)
+METHODS = tuple(COMPOSITIONS)
+
+
+class Estimator:
+    """Estimates the principal normal of the part on one jig, pair after pair.
+
+    Parameters
+    ----------
+    jig : the nominal jig (the estimator never knows the as-built one); raw (unrectified) cameras are
+        rectified once here, and each pair with them.
+    method : ``"refractive"`` (the default: ours) or ``"paper"`` (exactly as published).
+    reference : the unloaded jig's markers (:meth:`reference_from_pair`), for ``"refractive"``; the
+        nominal rest shape when ``None``.
+    calibration : the paper's tilt calibration to apply, if any (fitted to this method's estimates).
+    model : the :class:`JigModel` of ``jig`` when already built (another estimator's ``model``).
+    detector, frame_finder, matcher, triangulator : stages to use instead of the jig's and the method's
+        (e.g. the straightforward implementations the tests check the standard ones against).
+
+    Raises
+    ------
+    InputError
+        An unknown method, or a calibration fitted to another method.
+    ConfigError
+        The jig names an unknown detector, or its raw cameras cannot be rectified.
+    """
+
+    def __init__(
+        self,
+        jig: JigConfig,
+        *,
+        method: str = DEFAULT_METHOD,
+        reference: ReferenceMarkers | None = None,
+        calibration: TiltCalibration | None = None,
+        model: JigModel | None = None,
+        detector: MarkerDetector | None = None,
+        frame_finder: FrameFinder | None = None,
+        matcher: Matcher | None = None,
+        triangulator: Triangulator | None = None,
+    ) -> None:
+        if method not in COMPOSITIONS:
+            raise InputError(f"unknown method {method!r}; valid: {', '.join(METHODS)}")
+        if calibration is not None and calibration.method not in (None, method):
+            raise InputError(
+                f"the tilt calibration was fitted to the {calibration.method} method's estimates and does "
+                f"not apply to the {method} method's: estimate with --method {calibration.method}, or "
+                f"calibrate again with --method {method}"
+            )
+        self.model = model if model is not None else JigModel.build(jig)
+        self.method = method
+        self.calibration = calibration
+        composition = COMPOSITIONS[method]
+        self.needs_part_size = composition.needs_part_size
+        used = self.model.jig
+        self.reference = ReferenceModel.build(
+            reference if reference is not None else self.model.rest_shape, used
+        )
+        self.detector = detector if detector is not None else detector_for(self.model)
+        self.frame_finder = frame_finder if frame_finder is not None else FiducialFrameFinder(self.model)
+        self.matcher = matcher if matcher is not None else RowMatcher(self.model)
+        self.triangulator = triangulator if triangulator is not None else composition.triangulator(self.model)
+        self.fitter = composition.fitter(self.model, self.reference, calibration)
+
+    @property
+    def jig(self) -> JigConfig:
+        """The jig the stages see (the nominal one, its cameras rectified when they were not)."""
+        return self.model.jig
+
+    def estimate(
+        self,
+        left: np.ndarray,
+        right: np.ndarray,
+        *,
+        part_diameter_mm: float | None = None,
+        timings: dict[str, float] | None = None,
+    ) -> SensingResult:
+        """Estimate the part's principal normal from one stereo pair.
+
+        Parameters
+        ----------
+        left, right : (H, W) or (H, W, 3) uint8 or uint16 images of the jig's cameras (RGB); raw images
+            when the config's cameras are not rectified (rectified here).
+        part_diameter_mm : diameter of the part's base (mm). The paper's method needs it (markers within
+            half of it from the jig axis are fitted); ours does not, and uses it to find the face.
+        timings : if given, filled with each stage's wall time in seconds (``checks``, ``frame``,
+            ``detect``, ``match``, ``triangulate``, ``fit``).
+
+        Returns
+        -------
+        SensingResult
+            The estimate and what led to it; pixel coordinates are in the rectified images.
+
+        Raises
+        ------
+        InputError
+            Bad images (size, dtype, blank or saturated, the same image twice, swapped) or diameter.
+        EstimationError
+            No contact or too few markers in it (fewer than ``sensing.min_points``), points that do not
+            define a plane, or fiducials required but not found.
+        """
+        check_part_diameter(part_diameter_mm, self.jig)
+        if self.needs_part_size and part_diameter_mm is None:
+            raise InputError(
+                f"the {self.method}'s method needs the part's base diameter (--part-diameter MM)"
+            )
+        clock = _StageClock(timings)
+        observation = self.observe(left, right, clock)
+        points_J = self.triangulator.triangulate(
+            observation.left_xy_px, observation.right_xy_px, observation.frame
+        )
+        clock.lap("triangulate")
+        result = self.fitter.fit(observation, points_J, part_diameter_mm)
+        clock.lap("fit")
+        if isinstance(result, Refusal):
+            raise EstimationError(result.reason)
+        return result
+
+    def observe(self, left: np.ndarray, right: np.ndarray, clock: _StageClock | None = None) -> Observation:
+        """Check a stereo pair, find the jig frame, detect and match the markers (both methods' front end).
+
+        Raises
+        ------
+        InputError
+            Bad images (size, dtype, blank or saturated, the same image twice, swapped).
+        EstimationError
+            Fiducials required (``sensing.extrinsics = "fiducials"``) but not found.
+        """
+        clock = clock or _StageClock(None)
+        if self.model.rectification is not None:
+            left, right = rectify_images(left, right, self.model.raw_jig, self.model.rectification)
+        gray_left, gray_right, image_warnings = checked_pair(left, right, self.jig)
+        clock.lap("checks")
+        frame, warnings = self.frame_finder.find(as_u8(gray_left), as_u8(gray_right))
+        warnings = [*image_warnings, *warnings]
+        clock.lap("frame")
+        markers_left = self.detector.detect(gray_left, on_fiducials(frame.fiducial_quads_left_px))
+        markers_right = self.detector.detect(gray_right, on_fiducials(frame.fiducial_quads_right_px))
+        clock.lap("detect")
+        matches = self.matcher.match(markers_left, markers_right)
+        fewest = min(len(markers_left), len(markers_right))
+        if len(matches) < MIN_MATCHED_SHARE * fewest:
+            self._refuse_swapped(markers_left, markers_right, matches)
+            warnings.append(
+                f"only {len(matches)} of {fewest} markers were matched between the images: check the "
+                "rectification and sensing.row_tolerance_px"
+            )
+        clock.lap("match")
+        return Observation(markers_left, markers_right, matches, frame, tuple(warnings))
+
+    def reference_from_pair(self, left: np.ndarray, right: np.ndarray) -> ReferenceMarkers:
+        """Triangulate a stereo pair of the unloaded jig (through the layers, whatever the method) into the
+        reference for indentations and identities.
+
+        Raises
+        ------
+        EstimationError
+            Fewer markers than ``sensing.min_points`` were matched.
+        """
+        observation = self.observe(left, right)
+        points = RefractedTriangulator(self.model).triangulate(
+            observation.left_xy_px, observation.right_xy_px, observation.frame
+        )
+        if len(points) < self.jig.sensing.min_points:
+            raise EstimationError(
+                f"the reference pair gave only {len(points)} markers: is it a pair of the unloaded jig?"
+            )
+        return ReferenceMarkers(points, "reference frame")
+
+    def with_reference(self, reference: ReferenceMarkers | None) -> Estimator:
+        """This estimator with another reference (the jig's model shared, not rebuilt)."""
+        return Estimator(
+            self.model.raw_jig,
+            method=self.method,
+            reference=reference,
+            calibration=self.calibration,
+            model=self.model,
+        )
+
+    def _refuse_swapped(self, left: Markers, right: Markers, matches: StereoMatches) -> None:
+        """Raise :class:`InputError` when the pair's markers match far better with the images swapped.
+
+        In a rectified pair a point's disparity ``u_left - u_right`` is positive (the right camera sits at
+        ``+x``): swapped images give every marker a negative one, outside the jig's disparity window, so
+        few markers match, and the fiducials' poses disagree. Called only when few markers matched.
+        """
+        swapped = self.matcher.match(right, left)
+        fewest = min(len(left), len(right))
+        if len(swapped) >= SWAPPED_MATCH_SHARE * fewest and len(swapped) > SWAPPED_MATCH_FACTOR * len(
+            matches
+        ):
+            raise InputError(
+                f"the left and right images look swapped: {len(swapped)} of {fewest} markers match with a "
+                f"positive disparity when the first image is taken as the right camera's, {len(matches)} as "
+                "given; pass LEFT RIGHT in that order (the left camera's image first)"
+            )
+
+
+def check_part_diameter(part_diameter_mm: float | None, jig: JigConfig) -> None:
+    """A part's base diameter must be a positive, finite number of mm smaller than the membrane."""
+    if part_diameter_mm is None:
+        return
+    if not (np.isfinite(part_diameter_mm) and part_diameter_mm > 0):
+        raise InputError(f"the part diameter must be a positive number of mm, got {part_diameter_mm}")
+    membrane = 2.0 * jig.membrane.footprint_radius_mm
+    if part_diameter_mm >= membrane:
+        raise InputError(
+            f"the part diameter ({part_diameter_mm:g} mm) must be smaller than the membrane "
+            f"(2 x membrane.footprint_radius_mm = {membrane:g} mm): give the diameter of the part's base "
+            "in mm"
+        )
+
+
+def checked_pair(
+    left: np.ndarray, right: np.ndarray, jig: JigConfig
+) -> tuple[np.ndarray, np.ndarray, tuple[str, ...]]:
+    """The pair's gray images in their own dtype (``uint8``/``uint16``, or float32 in [0, 1]), checked,
+    and warnings.
+
+    Nothing is converted to float: the content checks read a subsample, and the same-image test compares
+    a subsample first. ``uint16`` images of a 10-, 12- or 14-bit camera (only the low bits used,
+    :func:`~softjig.sensing.detect.packed_bit_depth`) are scaled to the 16-bit range, with a warning that
+    names it.
+
+    Raises
+    ------
+    InputError
+        Bad images (size, dtype, blank or saturated, the same image twice) or an unrectified config.
+    """
+    if not jig.cameras.rectified:
+        raise InputError(
+            "the config's cameras are not a rectified pair (cameras.rectified = false): rectify the images "
+            "first, with the stereo calibration of the cameras"
+        )
+    grays = []
+    for name, image in (("left", left), ("right", right)):
+        try:
+            gray, _ = gray_image(image)
+        except InputError as exc:
+            raise InputError(f"{name} image: {exc}") from None
+        grays.append(gray)
+    warnings: tuple[str, ...] = ()
+    bits = packed_bit_depth(*grays) if grays[0].shape == grays[1].shape else None
+    if bits is not None:
+        grays = [unpack_bit_depth(g, bits) for g in grays]
+        warnings = (
+            f"the 16-bit images use only their low {bits} bits (brightest value below {2**bits}): read as "
+            f"{bits}-bit counts and scaled by {2 ** (16 - bits)} to the 16-bit range; save the camera's "
+            "frames scaled to full range to silence this",
+        )
+    if grays[0].shape != grays[1].shape:
+        raise InputError(
+            f"the left image is {grays[0].shape[1]}x{grays[0].shape[0]} px but the right one is "
+            f"{grays[1].shape[1]}x{grays[1].shape[0]}: pass the two images of one stereo pair"
+        )
+    cam = jig.cameras.left
+    if grays[0].shape != (cam.height_px, cam.width_px):
+        raise InputError(
+            f"the images are {grays[0].shape[1]}x{grays[0].shape[0]} px but the config's cameras are "
+            f"{cam.width_px}x{cam.height_px}: pass the rig.toml of the cameras that took them"
+        )
+    for name, gray in zip(("left", "right"), grays, strict=True):
+        check_image_content(gray, name=f"the {name} image")
+    step = SAME_IMAGE_STRIDE
+    same_sample = grays[0].dtype == grays[1].dtype and np.array_equal(
+        grays[0][::step, ::step], grays[1][::step, ::step]
+    )
+    if same_sample and np.array_equal(grays[0], grays[1]):
+        raise InputError("the left and right images are the same image: pass the two views of a stereo pair")
+    return grays[0], grays[1], warnings
+
+
+def as_u8(gray: np.ndarray) -> np.ndarray:
+    """The 8-bit gray image ArUco needs, from a checked gray (:func:`checked_pair`): a ``uint8`` gray as it
+    is; ``uint16`` as ``round(x / 257)`` in integers; float in [0, 1] as ``round(255 x)``."""
+    if gray.dtype == np.uint8:
+        return gray
+    if gray.dtype == np.uint16:
+        # x / 257 is never a half-integer, so floor((x + 128) / 257) is the nearest level
+        return ((gray.astype(np.uint32) + 128) // 257).astype(np.uint8)
+    return np.clip(np.rint(gray * 255.0), 0, 255).astype(np.uint8)
+
+
+class _StageClock:
+    """Records the wall time of consecutive stages into a dict, when one is given."""
+
+    def __init__(self, timings: dict[str, float] | None) -> None:
+        self.timings = timings
+        self.last = time.perf_counter()
+
+    def lap(self, stage: str) -> None:
+        if self.timings is not None:
+            now = time.perf_counter()
+            self.timings[stage] = now - self.last
+            self.last = now

@@ -1,0 +1,860 @@
+"""The two methods' last stage: which markers the part touches, their plane, and the estimate.
+
+:class:`PaperPlaneFitter` is Sakuma et al.'s ("Optical Sensing"): the points within the part's base
+radius of the jig axis and an SVD plane. :class:`ContactPlaneFitter` is ours: the contact found from each
+marker's indentation against the unloaded jig (:mod:`softjig.sensing.contact`), fitted robustly
+(:mod:`softjig.sensing.robust`), lifted-off markers dropped, with the normal's uncertainty
+(:mod:`softjig.sensing.uncertainty`) and a self-check of the frame's own evidence
+(:mod:`softjig.sensing.selfcheck`). Both are built once per estimator and return a
+:class:`~softjig.sensing.results.SensingResult`, or a :class:`~softjig.sensing.results.Refusal` when the
+frame gives no estimate (no contact, too few markers).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from softjig.config import JigConfig
+from softjig.errors import EstimationError, InputError
+from softjig.geometry import PlaneFit, fit_plane_svd, normal_from_tilt_angles, tilt_angles
+from softjig.jig_shape import rest_inner_height_mm
+from softjig.sensing.contact import (
+    ContactRegion,
+    Indentation,
+    ambiguous_selection,
+    contact_candidates,
+    contact_violations,
+    describe_contact,
+    drop_lifted_off,
+    face_centre_xy,
+    face_depth_mm,
+    grow_contact,
+    indentation,
+    just_outside,
+    under_face,
+)
+from softjig.sensing.identities import identify_markers
+from softjig.sensing.results import Estimate, Observation, Refusal, SensingResult
+from softjig.sensing.robust import fit_plane_robust
+from softjig.sensing.selfcheck import SplitCheck, agreement, split_halves
+from softjig.sensing.setup import JigModel, ReferenceModel
+from softjig.sensing.uncertainty import (
+    NormalUncertainty,
+    inflated,
+    normal_uncertainty,
+    with_angle_floor,
+    with_spread_between,
+)
+from softjig.tilt_calibration import TiltCalibration
+
+# Unmodelled, systematic errors of a triangulated marker (hemisphere seen obliquely, membrane ripple, the
+# as-built cameras): the residual scale used for the normal's uncertainty is at least this.
+UNCERTAINTY_FLOOR_MM = 0.05
+CONTACT_INLIER_SIGMAS = 2.5  # a marker within this many depth-noise sigmas of the contact plane is on it
+# The errors the first-order model leaves out (the obliquely seen hemispheres, the lift-off line's
+# markers, the frame), as a factor on the normal's covariance; calibrated on varied designs for the
+# 1-sigma coverage of tilt_sigma_deg (benchmarks/bench_zoo.py checks it).
+MODEL_ERROR_FACTOR = 1.5
+# An error of the normal that does not shrink with more markers (the as-built jig against the nominal
+# one): added in quadrature, as an isotropic RMS angle (deg); the same calibration as above.
+NORMAL_ANGLE_FLOOR_DEG = 0.1
+# The face must lie this many depth-noise sigmas below the unloaded membrane at a marker to touch it.
+LIFT_OFF_SIGMAS = 1.5
+# Fewer fitted markers than this cannot be checked well enough (the split halves need 6 each, and the
+# check's power grows with them), and such an estimate is suspect: a few markers of the membrane's wall
+# beside a small part pass the split check.
+SELF_CHECK_MIN_POINTS = 15
+# A contact of fewer than this share of the clearly pushed-in markers is suspect: a face presses most of
+# its dent (the drape around it is shallower), a strip of wall fitted instead of a large face is a few
+# of them. Size-free only: with the size, the contact is cut to the face and a steep part's drape is most
+# of the dent.
+MIN_CANDIDATE_SHARE = 0.2
+# No part pressed into a soft jig stands steeper than this (deg): such a plane is a strip of the wall.
+MAX_PLAUSIBLE_TILT_DEG = 45.0
+# With the part's size known, a contact footprint larger than the part's face grown by this many marker
+# pitches all round (the footprint is the markers' hull dilated by half a pitch, and the drape's first
+# ring may join it) is not that part's.
+CONTACT_AREA_SLACK_PITCHES = 1.0
+# With the part's size known, the face's centre is searched where the contact is: at most this many
+# rounds of (fit under the face, move its centre to where that contact puts it), ...
+FACE_CENTRE_ROUNDS = 4
+# ... ending when the centre moves by less than this many marker pitches (a quarter of a grid cell).
+FACE_CENTRE_TOLERANCE_PITCHES = 0.25
+# With the part's size, a dent whose centroid lies this many part radii or more from the jig axis is
+# searched from there too (a centred face covers its own dent's centroid: a small part steeply tilted
+# drags the membrane down mostly beside its lowered edge, 0.5-1 radius off).
+OFF_AXIS_DENT_RADII = 1.0
+# A dent whose centroid lies this many pitches or more off the axis (but under a radius) is also searched
+# from there, as a rival only: a face searched from the axis that it contradicts makes the estimate suspect.
+RIVAL_SEARCH_PITCHES = 1.0
+# The search starts on the jig axis and stays there when the contact found puts the face's centre within
+# this share of the part's radius of it.
+CENTRED_SHARE = 0.5
+# Rounds of (robust fit of the markers under the face, the face's footprint from that plane).
+UNDER_FACE_ROUNDS = 3
+# Identities: a marker keeps the nearest reference marker within this share of the pitch sideways.
+IDENTITY_REACH_PITCHES = 0.5
+
+PlaneFitFunction = Callable[[np.ndarray], "tuple[np.ndarray, PlaneFit]"]
+Contact = tuple[np.ndarray, PlaneFit]  # which markers (bool mask) and their plane
+
+
+# ------------------------------------------------------------------------------------------ shared
+
+
+def fit_or_fail(points: np.ndarray, minimum: int) -> PlaneFit:
+    """The SVD plane of ``points``; :class:`EstimationError` when they do not define one."""
+    try:
+        return fit_plane_svd(points, min_points=minimum)
+    except InputError as exc:
+        raise EstimationError(f"no plane could be fitted: {exc}") from None
+
+
+def _mm(value: float) -> str:
+    """A length for a message: ``"0.07 mm"``, or ``"unknown"`` (never ``nan mm``)."""
+    return f"{value:.2f} mm" if np.isfinite(value) else "unknown"
+
+
+def _calibrated(
+    plane: PlaneFit, calibration: TiltCalibration | None
+) -> tuple[float, float, float, float, np.ndarray]:
+    """Raw and calibrated tilt angles (rad) and the calibrated normal."""
+    raw_ax, raw_ay = (float(v) for v in tilt_angles(plane.normal))
+    if calibration is None or calibration.is_identity():
+        return raw_ax, raw_ay, raw_ax, raw_ay, plane.normal
+    ax, ay = (float(v) for v in calibration.apply(raw_ax, raw_ay))
+    return raw_ax, raw_ay, ax, ay, normal_from_tilt_angles(ax, ay)
+
+
+def _common_fields(
+    observation: Observation,
+    plane: PlaneFit,
+    calibration: TiltCalibration | None,
+    method: str,
+    part_diameter_mm: float | None,
+    n_used: int,
+    warnings: list[str],
+) -> dict:
+    """The :class:`Estimate` fields both methods fill alike."""
+    raw_ax, raw_ay, ax, ay, normal = _calibrated(plane, calibration)
+    return {
+        "normal": tuple(float(v) for v in normal),
+        "tilt_x_deg": float(np.degrees(ax)),
+        "tilt_y_deg": float(np.degrees(ay)),
+        "n_points": n_used,
+        "rms_residual_mm": plane.rms_residual_mm,
+        "frame_source": observation.frame.source,
+        "warnings": tuple(warnings),
+        "method": method,
+        "calibrated": calibration is not None and not calibration.is_identity(),
+        "raw_tilt_x_deg": float(np.degrees(raw_ax)),
+        "raw_tilt_y_deg": float(np.degrees(raw_ay)),
+        "part_diameter_mm": None if part_diameter_mm is None else float(part_diameter_mm),
+        "n_markers_left": len(observation.left),
+        "n_markers_right": len(observation.right),
+        "n_matches": len(observation.matches),
+    }
+
+
+def suspicions(
+    split: SplitCheck | None,
+    violations: int,
+    plane: PlaneFit,
+    contact: ContactRegion | None,
+    part_diameter_mm: float | None,
+    jig: JigConfig,
+    n_used: int,
+) -> list[str]:
+    """The reasons (warnings starting with ``"suspect: "``) why an estimate may be wrong, from the frame's
+    own evidence (:mod:`softjig.sensing.selfcheck`); none for an estimate that passed every check. An
+    estimate the checks cannot verify (too few markers to split) is suspect too."""
+    reasons = []
+    fewest = max(SELF_CHECK_MIN_POINTS, 2 * jig.sensing.min_points)
+    if n_used < fewest or split is None:
+        reasons.append(
+            f"suspect: only {n_used} markers were fitted, too few to check that they are one flat face "
+            f"(at least {fewest} are needed): a few markers of the membrane's wall fit a plane as well"
+        )
+    if split is not None and split.suspect:
+        reasons.append(
+            f"suspect: the two halves of the contact are tilted {np.degrees(split.angle_rad):.1f} deg apart "
+            f"({split.sigmas:.0f} times their noise): the markers fitted are not one flat face (the "
+            "membrane's wall?)"
+        )
+    if violations > 0:
+        reasons.append(
+            f"suspect: {violations} markers in or beside the contact lie above the fitted face or far below "
+            "it, beyond what the noise explains: the plane may not be the part's face"
+        )
+    if plane.normal[2] < np.cos(np.radians(MAX_PLAUSIBLE_TILT_DEG)):
+        reasons.append(
+            f"suspect: the plane is tilted {np.degrees(np.arccos(plane.normal[2])):.0f} deg, steeper than a "
+            f"part pressed into a soft jig stands ({MAX_PLAUSIBLE_TILT_DEG:g} deg)"
+        )
+    if part_diameter_mm is not None and contact is not None:
+        largest = np.pi * (part_diameter_mm / 2.0 + CONTACT_AREA_SLACK_PITCHES * jig.markers.pitch_mm) ** 2
+        if contact.area_mm2 > largest:
+            reasons.append(
+                f"suspect: the contact ({contact.area_mm2:.0f} mm^2) is larger than the {part_diameter_mm:g} "
+                f"mm part's face could press ({largest:.0f} mm^2): is the part's size right?"
+            )
+    return reasons
+
+
+# ------------------------------------------------------------------------------------------- paper
+
+
+class PaperPlaneFitter:
+    """The paper's plane: the points within the part's base radius of the jig axis, an SVD fit.
+
+    Its uncalibrated tilts are compressed by about the oil's index (the pinhole triangulation), which its
+    tilt calibration absorbs and no sigma covers; its push depth is measured from the rest apex as the
+    same triangulation sees it, so zero push reads zero.
+    """
+
+    def __init__(self, model: JigModel, calibration: TiltCalibration | None) -> None:
+        self._jig = model.jig
+        self._rest_apex_z_mm = model.setup.rest_apex_z_mm
+        self._calibration = calibration
+
+    def fit(
+        self, observation: Observation, points_J: np.ndarray, part_diameter_mm: float | None
+    ) -> SensingResult | Refusal:
+        jig, minimum = self._jig, self._jig.sensing.min_points
+        radius = part_diameter_mm / 2.0
+        used = np.hypot(points_J[:, 0], points_J[:, 1]) < radius
+        n_used = int(used.sum())
+        if n_used < minimum:
+            return Refusal(
+                f"only {n_used} markers lie within {radius:g} mm of the jig axis (the part's base radius); "
+                f"at least {minimum} are needed (sensing.min_points). Detected {len(observation.left)} left"
+                f" / {len(observation.right)} right, matched {len(observation.matches)}: is a part on the "
+                "jig, centred, and is the part diameter right?"
+            )
+        points = points_J[used]
+        plane = fit_or_fail(points, minimum)
+        # The statistical uncertainty and the self-check of the crop's points (the crop is not robust: a
+        # plane through the drape beside the face shows in its halves).
+        sigma = inflated(normal_uncertainty(points, plane, floor_mm=UNCERTAINTY_FLOOR_MM), MODEL_ERROR_FACTOR)
+        split = split_halves(points, point_sigma_mm=sigma.residual_sigma_mm, noise_factor=MODEL_ERROR_FACTOR)
+        sigma_rad = sigma.tilt_sigma_rad
+        if split is not None:
+            sigma_rad = float(np.hypot(sigma_rad, 0.5 * split.excess_rad))
+        sigma_rad = float(np.hypot(sigma_rad, np.radians(NORMAL_ANGLE_FLOOR_DEG)))
+        suspect = suspicions(split, 0, plane, None, None, jig, n_used)
+        warnings = [*observation.warnings, *suspect]
+        estimate = Estimate(
+            tilt_sigma_deg=float(np.degrees(sigma_rad)),
+            quality="suspect" if suspect else "ok",
+            push_depth_mm=self._rest_apex_z_mm - plane.z_at(0.0, 0.0),
+            **_common_fields(
+                observation, plane, self._calibration, "paper", part_diameter_mm, n_used, warnings
+            ),
+        )
+        return SensingResult(
+            estimate,
+            observation.left,
+            observation.right,
+            observation.matches,
+            points_J,
+            used,
+            plane,
+            observation.frame,
+        )
+
+
+# -------------------------------------------------------------------------------------- refractive
+
+
+@dataclass(frozen=True)
+class NoiseScales:
+    """The noise of each quantity the refractive method thresholds, measured in the frame itself (mm).
+
+    A threshold is set from the noise of the quantity it thresholds: the three differ when the bead
+    pack's speckle is the same in the reference and the loaded frame (as in a real jig, whose beads do
+    not move). A marker's image then carries the same speckle bias in both frames while it stays put,
+    which the reference-differenced indentation cancels, but not its absolute position, nor its position
+    once the part has moved it onto other beads.
+
+    Attributes
+    ----------
+    indentation_sigma_mm : the reference-differenced indentation's noise (:attr:`Indentation.noise_mm`):
+        which markers are pushed in at all.
+    plane_sigma_mm : the absolute 3-D scatter of this frame's markers about a smooth surface (their
+        neighbour-differenced heights above the nominal rest shape), at least the indentation's noise and
+        :data:`UNCERTAINTY_FLOOR_MM`: the inlier band of the contact plane.
+    face_depth_sigma_mm : the noise of a face depth (:func:`~softjig.sensing.contact.face_depth_mm`,
+        ``reference_z - zero - plane_z``, in which the loaded marker's own height cancels): the reference's
+        own scatter about the rest shape (a reference frame's; the indentation noise for the rest shape),
+        at least the indentation's noise: the lift-off clearance and its margin.
+    """
+
+    indentation_sigma_mm: float
+    plane_sigma_mm: float
+    face_depth_sigma_mm: float
+
+    @property
+    def inlier_mm(self) -> float:
+        """The contact plane's inlier distance: :data:`CONTACT_INLIER_SIGMAS` plane sigmas (mm)."""
+        return CONTACT_INLIER_SIGMAS * self.plane_sigma_mm
+
+
+def noise_scales(
+    points_J: np.ndarray, dent: Indentation, reference: ReferenceModel, jig: JigConfig
+) -> NoiseScales:
+    """Measure :class:`NoiseScales` for one frame (the reference's own scatter was measured once, with
+    the :class:`ReferenceModel`)."""
+    sigma = float(dent.noise_mm) if np.isfinite(dent.noise_mm) else UNCERTAINTY_FLOOR_MM
+    if reference.scatter_mm is None:  # the rest shape: the indentation is already the absolute height's
+        return NoiseScales(sigma, max(sigma, UNCERTAINTY_FLOOR_MM), sigma)
+    rest_z = rest_inner_height_mm(jig, points_J[:, 0], points_J[:, 1])
+    scatter = indentation(points_J, rest_z, pitch_mm=jig.markers.pitch_mm).noise_mm
+    scatter = float(scatter) if np.isfinite(scatter) else sigma
+    return NoiseScales(sigma, max(scatter, sigma, UNCERTAINTY_FLOOR_MM), max(reference.scatter_mm, sigma))
+
+
+def canonical_order(ids: np.ndarray, points_J: np.ndarray) -> np.ndarray:
+    """The markers ordered by their reference marker's index; those without one last, by ``x`` then ``y``.
+
+    The robust fits draw random triples by position in the list: in the reference markers' order, two
+    runs whose markers differ only by rounding draw the same triples."""
+    if ids.min(initial=0) >= 0:  # the usual case: every marker identified (ids are one-to-one)
+        return np.argsort(ids, kind="stable")
+    return np.lexsort((points_J[:, 1], points_J[:, 0], np.where(ids >= 0, ids, np.iinfo(np.intp).max)))
+
+
+def _within(points_J: np.ndarray, centre_xy: np.ndarray, radius_mm: float) -> np.ndarray:
+    return np.hypot(points_J[:, 0] - centre_xy[0], points_J[:, 1] - centre_xy[1]) < radius_mm
+
+
+@dataclass(frozen=True)
+class Dent:
+    """One frame's markers against the unloaded jig, in the canonical order (:func:`canonical_order`).
+
+    Attributes
+    ----------
+    points_J : (M, 3) the markers in J (mm), canonical order.
+    indentation : their indentation (canonical order).
+    candidates : (M,) the clearly pushed-in markers (:func:`~softjig.sensing.contact.contact_candidates`).
+    noise : the frame's noise scales.
+    threshold_mm : the contact plane's inlier distance (:data:`CONTACT_INLIER_SIGMAS` plane sigmas).
+    """
+
+    points_J: np.ndarray
+    indentation: Indentation
+    candidates: np.ndarray
+    noise: NoiseScales
+    threshold_mm: float
+
+
+class ContactPlaneFitter:
+    """Ours: the contact from the indentation, its plane fitted robustly, lifted-off markers dropped.
+
+    The contact is found under the known face when the part's size is given (searched from the
+    indentation, wherever the part stands), or grown from the deepest pushed-in markers over the
+    neighbours on their plane (:func:`~softjig.sensing.contact.grow_contact`); planes are fitted robustly,
+    with an inlier distance set by the markers' own depth noise. The normal comes with its covariance,
+    and the frame's own evidence is checked (split halves, violations, plausibility).
+    """
+
+    def __init__(
+        self, model: JigModel, reference: ReferenceModel, calibration: TiltCalibration | None
+    ) -> None:
+        self._jig = model.jig
+        self._reference = reference
+        self._calibration = calibration
+        self._minimum = model.jig.sensing.min_points
+        self._pitch = model.jig.markers.pitch_mm
+
+    def fit(
+        self, observation: Observation, points_J: np.ndarray, part_diameter_mm: float | None
+    ) -> SensingResult | Refusal:
+        """Identify the markers, measure their indentation, find the contact (in the reference markers'
+        order, :func:`canonical_order`), drop the lifted-off markers, and describe the result."""
+        identities = identify_markers(
+            points_J, self._reference.markers, max_lateral_mm=IDENTITY_REACH_PITCHES * self._pitch
+        )
+        dent = self._indentation(points_J, identities.ids)
+        candidates = contact_candidates(dent)
+        if candidates.sum() < self._minimum:
+            return Refusal(
+                f"no contact: only {int(candidates.sum())} of {len(points_J)} matched markers are pushed in "
+                f"beyond the noise ({_mm(dent.noise_mm)}); at least {self._minimum} are needed "
+                "(sensing.min_points). Is a part pressed onto the jig?"
+            )
+        noise = noise_scales(points_J, dent, self._reference, self._jig)
+        order = canonical_order(identities.ids, points_J)
+        in_order = Indentation(dent.depth_mm[order], dent.zero_mm, dent.noise_mm)
+        ordered = Dent(points_J[order], in_order, candidates[order], noise, noise.inlier_mm)
+        found = self._contact(ordered, part_diameter_mm)
+        if not found:
+            return found
+        (used_in_order, plane), rival = found
+        used = np.empty_like(used_in_order)
+        used[order] = used_in_order
+        if part_diameter_mm is None:  # under a known face, the plane is already the SVD fit of points_J[used]
+            plane = fit_or_fail(points_J[used], self._minimum)
+        grown = used
+        clearance = LIFT_OFF_SIGMAS * noise.face_depth_sigma_mm
+        used, plane = drop_lifted_off(
+            points_J,
+            dent,
+            used,
+            plane,
+            clearance_mm=clearance,
+            fit_plane=lambda points: fit_or_fail(points, self._minimum),
+            min_points=self._minimum,
+        )
+        plane_depth = face_depth_mm(points_J, dent, plane)
+        uncertainty, split = self._uncertainty(points_J, dent, used, grown, plane, plane_depth, noise)
+        uncertainty = self._without_measured_frame(uncertainty, plane, observation)
+        outside = just_outside(points_J[:, :2], used, self._pitch)
+        contact = describe_contact(
+            points_J[used, :2],
+            plane,
+            self._jig,
+            noise_mm=dent.noise_mm,
+            part_diameter_mm=part_diameter_mm,
+            edge_face_depth_mm=plane_depth[outside],
+        )
+        threshold = ordered.threshold_mm
+        violations = contact_violations(
+            points_J, used, plane, threshold_mm=threshold, pitch_mm=self._pitch, dent=dent
+        )
+        estimate = self._estimate(
+            observation,
+            points_J,
+            plane,
+            used,
+            contact,
+            uncertainty,
+            split,
+            violations,
+            rival,
+            dent,
+            int(candidates.sum()),
+            part_diameter_mm,
+        )
+        return SensingResult(
+            estimate,
+            observation.left,
+            observation.right,
+            observation.matches,
+            points_J,
+            used,
+            plane,
+            observation.frame,
+            identities,
+            dent,
+            contact,
+            uncertainty,
+        )
+
+    def _indentation(self, points_J: np.ndarray, ids: np.ndarray) -> Indentation:
+        """Each marker's indentation against its reference marker (the rest shape where none is near)."""
+        reference_xyz = self._reference.markers.xyz_mm
+        reference_z = (
+            reference_xyz[np.maximum(ids, 0), 2] if len(reference_xyz) else np.full(len(ids), np.nan)
+        )
+        known = ids >= 0
+        if not known.all():
+            unknown = points_J[~known]
+            reference_z[~known] = rest_inner_height_mm(self._jig, unknown[:, 0], unknown[:, 1])
+        return indentation(points_J, reference_z, pitch_mm=self._pitch)
+
+    def _robust_fit(self, threshold_mm: float) -> PlaneFitFunction:
+        """``points -> (inliers, plane)``: the robust fit with the contact's inlier distance."""
+        minimum = self._minimum
+
+        def fit(points: np.ndarray) -> tuple[np.ndarray, PlaneFit]:
+            try:
+                robust = fit_plane_robust(
+                    points, threshold_mm=threshold_mm, min_inliers=min(minimum, len(points))
+                )
+            except InputError as exc:
+                raise EstimationError(f"no plane could be fitted to the pushed-in markers: {exc}") from None
+            return robust.inliers, robust.plane
+
+        return fit
+
+    def _contact(
+        self, dent: Dent, part_diameter_mm: float | None
+    ) -> tuple[Contact, SplitCheck | None] | Refusal:
+        """The contact's markers (canonical order) and plane, under the known face or size-free, and its
+        rival's agreement (:meth:`_contact_under_known_face`; ``None`` size-free)."""
+        fit = self._robust_fit(dent.threshold_mm)
+
+        def size_free() -> Contact:
+            return grow_contact(
+                dent.points_J,
+                dent.indentation,
+                dent.candidates,
+                pitch_mm=self._pitch,
+                fit_plane=fit,
+                threshold_mm=dent.threshold_mm,
+                min_points=self._minimum,
+            )
+
+        if part_diameter_mm is None:
+            (used, plane), rival = size_free(), None
+        else:
+            found = self._contact_under_known_face(dent, part_diameter_mm / 2.0, fit, size_free)
+            if not found:
+                return found
+            (used, plane), rival = found
+        if used.sum() < self._minimum:
+            return Refusal(
+                f"only {int(used.sum())} markers are in contact; at least {self._minimum} are needed "
+                "(sensing.min_points)"
+            )
+        return (used, plane), rival
+
+    def _contact_under_known_face(
+        self, dent: Dent, radius_mm: float, fit: PlaneFitFunction, size_free: Callable[[], Contact]
+    ) -> tuple[Contact, SplitCheck | None] | Refusal:
+        """The contact when the part's base radius is known, wherever the part stands on the jig, and the
+        agreement with a rival contact that no marker contradicts either but whose normal is far from it
+        (``None`` when there is none: the estimate is suspect when there is).
+
+        - **The face searched from the indentation** (:meth:`_search_face`): from the jig axis (the
+          paper's setting) and, when the dent's centroid lies :data:`OFF_AXIS_DENT_RADII` radii or more
+          off the axis, from there too, keeping the one whose plane fewer markers contradict
+          (:func:`~softjig.sensing.contact.contact_violations`), then the larger contact: right where the
+          size-free growth takes the wall beside a small, steeply tilted part.
+        - When no search finds a face, or only one of fewer than :data:`SELF_CHECK_MIN_POINTS` markers
+          (too few to check), **the size-free contact cut to the face** (:meth:`_size_free_cut`).
+        - **Rivals** (:meth:`_rival`): two searched faces, or a search's face and the cut, that no marker
+          contradicts but whose normals disagree beyond their noise
+          (:func:`~softjig.sensing.selfcheck.agreement`): the frame holds two plausible faces (the part's
+          and a strip of the membrane's wall beside a small contact), and the estimate is suspect
+          whichever is reported. A dent :data:`RIVAL_SEARCH_PITCHES` pitches or more off the axis (but
+          under :data:`OFF_AXIS_DENT_RADII` radii) is searched from its centroid too, as a rival only.
+        """
+        points_J, candidates = dent.points_J, dent.candidates
+        dent_centre = points_J[candidates, :2].mean(axis=0) if candidates.any() else np.zeros(2)
+        starts = [None] if np.hypot(*dent_centre) < OFF_AXIS_DENT_RADII * radius_mm else [None, dent_centre]
+        searches = [s for s in (self._search_face(dent, radius_mm, fit, start) for start in starts) if s]
+        rival = None
+        if len(searches) > 1:  # the one whose plane fewer markers contradict, then the larger contact
+            scores = [
+                (
+                    contact_violations(
+                        points_J,
+                        used,
+                        plane,
+                        threshold_mm=dent.threshold_mm,
+                        pitch_mm=self._pitch,
+                        dent=dent.indentation,
+                    ),
+                    -used.sum(),
+                )
+                for used, plane in searches
+            ]
+            best = min(range(len(scores)), key=scores.__getitem__)
+            if scores[1 - best][0] == 0:  # the other one no marker contradicts either
+                rival = self._rival(points_J, searches[best], searches[1 - best], dent.threshold_mm)
+            searches = [searches[best]]
+        elif len(searches) == 1 and np.hypot(*dent_centre) >= RIVAL_SEARCH_PITCHES * self._pitch:
+            rival = self._rival_search(dent, radius_mm, fit, searches[0], dent_centre)
+        if not searches or searches[0][0].sum() < SELF_CHECK_MIN_POINTS:
+            search = searches[0] if searches else None
+            cut = self._size_free_cut(dent, radius_mm, size_free, search=search)
+            if cut:
+                if search is not None:  # suspect if it contradicts a face no marker contradicts either
+                    rival = self._plausible_rival(points_J, search, cut, dent)
+                return cut, rival
+        if not searches:
+            return Refusal(
+                f"no {2 * radius_mm:g} mm face was found in the contact: fewer than {self._minimum} "
+                "pushed-in markers lie under it (sensing.min_points); is the part's size right?"
+            )
+        return searches[0], rival
+
+    def _rival_search(
+        self, dent: Dent, radius_mm: float, fit: PlaneFitFunction, search: Contact, start_xy: np.ndarray
+    ) -> SplitCheck | None:
+        """The face searched from ``start_xy`` as a rival of ``search`` (:meth:`_plausible_rival`), or
+        ``None`` (no face there, or one some marker contradicts)."""
+        other = self._search_face(dent, radius_mm, fit, start_xy)
+        if not other:
+            return None
+        violations = contact_violations(
+            dent.points_J, *other, threshold_mm=dent.threshold_mm, pitch_mm=self._pitch, dent=dent.indentation
+        )
+        return None if violations else self._plausible_rival(dent.points_J, search, other, dent)
+
+    def _plausible_rival(
+        self, points_J: np.ndarray, search: Contact, cut: Contact, dent: Dent
+    ) -> SplitCheck | None:
+        """The ``search``'s face's disagreement with the ``cut`` (:meth:`_rival`), when no marker
+        contradicts the search's face either; else ``None``."""
+        used, plane = search
+        violations = contact_violations(
+            points_J, used, plane, threshold_mm=dent.threshold_mm, pitch_mm=self._pitch, dent=dent.indentation
+        )
+        return None if violations else self._rival(points_J, cut, search, dent.threshold_mm)
+
+    def _rival(
+        self, points_J: np.ndarray, chosen: Contact, other: Contact, threshold_mm: float
+    ) -> SplitCheck | None:
+        """``other``'s agreement with the ``chosen`` contact when it contradicts it
+        (:func:`~softjig.sensing.selfcheck.agreement`), else ``None``."""
+        check = agreement(
+            points_J[chosen[0]],
+            chosen[1].normal,
+            points_J[other[0]],
+            other[1].normal,
+            point_sigma_mm=threshold_mm / CONTACT_INLIER_SIGMAS,
+            noise_factor=MODEL_ERROR_FACTOR,
+        )
+        return check if check is not None and check.suspect else None
+
+    def _size_free_cut(
+        self, dent: Dent, radius_mm: float, size_free: Callable[[], Contact], *, search: Contact | None
+    ) -> Contact | Refusal:
+        """The size-free contact (made only when needed: it costs more than a search) cut to the face: the
+        face placed where that contact puts it (:func:`~softjig.sensing.contact.face_centre_xy`), and that
+        contact's markers under it. Beside a ``search``'s contact (too small to check), it is taken only
+        when it has enough markers to check and passes the checks (no violations, halves that agree); the
+        caller makes it suspect when it contradicts a search's face that no marker contradicts either."""
+        points_J = dent.points_J
+        try:
+            grown, grown_plane = size_free()
+        except EstimationError as exc:
+            return Refusal(str(exc))
+        if grown.sum() < self._minimum:
+            return Refusal(f"only {int(grown.sum())} markers grew into a contact")
+        region = describe_contact(
+            points_J[grown, :2],
+            grown_plane,
+            self._jig,
+            noise_mm=dent.noise.indentation_sigma_mm,
+            part_diameter_mm=2 * radius_mm,
+        )
+        centre = face_centre_xy(points_J[grown, :2], region, grown_plane, radius_mm, pitch_mm=self._pitch)
+        # Half a pitch of slack (the footprint's markers stand for grid cells); the markers are already
+        # the inliers of a robust fit: a least-squares refit suffices.
+        selection = grown & under_face(points_J, grown_plane, radius_mm + self._pitch / 2.0, centre)
+        if search is None:
+            if selection.sum() < self._minimum:
+                return Refusal(f"only {int(selection.sum())} markers of the grown contact lie under the face")
+            return selection, fit_or_fail(points_J[selection], self._minimum)
+        if selection.sum() < SELF_CHECK_MIN_POINTS:
+            return Refusal("the grown contact under the face is too small to check")
+        cut = (selection, fit_or_fail(points_J[selection], self._minimum))
+        check = split_halves(
+            points_J[selection],
+            point_sigma_mm=dent.threshold_mm / CONTACT_INLIER_SIGMAS,
+            noise_factor=MODEL_ERROR_FACTOR,
+        )
+        violations = contact_violations(
+            points_J, *cut, threshold_mm=dent.threshold_mm, pitch_mm=self._pitch, dent=dent.indentation
+        )
+        if check is None or check.suspect or violations > 0:
+            return Refusal("the grown contact under the face fails the self-check")
+        return cut  # a larger contact that passes the self-check
+
+    def _search_face(
+        self, dent: Dent, radius_mm: float, fit: PlaneFitFunction, start_xy: np.ndarray | None = None
+    ) -> Contact | Refusal:
+        """The contact under a face of ``radius_mm``, searched from the indentation (from ``start_xy``,
+        when given, instead of the jig axis).
+
+        The face is a tilted disc (a polygon's inscribed disc), so its footprint on the membrane is an
+        ellipse, not the paper's circle, and it is centred where the part stands, not on the jig axis.
+        The face's centre is first taken on the jig axis (the centroid of the clearly pushed-in markers
+        when none lies under a face there); the pushed-in markers within ``radius_mm`` of it are fitted
+        robustly (:meth:`_fit_under_face`). The centre is then moved to where the contact found puts the
+        face (:func:`~softjig.sensing.contact.face_centre_xy`: the footprint's centroid in full contact,
+        one radius uphill of the lowered rim in partial contact), and the whole repeated until it moves
+        by less than :data:`FACE_CENTRE_TOLERANCE_PITCHES` pitches (at most :data:`FACE_CENTRE_ROUNDS`
+        times); a face found on the axis stays there when the contact puts its centre within
+        :data:`CENTRED_SHARE` radii of it (a small contact's centre is uncertain by a pitch). The
+        membrane's wall beside the lowered edge lies outside the ellipse; where the part lifts off, the
+        one-sided robust fit rejects the markers below the face.
+        """
+        points_J, candidates = dent.points_J, dent.candidates
+        pushed = dent.indentation.depth_mm > dent.indentation.noise_mm  # False where NaN (unknown)
+        tolerance = FACE_CENTRE_TOLERANCE_PITCHES * self._pitch
+        centre = np.zeros(2) if start_xy is None else np.asarray(start_xy, dtype=float)
+        found: Contact | None = None
+        for round_ in range(FACE_CENTRE_ROUNDS):
+            try:
+                under = self._fit_under_face(points_J, pushed, centre, radius_mm, fit)
+            except EstimationError as exc:  # the robust fit found no plane: this search found no face
+                return Refusal(str(exc))
+            if under is None:
+                if round_ == 0 and candidates.any():  # nothing under a centred face: start where the dent is
+                    centre = points_J[candidates, :2].mean(axis=0)
+                    continue
+                break
+            found = under
+            used, plane = found
+            region = describe_contact(
+                points_J[used, :2],
+                plane,
+                self._jig,
+                noise_mm=dent.noise.indentation_sigma_mm,
+                part_diameter_mm=2 * radius_mm,
+            )
+            moved_to = np.array(
+                face_centre_xy(points_J[used, :2], region, plane, radius_mm, pitch_mm=self._pitch)
+            )
+            if np.hypot(*(moved_to - centre)) < tolerance:
+                break
+            if not centre.any() and np.hypot(*moved_to) < CENTRED_SHARE * radius_mm:
+                break  # about centred: kept on the axis (a small contact's centre is uncertain by a pitch)
+            centre = moved_to
+        if found is None:
+            return Refusal(
+                f"only {int((pushed & _within(points_J, centre, radius_mm)).sum())} pushed-in markers lie "
+                f"within {radius_mm:g} mm of the contact's centre ({centre[0]:+.1f}, {centre[1]:+.1f}) mm; "
+                f"at least {self._minimum} are needed (sensing.min_points): is the part's size right?"
+            )
+        return found
+
+    def _fit_under_face(
+        self, points_J: np.ndarray, pushed: np.ndarray, centre_xy: np.ndarray, radius_mm: float, fit
+    ) -> Contact | None:
+        """The robust contact under a face of ``radius_mm`` centred above ``centre_xy`` (``None``: too few).
+
+        The pushed-in markers within ``radius_mm`` of the centre are fitted robustly (their plane gives
+        the tilt), then only those under the face (within ``radius_mm`` of its centre *measured in the
+        face's plane*, :func:`~softjig.sensing.contact.under_face`), for :data:`UNDER_FACE_ROUNDS` rounds
+        at most."""
+        selection = pushed & _within(points_J, centre_xy, radius_mm)
+        if selection.sum() < self._minimum:
+            return None
+        plane = None
+        for _ in range(UNDER_FACE_ROUNDS):
+            inliers, plane = fit(points_J[selection])
+            used = np.zeros(len(points_J), dtype=bool)
+            used[np.flatnonzero(selection)[inliers]] = True
+            new_selection = pushed & under_face(points_J, plane, radius_mm, tuple(centre_xy))
+            if np.array_equal(new_selection, selection) or new_selection.sum() < self._minimum:
+                break
+            selection = new_selection
+        return used, plane
+
+    def _uncertainty(
+        self,
+        points_J: np.ndarray,
+        dent: Indentation,
+        used: np.ndarray,
+        grown: np.ndarray,
+        plane: PlaneFit,
+        plane_depth: np.ndarray,
+        noise: NoiseScales,
+    ) -> tuple[NormalUncertainty, SplitCheck | None]:
+        """The normal's uncertainty: the fit's statistics, the spread between the narrowest and widest
+        plausible contacts, the model-error factor, what the split halves show beyond their noise, and
+        the angle floor; and the split check itself."""
+        minimum = self._minimum
+        uncertainty = normal_uncertainty(points_J[used], plane, floor_mm=UNCERTAINTY_FLOOR_MM)
+        narrow, wide = ambiguous_selection(
+            points_J,
+            dent,
+            used,
+            grown & ~used,
+            plane,
+            clearance_mm=LIFT_OFF_SIGMAS * noise.face_depth_sigma_mm,
+            margin_mm=noise.face_depth_sigma_mm,
+            face_depth=plane_depth,
+        )
+        if narrow.sum() >= minimum and not np.array_equal(narrow, wide):
+            # ``plane`` is the fit of ``points_J[used]``: not fitted again where a selection is ``used``.
+            uncertainty = with_spread_between(
+                uncertainty,
+                plane.normal
+                if np.array_equal(narrow, used)
+                else fit_or_fail(points_J[narrow], minimum).normal,
+                plane.normal if np.array_equal(wide, used) else fit_or_fail(points_J[wide], minimum).normal,
+            )
+        uncertainty = inflated(uncertainty, MODEL_ERROR_FACTOR)
+        split = split_halves(
+            points_J[used],
+            point_sigma_mm=max(noise.plane_sigma_mm, UNCERTAINTY_FLOOR_MM),
+            noise_factor=MODEL_ERROR_FACTOR,
+        )
+        if split is not None and split.excess_rad > 0:  # what the halves show beyond their noise
+            uncertainty = with_spread_between(
+                uncertainty, split.normal_a, split.normal_b, share=split.excess_rad / split.angle_rad
+            )
+        uncertainty = with_angle_floor(uncertainty, plane.normal, np.radians(NORMAL_ANGLE_FLOOR_DEG))
+        return uncertainty, split
+
+    def _without_measured_frame(
+        self, uncertainty: NormalUncertainty, plane: PlaneFit, observation: Observation
+    ) -> NormalUncertainty:
+        """With the config's camera poses (not measured) and no calibration, the stereo head's rotation
+        error (its tolerance per axis, ``tolerances.camera_rotation_deg``) tilts the normal by as much,
+        about x and y."""
+        if observation.frame.source == "fiducials" or self._calibration is not None:
+            return uncertainty
+        head_rad = np.radians(self._jig.tolerances.camera_rotation_deg)
+        return with_angle_floor(uncertainty, plane.normal, math.sqrt(2.0) * head_rad)
+
+    def _estimate(
+        self,
+        observation: Observation,
+        points_J: np.ndarray,
+        plane: PlaneFit,
+        used: np.ndarray,
+        contact: ContactRegion,
+        uncertainty: NormalUncertainty,
+        split: SplitCheck | None,
+        violations: int,
+        rival: SplitCheck | None,
+        dent: Indentation,
+        n_candidates: int,
+        part_diameter_mm: float | None,
+    ) -> Estimate:
+        """The reported estimate, with its warnings and the self-check's reasons."""
+        part_centre = None
+        if part_diameter_mm is not None:
+            part_centre = face_centre_xy(
+                points_J[used, :2], contact, plane, part_diameter_mm / 2.0, pitch_mm=self._pitch
+            )
+        warnings = list(observation.warnings)
+        n_used = int(used.sum())
+        if contact.partial:
+            warnings.append(
+                f"partial contact: the part lifts off towards azimuth {contact.lift_azimuth_deg:.0f} deg; "
+                "only the markers in contact were fitted"
+            )
+        suspect = suspicions(split, violations, plane, contact, part_diameter_mm, self._jig, n_used)
+        if rival is not None:
+            suspect.append(
+                f"suspect: another contact fits the frame as well, its normal "
+                f"{np.degrees(rival.angle_rad):.1f} deg from this one's ({rival.sigmas:.0f} times their "
+                "noise): the frame may show the membrane's wall beside a small contact"
+            )
+        if part_diameter_mm is None and n_used < MIN_CANDIDATE_SHARE * n_candidates:  # size-free only
+            suspect.append(
+                f"suspect: only {n_used} of the {n_candidates} clearly pushed-in markers were fitted: a face "
+                "presses most of its dent, the plane may be a strip of the membrane's wall"
+            )
+        warnings.extend(suspect)
+        push = self._reference.height_at_axis_mm - dent.zero_mm - plane.z_at(0.0, 0.0)
+        return Estimate(
+            quality="suspect" if suspect else "ok",
+            push_depth_mm=float(push),
+            tilt_sigma_x_deg=float(np.degrees(uncertainty.tilt_sigma_x_rad)),
+            tilt_sigma_y_deg=float(np.degrees(uncertainty.tilt_sigma_y_rad)),
+            tilt_sigma_deg=float(np.degrees(uncertainty.tilt_sigma_rad)),
+            normal_covariance=tuple(tuple(float(v) for v in row) for row in uncertainty.covariance),
+            contact_area_mm2=contact.area_mm2,
+            contact_centroid_xy_mm=contact.centroid_xy_mm,
+            contact_outline_xy_mm=tuple((float(x), float(y)) for x, y in contact.outline_xy_mm),
+            contact_partial=contact.partial,
+            part_centre_xy_mm=part_centre,
+            lift_azimuth_deg=contact.lift_azimuth_deg,
+            indentation_reference=self._reference.markers.source,
+            **_common_fields(
+                observation, plane, self._calibration, "refractive", part_diameter_mm, n_used, warnings
+            ),
+        )

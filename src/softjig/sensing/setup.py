@@ -1,0 +1,222 @@
+"""What an estimator derives once: from the nominal jig (:class:`JigModel`) and from the unloaded jig's
+markers (:class:`ReferenceModel`).
+
+Nothing here is cached behind the caller's back: an :class:`~softjig.sensing.estimator.Estimator` builds
+these once and hands them to the stages, so a frame's work depends only on the frame and on objects the
+caller can see.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from softjig.config import JigConfig
+from softjig.geometry import transform_points
+from softjig.jig_shape import marker_layout_xy, rest_inner_height_mm
+from softjig.optics import FlatLayers, project_points, projection_jacobian
+from softjig.rig import flat_layers
+from softjig.sensing.contact import indentation
+from softjig.sensing.detect import DEFAULT_CANDIDATES, DEFAULT_REFINE, log_sigma_px
+from softjig.sensing.identities import ReferenceMarkers, rest_shape_reference
+from softjig.sensing.jigframe import FrameConstants, frame_constants
+from softjig.sensing.rectify import Rectification, rectification
+from softjig.sensing.refractive import KernelConstants, kernel_constants
+from softjig.sensing.stereo import triangulate_rectified
+from softjig.sensing.subpixel import MIN_MODEL_BLUR_PX, MarkerModel
+
+# The model fit's window half-width, in marker radii (a 25x25 window on the default jig, whose error is
+# 1.3 % above the bound of a larger one).
+WINDOW_RADII = 1.25
+# The reference membrane's height on the jig axis is the constant term of a quadratic surface through
+# its markers within this many pitches of the axis, ...
+AXIS_SURFACE_PITCHES = 2.5
+# ... which needs at least this many of them (a quadratic in x, y has six coefficients); with fewer, the
+# marker nearest the axis gives it.
+AXIS_SURFACE_MIN_MARKERS = 6
+
+
+@dataclass(frozen=True)
+class SensingSetup:
+    """What the estimator derives once from the nominal jig's geometry.
+
+    Attributes
+    ----------
+    sigma_px : LoG scale matched to a marker at the membrane's apex, blur included (px).
+    threshold : detection threshold on the scale-normalised LoG response.
+    min_disparity_px, max_disparity_px : the disparity window of markers anywhere on the membrane.
+    rest_apex_z_mm : height in J of the rest membrane's apex as the pinhole triangulation sees it: the
+        push depth's zero. Refraction through flat layers puts a point of the oil at an apparent height in
+        J (paraxially ``-t + t / n_plate + z / n_oil``) that does not depend on where the cameras are,
+        so it is computed once, from the nominal geometry.
+    marker : the marker and noise model of the sub-pixel fit (:mod:`softjig.sensing.subpixel`): a
+        marker at the apex (radius and blur in px) and the config's imaging and medium (levels, speckle,
+        shot and read noise, bit depth).
+    candidates, refine : how :func:`~softjig.sensing.detect.detect_markers` finds and refines the markers
+        (defaults: the pyramid and the model fit; ``"full"`` and ``"quadratic"`` are the straightforward
+        path, Sakuma et al.'s). Markers blurred by less than ``MIN_MODEL_BLUR_PX`` (idealised
+        simulations) are refined by the quadratic fit.
+    """
+
+    sigma_px: float
+    threshold: float | None
+    min_disparity_px: float
+    max_disparity_px: float
+    rest_apex_z_mm: float
+    marker: MarkerModel | None = None
+    candidates: str = DEFAULT_CANDIDATES
+    refine: str | None = DEFAULT_REFINE
+
+
+def sensing_setup(jig: JigConfig, layers: FlatLayers | None = None) -> SensingSetup:
+    """Derive the detection scale, disparity window and push-depth reference from the nominal (rectified)
+    jig (it projects every marker through the layers: an estimator derives it once)."""
+    left, right = jig.cameras.left, jig.cameras.right
+    layers = layers if layers is not None else flat_layers(jig)
+    apex = np.array([[0.0, 0.0, jig.membrane.dome_height_mm]])
+    # px per mm at the apex (mean singular value of the projection's Jacobian in the marker's plane)
+    jac = projection_jacobian(apex, left.K, left.distortion, left.T_J_cam, layers)[0][:, :2]
+    px_per_mm = float(np.mean(np.linalg.svd(jac, compute_uv=False)))
+    blur_mm = jig.medium.blur_coefficient * jig.membrane.dome_height_mm**1.5
+    if jig.sensing.log_sigma_px is not None:
+        sigma = jig.sensing.log_sigma_px
+    else:
+        sigma = log_sigma_px(jig.markers.diameter_mm * px_per_mm, blur_sigma_px=blur_mm * px_per_mm)
+    radius_px = 0.5 * jig.markers.diameter_mm * px_per_mm
+    marker = MarkerModel(
+        radius_px=radius_px,
+        blur_px=blur_mm * px_per_mm,
+        background=jig.imaging.background_level,
+        amplitude=jig.imaging.marker_level - jig.imaging.background_level,
+        speckle_std=jig.medium.speckle_std,
+        speckle_corr_px=jig.medium.bead_diameter_mm * px_per_mm,
+        read_noise=jig.imaging.read_noise,
+        full_well=jig.imaging.full_well_electrons,
+        bit_depth=jig.imaging.bit_depth,
+        half_width_px=max(2, round(WINDOW_RADII * radius_px)),
+    )
+    # Disparities of markers anywhere between the rest membrane and the plate.
+    xy = marker_layout_xy(jig)
+    z_rest = rest_inner_height_mm(jig, xy[:, 0], xy[:, 1])
+    points = np.concatenate([np.column_stack([xy, z_rest]), np.column_stack([xy, np.zeros(len(xy))])])
+    u_left = project_points(points, left.K, left.distortion, left.T_J_cam, layers)
+    u_right = project_points(points, right.K, right.distortion, right.T_J_cam, layers)
+    disparity = u_left[:, 0] - u_right[:, 0]
+    margin = jig.sensing.disparity_margin_px
+    # The rest apex as the pinhole triangulation sees it: the reference of the push depth.
+    pl = project_points(apex, left.K, left.distortion, left.T_J_cam, layers)
+    pr = project_points(apex, right.K, right.distortion, right.T_J_cam, layers)
+    apex_J = transform_points(left.T_J_cam, pinhole_triangulation(pl, pr, jig))
+    return SensingSetup(
+        sigma_px=float(sigma),
+        threshold=jig.sensing.detection_threshold,
+        min_disparity_px=float(max(disparity.min() - margin, 1.0)),
+        max_disparity_px=float(disparity.max() + margin),
+        rest_apex_z_mm=float(apex_J[0, 2]),
+        marker=marker,
+        # the model fit's weight tables need a profile smooth at the pixel scale (subpixel.MarkerModel)
+        refine=DEFAULT_REFINE if marker.blur_px >= MIN_MODEL_BLUR_PX else "quadratic",
+    )
+
+
+def pinhole_triangulation(left_xy: np.ndarray, right_xy: np.ndarray, jig: JigConfig) -> np.ndarray:
+    """(M, 3) matched rectified pixels triangulated as if the cameras looked through air, in the left
+    camera's frame (mm): the paper's triangulation."""
+    cam = jig.cameras.left
+    return triangulate_rectified(
+        left_xy,
+        right_xy,
+        fx_px=cam.fx_px,
+        fy_px=cam.fy_px,
+        cx_px=cam.cx_px,
+        cy_px=cam.cy_px,
+        baseline_mm=jig.cameras.baseline_mm,
+    )
+
+
+@dataclass(frozen=True)
+class JigModel:
+    """Everything an estimator derives once from the nominal jig.
+
+    Attributes
+    ----------
+    jig : the jig the stages see: the nominal one, with its cameras rectified when they were not.
+    raw_jig : the nominal jig as given.
+    rectification : how raw images are rectified (``None`` when the config's cameras are rectified).
+    layers : the flat refracting layers (air, plate, oil).
+    setup : detection scale, disparity window, push-depth zero, marker model.
+    frame : the constants of finding the cameras' pose in J (expected fiducials, fast path).
+    triangulation : the refracted triangulation's constants.
+    rest_shape : the nominal markers on the nominal rest membrane.
+    """
+
+    jig: JigConfig
+    raw_jig: JigConfig
+    rectification: Rectification | None
+    layers: FlatLayers
+    setup: SensingSetup
+    frame: FrameConstants
+    triangulation: KernelConstants
+    rest_shape: ReferenceMarkers
+
+    @classmethod
+    def build(cls, jig: JigConfig) -> JigModel:
+        """Derive it (more than a frame's work, and the rectification's maps for a raw pair).
+
+        Raises
+        ------
+        InputError, ConfigError
+            The raw cameras cannot be rectified (see :func:`softjig.sensing.rectify.rectification`).
+        """
+        rect = None if jig.cameras.rectified else rectification(jig.cameras)
+        used = jig if rect is None else jig.replace(cameras=rect.cameras)
+        layers = flat_layers(used)
+        return cls(
+            jig=used,
+            raw_jig=jig,
+            rectification=rect,
+            layers=layers,
+            setup=sensing_setup(used, layers),
+            frame=frame_constants(used),
+            triangulation=kernel_constants(used),
+            rest_shape=rest_shape_reference(used),
+        )
+
+
+@dataclass(frozen=True)
+class ReferenceModel:
+    """The unloaded jig's markers and what the refractive method derives from them once.
+
+    Attributes
+    ----------
+    markers : the reference markers (a reference frame's, or the nominal rest shape).
+    height_at_axis_mm : the reference membrane's height on the jig axis (mm): the constant term of a
+        quadratic surface through its markers within :data:`AXIS_SURFACE_PITCHES` pitches of the axis.
+    scatter_mm : a reference frame's own scatter about the nominal rest shape (its neighbour-differenced
+        heights, :func:`~softjig.sensing.contact.indentation`'s noise; 0 when unknown), ``None`` for the
+        rest shape (the indentation is then already the absolute height's).
+    """
+
+    markers: ReferenceMarkers
+    height_at_axis_mm: float
+    scatter_mm: float | None
+
+    @classmethod
+    def build(cls, markers: ReferenceMarkers, jig: JigConfig) -> ReferenceModel:
+        """Derive it from the reference markers of ``jig`` (the nominal, rectified jig)."""
+        pitch = jig.markers.pitch_mm
+        xyz = markers.xyz_mm
+        radius = np.hypot(xyz[:, 0], xyz[:, 1])
+        near = radius < AXIS_SURFACE_PITCHES * pitch
+        if near.sum() < AXIS_SURFACE_MIN_MARKERS:
+            height = float(xyz[np.argmin(radius), 2])
+        else:
+            x, y, z = xyz[near].T
+            design = np.column_stack([np.ones_like(x), x, y, x * x, x * y, y * y])
+            height = float(np.linalg.lstsq(design, z, rcond=None)[0][0])
+        scatter = None
+        if markers.source != "rest shape":
+            own = indentation(xyz, rest_inner_height_mm(jig, xyz[:, 0], xyz[:, 1]), pitch_mm=pitch).noise_mm
+            scatter = float(own) if np.isfinite(own) else 0.0
+        return cls(markers, height, scatter)

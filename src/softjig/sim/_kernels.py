@@ -1,0 +1,328 @@
+"""Compiled kernels of the simulator (:mod:`softjig.sim.render`, :mod:`softjig.sim.membrane`).
+
+Each kernel is the per-pixel (or per-pair) loop of one step of the image model, fused so that it reads
+and writes its arrays once instead of once per NumPy operation. The model itself is described where it
+is used; these functions only compute it. Every float here is float32 unless said otherwise, as in the
+NumPy code they replace.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+_ONE = np.float32(1.0)
+_ZERO = np.float32(0.0)
+
+
+@numba.njit(cache=True, nogil=True)
+def marker_shapes(
+    P: np.ndarray, axis: np.ndarray, origins: np.ndarray, rays: np.ndarray, r: float, step_px: float
+) -> np.ndarray:
+    """Each marker's local-affine imaging (:mod:`softjig.sim.render`, step 2), float64 ``(n, 9)``.
+
+    Parameters
+    ----------
+    P, axis : (n, 3)
+        Base centres (mm) and unit axes in J.
+    origins, rays : (n, 5, 3)
+        Oil rays (origin on the top interface, unit direction) of each marker's pixel ``p0`` and of
+        ``p0 + step_px (1, 0), (-1, 0), (0, 1), (0, -1)``.
+    r : float
+        Marker radius (mm).
+    step_px : float
+        The pixel step of the central differences.
+
+    Returns
+    -------
+    (n, 9)
+        Columns: ``quad`` (3: ``|q|^2 / r^2 = a0 du^2 + a1 du dv + a2 dv^2``), ``lin`` (2: ``(q . axis) / r
+        = l0 du + l1 dv``), ``cos_axis`` (``-d . axis``), ``radius_px`` (largest singular value of ``J B``
+        times ``r``), ``scale_px_per_mm`` (``sqrt |det J B|``), ``oil_path_mm``. ``B = (e1, e2)`` is an
+        orthonormal basis of the plane through ``P`` perpendicular to the ray ``d`` of ``p0``; the
+        neighbours' rays meet that plane at ``q``, whose central differences give ``A = (J B)^-1``.
+    """
+    n = P.shape[0]
+    out = np.empty((n, 9))
+    inplane = np.empty((5, 2))
+    for m in range(n):
+        d0, d1, d2 = rays[m, 0, 0], rays[m, 0, 1], rays[m, 0, 2]
+        rx, ry = (1.0, 0.0) if abs(d0) < 0.9 else (0.0, 1.0)  # e1 = d x ref, normalised; e2 = d x e1
+        e10, e11, e12 = -d2 * ry, d2 * rx, d0 * ry - d1 * rx
+        norm = math.sqrt(e10 * e10 + e11 * e11 + e12 * e12)
+        e10, e11, e12 = e10 / norm, e11 / norm, e12 / norm
+        e20, e21, e22 = d1 * e12 - d2 * e11, d2 * e10 - d0 * e12, d0 * e11 - d1 * e10
+        p0, p1, p2 = P[m, 0], P[m, 1], P[m, 2]
+        for k in range(1, 5):
+            o0, o1, o2 = origins[m, k, 0], origins[m, k, 1], origins[m, k, 2]
+            v0, v1, v2 = rays[m, k, 0], rays[m, k, 1], rays[m, k, 2]
+            s = ((p0 - o0) * d0 + (p1 - o1) * d1 + (p2 - o2) * d2) / (v0 * d0 + v1 * d1 + v2 * d2)
+            h0, h1, h2 = o0 + s * v0 - p0, o1 + s * v1 - p1, o2 + s * v2 - p2
+            inplane[k, 0] = h0 * e10 + h1 * e11 + h2 * e12
+            inplane[k, 1] = h0 * e20 + h1 * e21 + h2 * e22
+        # A = d(in-plane mm) / d(du, dv): columns from the u and the v neighbours
+        a00 = (inplane[1, 0] - inplane[2, 0]) / (2.0 * step_px)
+        a10 = (inplane[1, 1] - inplane[2, 1]) / (2.0 * step_px)
+        a01 = (inplane[3, 0] - inplane[4, 0]) / (2.0 * step_px)
+        a11 = (inplane[3, 1] - inplane[4, 1]) / (2.0 * step_px)
+        det_a = a00 * a11 - a01 * a10
+        j00, j01, j10, j11 = a11 / det_a, -a01 / det_a, -a10 / det_a, a00 / det_a  # J B = A^-1
+        r2 = r * r
+        out[m, 0] = (a00 * a00 + a10 * a10) / r2  # G = A^T A / r^2
+        out[m, 1] = 2.0 * (a00 * a01 + a10 * a11) / r2
+        out[m, 2] = (a01 * a01 + a11 * a11) / r2
+        ax0, ax1, ax2 = axis[m, 0], axis[m, 1], axis[m, 2]
+        ae1 = ax0 * e10 + ax1 * e11 + ax2 * e12
+        ae2 = ax0 * e20 + ax1 * e21 + ax2 * e22
+        out[m, 3] = (ae1 * a00 + ae2 * a10) / r  # axis . (B A)
+        out[m, 4] = (ae1 * a01 + ae2 * a11) / r
+        out[m, 5] = -(d0 * ax0 + d1 * ax1 + d2 * ax2)
+        s1 = j00 * j00 + j01 * j01 + j10 * j10 + j11 * j11
+        s2 = math.hypot(j00 * j00 + j01 * j01 - j10 * j10 - j11 * j11, 2.0 * (j00 * j10 + j01 * j11))
+        out[m, 6] = r * math.sqrt(0.5 * (s1 + s2))
+        out[m, 7] = math.sqrt(abs(j00 * j11 - j01 * j10))
+        out[m, 8] = max(p2, 0.0) / max(d2, 1e-9)
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def cast_marker_patches(
+    du: np.ndarray,
+    dv: np.ndarray,
+    quad: np.ndarray,
+    lin: np.ndarray,
+    size: int,
+    ss: int,
+    disc: bool,
+    out: np.ndarray,
+) -> None:
+    """Per-pixel average of the shading factor over the ``ss x ss`` sub-samples of each patch pixel,
+    written into ``out`` ``(n, size, size)`` float32 (rows ``dv``, columns ``du``).
+
+    Parameters
+    ----------
+    du, dv : (n, size * ss) float32
+        Offset of each sub-sample column / row from the marker's projected centre (px).
+    quad : (n, 3) float32
+        ``|q|^2 / r^2 = a0 du^2 + a1 du dv + a2 dv^2``.
+    lin : (n, 2) float32
+        ``(l0, l1)``: the axis term divided by ``cos_axis``, ``w = -(l0 du + l1 dv)``.
+    size, ss : int
+        Patch side (px) and sub-samples per pixel side.
+    disc : bool
+        Flat disc (hit iff ``cos(beta) > |w|``, value 1) instead of the hemisphere (hit iff
+        ``cos(beta) > max(w, 0)``, value ``1 + cos(beta)``).
+
+    Only the pixels of a row that hold a sub-sample with ``cos(beta)^2 > 0`` are evaluated (the roots of
+    that quadratic in ``du``, found in float64 and widened by a sub-sample, bound them).
+    """
+    n = du.shape[0]
+    q = size * ss
+    flat = out.reshape(-1)
+    for k in range(flat.shape[0]):
+        flat[k] = _ZERO
+    row = np.empty(q, dtype=np.float32)
+    inv = np.float32(1.0 / (ss * ss))
+    for m in range(n):
+        a0, a1, a2 = quad[m, 0], quad[m, 1], quad[m, 2]
+        l0, l1 = lin[m, 0], lin[m, 1]
+        du0 = float(du[m, 0])
+        step = float(du[m, 1] - du[m, 0]) if q > 1 else 1.0
+        for py in range(size):
+            # The pixel columns [p0, p1) holding every sub-sample of this pixel row where cos(beta)^2 =
+            # c0 + c1 du + c2 du^2 > 0 (between its roots, widened by a sub-sample): nothing is hit outside.
+            lo, hi = np.inf, -np.inf
+            for r in range(py * ss, (py + 1) * ss):
+                y = float(dv[m, r])
+                c0, c1, c2 = 1.0 - float(a2) * y * y, -float(a1) * y, -float(a0)
+                if c2 >= 0.0:
+                    lo, hi = -np.inf, np.inf
+                    break
+                disc2 = c1 * c1 - 4.0 * c2 * c0
+                if disc2 > 0.0:
+                    root = math.sqrt(disc2)
+                    lo = min(lo, (-c1 + root) / (2.0 * c2))
+                    hi = max(hi, (-c1 - root) / (2.0 * c2))
+            if lo > hi:
+                continue
+            p0, p1 = 0, size
+            if math.isfinite(lo):
+                p0 = min(max((math.floor((lo - du0) / step) - 1) // ss, 0), size)
+                p1 = max(min((math.ceil((hi - du0) / step) + 1) // ss + 1, size), p0)
+            if p0 >= p1:
+                continue
+            xs = du[m, p0 * ss : p1 * ss]  # 1-D views indexed from 0 and a branch-free body: vectorises
+            vals = row[: xs.shape[0]]  # the pixel row's sub-sample columns, summed over its sub-rows
+            for k in range(xs.shape[0]):
+                vals[k] = _ZERO
+            for r in range(py * ss, (py + 1) * ss):
+                y = dv[m, r]
+                c0 = _ONE - a2 * y * y
+                c1 = -a1 * y
+                c2 = -a0
+                w0 = -l1 * y
+                if disc:
+                    for k in range(xs.shape[0]):
+                        x = xs[k]
+                        c = math.sqrt(max(c0 + c1 * x + c2 * (x * x), _ZERO))
+                        vals[k] += _ONE if c > abs(w0 - l0 * x) else _ZERO
+                else:
+                    for k in range(xs.shape[0]):
+                        x = xs[k]
+                        c = math.sqrt(max(c0 + c1 * x + c2 * (x * x), _ZERO))
+                        vals[k] += (_ONE + c) if c > max(w0 - l0 * x, _ZERO) else _ZERO
+            dst = out[m, py, p0:p1]
+            for p in range(p1 - p0):
+                acc = _ZERO
+                for j in range(ss):
+                    acc += vals[p * ss + j]
+                dst[p] = acc
+    for k in range(flat.shape[0]):
+        flat[k] *= inv
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _add_product(dst: np.ndarray, a: np.ndarray, b: np.ndarray) -> None:
+    """``dst += a * b`` over three 1-D arrays of one length (indexed from 0, so the loop vectorises)."""
+    for k in range(dst.shape[0]):
+        dst[k] += a[k] * b[k]
+
+
+@numba.njit(cache=True, nogil=True)
+def paste_excess(
+    image: np.ndarray,
+    patches: np.ndarray,
+    origin: np.ndarray,
+    gain: np.ndarray,
+    box_gain: np.ndarray,
+    box_x0: int,
+    box_y0: int,
+) -> None:
+    """``image += patch * gain`` for each ``(P, P)`` patch at its top-left ``origin`` (``(x, y)`` px,
+    clipped to the image), in place.
+
+    Inside the box of ``box_gain`` (top-left pixel ``box_x0, box_y0``; an empty array for none) its values
+    replace ``gain``'s.
+    """
+    h, w = image.shape
+    n, p, _ = patches.shape
+    bh, bw = box_gain.shape
+    for m in range(n):
+        ox, oy = origin[m, 0], origin[m, 1]
+        j0, j1 = max(0, -ox), min(p, w - ox)
+        b0 = min(max(box_x0 - ox, j0), j1)  # the patch's columns inside the box: [b0, b1)
+        b1 = min(max(box_x0 + bw - ox, b0), j1)
+        for i in range(max(0, -oy), min(p, h - oy)):
+            y = oy + i
+            by = y - box_y0
+            src = patches[m, i]
+            dst = image[y]
+            if 0 <= by < bh and b0 < b1:
+                _add_product(dst[ox + j0 : ox + b0], src[j0:b0], gain[y, ox + j0 : ox + b0])
+                box_row = box_gain[by, ox + b0 - box_x0 : ox + b1 - box_x0]
+                _add_product(dst[ox + b0 : ox + b1], src[b0:b1], box_row)
+                _add_product(dst[ox + b1 : ox + j1], src[b1:j1], gain[y, ox + b1 : ox + j1])
+            else:
+                _add_product(dst[ox + j0 : ox + j1], src[j0:j1], gain[y, ox + j0 : ox + j1])
+
+
+@numba.njit(cache=True, nogil=True)
+def sensor_uint8(
+    image: np.ndarray,
+    hi: np.ndarray,
+    lo: np.ndarray,
+    normal: np.ndarray,
+    inv_full_well: np.float32,
+    read_var: np.float32,
+    scale: np.float32,
+) -> np.ndarray:
+    """Shot and read noise, gain and rounding to ``uint8`` of a float32 radiance image ``I``.
+
+    ``z = normal[256 hi + lo]`` is each pixel's standard-normal deviate (two random bytes); the image is
+    ``round(max(max(I, 0) + sqrt(max(I, 0) / full_well + read^2) z, 0) * scale)``, rounding half to
+    even and saturating at 255.
+    """
+    h, w = image.shape
+    out = np.empty((h, w), dtype=np.uint8)
+    z = np.empty(w, dtype=np.float32)
+    top = np.float32(255.0)
+    for y in range(h):
+        src, a, b, dst = image[y], hi[y], lo[y], out[y]
+        for x in range(w):  # the gather, apart: the arithmetic below vectorises
+            z[x] = normal[(np.intp(a[x]) << 8) | np.intp(b[x])]
+        for x in range(w):
+            v = max(src[x], _ZERO)
+            v = max(v + math.sqrt(v * inv_full_well + read_var) * z[x], _ZERO) * scale
+            dst[x] = np.uint8(min(np.rint(v), top))
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def sensor_uint16(
+    image: np.ndarray,
+    hi: np.ndarray,
+    lo: np.ndarray,
+    normal: np.ndarray,
+    inv_full_well: np.float32,
+    read_var: np.float32,
+    scale: np.float32,
+) -> np.ndarray:
+    """:func:`sensor_uint8` for ``uint16``: ``min(v * scale + 0.5, 65535)`` truncated."""
+    h, w = image.shape
+    out = np.empty((h, w), dtype=np.uint16)
+    z = np.empty(w, dtype=np.float32)
+    half = np.float32(0.5)
+    top = np.float32(65535.0)
+    for y in range(h):
+        src, a, b, dst = image[y], hi[y], lo[y], out[y]
+        for x in range(w):
+            z[x] = normal[(np.intp(a[x]) << 8) | np.intp(b[x])]
+        for x in range(w):
+            v = max(src[x], _ZERO)
+            v = max(v + math.sqrt(v * inv_full_well + read_var) * z[x], _ZERO)
+            dst[x] = np.uint16(min(v * scale + half, top))
+    return out
+
+
+_ENVELOPE_CANDIDATE_WINDOW = np.float32(1e-3)  # >> the float32 error of sqrt(dx^2 + dy^2) against hypot
+
+
+@numba.njit(cache=True, nogil=True)
+def log_envelope(
+    qx: np.ndarray,
+    qy: np.ndarray,
+    cx: np.ndarray,
+    cy: np.ndarray,
+    log_depth: np.ndarray,
+    inv_decay: np.ndarray,
+) -> np.ndarray:
+    """``max_c (log_depth[c] - hypot(q - c) inv_decay[c])`` for each point ``q``, float32 ``(len(qx),)``.
+
+    A first pass finds the maximum with ``sqrt(dx^2 + dy^2)`` (which vectorises); the contacts within a
+    window of it are then evaluated with ``hypot``, so the result is the exact maximum of the ``hypot``
+    values (those of the NumPy expression).
+    """
+    n = qx.shape[0]
+    nc = cx.shape[0]
+    out = np.empty(n, dtype=np.float32)
+    approx = np.empty(nc, dtype=np.float32)
+    for i in range(n):
+        x, y = qx[i], qy[i]
+        for c in range(nc):  # no reduction in this loop: it vectorises
+            dx = x - cx[c]
+            dy = y - cy[c]
+            approx[c] = log_depth[c] - math.sqrt(dx * dx + dy * dy) * inv_decay[c]
+        best = np.float32(-np.inf)
+        for c in range(nc):
+            if approx[c] > best:
+                best = approx[c]
+        exact = np.float32(-np.inf)
+        floor = best - _ENVELOPE_CANDIDATE_WINDOW
+        for c in range(nc):
+            if approx[c] >= floor:
+                v = log_depth[c] - np.hypot(x - cx[c], y - cy[c]) * inv_decay[c]
+                exact = max(exact, v)
+        out[i] = exact
+    return out
