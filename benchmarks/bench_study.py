@@ -27,7 +27,10 @@ worker ever reuses a previous task's per-jig tables: every task pays what a new 
    Ray: the pure cost of one task's round trip, without the tail of the last tasks.
 3. **The driver.** Writing one task's part file (Parquet, atomic, fsynced) and consolidating the tables,
    per task and per row: how many tasks/s one driver process sustains.
-4. **Projection** of a 10,000-design study on 100 cores (see the assumptions printed with it).
+4. **The estimator's set-up** per task: what :func:`run_task` pays before its first timed estimate (one
+   Estimator per method, the reference frame's markers, an untimed first estimate), and the warm estimate
+   after it (what a row's ``estimate_ms`` times), on new designs in this (warm) process.
+5. **Projection** of a 10,000-design study on 100 cores (see the assumptions printed with it).
 
 The machine is shared (several sessions on 2 cores): timings are noisy, so they are medians of rounds
 run alternately, and the speed-ups are those of this machine's load, not of idle cores.
@@ -68,10 +71,10 @@ PROJECTED_CORES = 100
 PROJECTED_FRAMES = 72
 #: An idle core's costs (issue 17, from benchmarks/bench_render.py and bench_estimate.py on two machines):
 #: a pair rendered in 34-76 ms, estimated in 2.4-4.6 ms; the upper ends are taken, and a new design's
-#: per-jig set-up of the estimator (~0.5 s, the first estimate of a task, measured by this benchmark's
-#: rows) once per task.
+#: per-task set-up of its estimator as measured here (:func:`setup_costs`, an upper bound) once per task.
 IDLE_PAIR_S = 0.076 + 0.0046
-IDLE_SETUP_S = 0.5
+#: New designs whose estimator set-up is timed.
+SETUP_DESIGNS = 5
 BACKENDS = ("local, 1 worker", "local, 2 workers", "Ray local, 2 workers")
 
 
@@ -160,6 +163,36 @@ def driver_costs(study: Study, batch: Sequence[TaskInput]) -> tuple[float, float
     return statistics.median(times), consolidate_per_task
 
 
+def setup_costs(study: Study) -> tuple[float, float]:
+    """Median per-task set-up of a new design's estimator, as :func:`run_task` pays it (the Estimator's
+    build, the reference frame's markers, the refractive estimator on them, the untimed first estimate),
+    and the median warm estimate after it (s); this process is warm (a worker's start-up is not in it)."""
+    import numpy as np
+
+    from softjig.sensing.estimator import Estimator
+    from softjig.sim.asbuilt import draw_as_built
+    from softjig.sim.render import render_pair
+
+    setups, warm = [], []
+    for inp in list(task_inputs(study, make_tasks(study)))[-SETUP_DESIGNS:]:
+        as_built = draw_as_built(inp.jig, np.random.default_rng(0))
+        unloaded, loaded = (
+            render_pair(as_built, f.part, f.pose, np.random.default_rng(k))
+            for k, f in enumerate(inp.frames[:2])
+        )
+        diameter = inp.frames[1].part.diameter_mm
+        t0 = time.perf_counter()
+        base = Estimator(inp.jig)
+        reference = base.reference_from_pair(unloaded.left, unloaded.right)
+        estimator = Estimator(inp.jig, reference=reference, model=base.model)
+        estimator.estimate(loaded.left, loaded.right, part_diameter_mm=diameter)
+        t1 = time.perf_counter()
+        estimator.estimate(loaded.left, loaded.right, part_diameter_mm=diameter)
+        setups.append(t1 - t0)
+        warm.append(time.perf_counter() - t1)
+    return statistics.median(setups), statistics.median(warm)
+
+
 def run_rounds(study: Study, args: argparse.Namespace) -> tuple[dict[str, list[Timing]], dict[str, float]]:
     import ray
 
@@ -170,6 +203,7 @@ def run_rounds(study: Study, args: argparse.Namespace) -> tuple[dict[str, list[T
     list(ray_results(warm[:2], "local"))  # each Ray worker imports softjig and loads the Numba caches once
     extra = {"ray_start_s": time.perf_counter() - t0}
     run_task(warm[-1])  # this process too (the forked pool's workers inherit it)
+    extra["setup_s"], extra["warm_estimate_s"] = setup_costs(study)
     runners = {
         BACKENDS[0]: (1, lambda b: local_results(b, 1)),
         BACKENDS[1]: (2, lambda b: local_results(b, 2)),
@@ -246,6 +280,10 @@ def report(timings: dict[str, list[Timing]], extra: dict[str, float], args: argp
         f"{extra['ray_start_s']:.1f} s.",
         f"- The driver: a task's part file written in {1e3 * extra['write_part_s']:.1f} ms (atomic, "
         f"fsynced) and read back in {1e3 * extra['consolidate_per_task_s']:.1f} ms when consolidating.",
+        "- A task's estimator set-up (one Estimator per method built for the task, the reference frame's "
+        f"markers, the untimed first estimate): {1e3 * extra['setup_s']:.0f} ms; then a warm estimate "
+        f"{1e3 * extra['warm_estimate_s']:.1f} ms (what a row's `estimate_ms` times), medians of "
+        f"{SETUP_DESIGNS} new designs in a warm process.",
     ]
     return lines + projection(timings, extra, args)
 
@@ -263,7 +301,7 @@ def projection(
     compute = n_tasks * (task_s + overhead) / PROJECTED_CORES
     consolidate = n_tasks * extra["consolidate_per_task_s"]
     total = compute + extra["ray_start_s"] + consolidate
-    idle_task_s = IDLE_SETUP_S + (PROJECTED_FRAMES + 1) * IDLE_PAIR_S
+    idle_task_s = extra["setup_s"] + (PROJECTED_FRAMES + 1) * IDLE_PAIR_S
     idle_total = n_tasks * (idle_task_s + overhead) / PROJECTED_CORES + extra["ray_start_s"] + consolidate
     return [
         "",
@@ -284,8 +322,9 @@ def projection(
         "",
         f"**On idle cores: about {idle_total / 60:.0f} min**, with the same overheads and a task of "
         f"{idle_task_s:.1f} s ({PROJECTED_FRAMES + 1} pairs at {1e3 * IDLE_PAIR_S:.0f} ms, the upper ends of "
-        "the issue's 34-76 ms render and 2.4-4.6 ms estimate, plus ~0.5 s of per-jig set-up): this machine's "
-        "cores were shared by several sessions when measured, so its per-frame time is an upper bound.",
+        "the issue's 34-76 ms render and 2.4-4.6 ms estimate, plus the estimator's set-up once a task, "
+        f"{1e3 * extra['setup_s']:.0f} ms as measured here): this machine's cores were shared by several "
+        "sessions when measured, so its per-frame time is an upper bound.",
     ]
 
 

@@ -322,3 +322,199 @@ def test_a_studys_frame_is_the_frame_softjig_simulate_renders_of_the_design(tmp_
     ).estimate
     k = row["method"].index("refractive")
     assert (row["est_nx"][k], row["est_ny"][k], row["est_nz"][k]) == pytest.approx(estimate.normal, abs=1e-12)
+
+
+def _one_design(study: Study) -> Study:
+    return Study(replace(study.spec, vary=(("markers.pitch_mm", (7.0,)),)), study.designs[:1])
+
+
+def test_a_tasks_rows_are_the_one_shot_estimates_of_its_frames(tmp_path):
+    """One Estimator per method and task gives every frame the estimate `estimate_pair` gives it alone (the
+    old per-frame path): the same normals, sigmas, qualities and markers; only the timings differ."""
+    from softjig.sensing.pipeline import estimate_pair, reference_from_pair
+    from softjig.sim.asbuilt import draw_as_built
+    from softjig.sim.render import render_pair
+
+    study = _one_design(_study(SMALL, tmp_path))
+    inp = next(task_inputs(study, make_tasks(study)))
+    columns = run_task(inp).columns
+    seed, jig = inp.task.seed, inp.jig
+    as_built = draw_as_built(jig, np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(0,))))
+
+    def pair(index):
+        rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(1, index)))
+        return render_pair(as_built, inp.frames[index].part, inp.frames[index].pose, rng)
+
+    unloaded = pair(0)
+    reference = reference_from_pair(unloaded.left, unloaded.right, jig)
+    i = 0
+    for k in range(1, len(inp.frames)):
+        p = pair(k)
+        for method in inp.methods:
+            old = estimate_pair(
+                p.left,
+                p.right,
+                jig,
+                part_diameter_mm=50.0,
+                method=method,
+                reference=reference if method == "refractive" else None,
+            ).estimate
+            assert (columns["method"][i], columns["frame"][i]) == (method, k - 1)
+            new = (columns["est_nx"][i], columns["est_ny"][i], columns["est_nz"][i])
+            assert new == pytest.approx(tuple(old.normal), abs=1e-12)
+            assert columns["sigma_deg"][i] == pytest.approx(old.tilt_sigma_deg, abs=1e-12)
+            assert columns["quality"][i] == old.quality
+            assert columns["markers_under_part"][i] == old.n_points
+            i += 1
+    assert i == len(columns["method"])
+
+
+def test_a_designs_latency_is_the_warm_estimate_alone(tmp_path):
+    """`latency_ms_median` is one more frame's cost to a running estimator (bench_estimate's per-pair time),
+    not the estimator's build (~0.5 s) nor its first call's warm-up: within a few times the warm
+    estimate of one of the study's frames timed here, in the same process under the same load."""
+    import time
+
+    from softjig.sensing.estimator import Estimator
+    from softjig.sim.asbuilt import draw_as_built
+    from softjig.sim.render import render_pair
+
+    study = _one_design(_study(SMALL.replace('"refractive", "paper"', '"refractive"'), tmp_path))
+    run = run_study(study, tmp_path / "out", workers=1, progress=False, report=False)
+    latency = run.designs.column("latency_ms_median").to_pylist()[0]
+    inp = next(task_inputs(study, make_tasks(study)))
+    as_built = draw_as_built(inp.jig, np.random.default_rng(1))
+    unloaded = render_pair(as_built, inp.frames[0].part, inp.frames[0].pose, np.random.default_rng(2))
+    loaded = render_pair(as_built, inp.frames[1].part, inp.frames[1].pose, np.random.default_rng(3))
+    estimator = Estimator(inp.jig)
+    estimator = estimator.with_reference(estimator.reference_from_pair(unloaded.left, unloaded.right))
+    warm_ms = []
+    for _ in range(4):
+        t0 = time.perf_counter()
+        estimator.estimate(loaded.left, loaded.right, part_diameter_mm=50.0)
+        warm_ms.append(1e3 * (time.perf_counter() - t0))
+    per_pair = float(np.median(warm_ms[1:]))
+    assert 0 < latency < 3 * per_pair + 5.0, (latency, per_pair)
+
+
+def test_a_task_builds_its_jigs_model_once_for_every_frame_and_method(tmp_path, monkeypatch):
+    """The per-jig set-up (:class:`JigModel`) is built once per task and shared by the methods' estimators,
+    not once per frame and method (the real build, counted)."""
+    from softjig.sensing.setup import JigModel
+
+    built = []
+    real = JigModel.build.__func__
+
+    def counted(cls, jig):
+        built.append(jig)
+        return real(cls, jig)
+
+    monkeypatch.setattr(JigModel, "build", classmethod(counted))
+    study = _one_design(_study(SMALL, tmp_path))
+    columns = run_task(next(task_inputs(study, make_tasks(study)))).columns
+    assert len(columns["method"]) == 4  # 2 frames x 2 methods, every one estimated
+    assert all(q != "failed" for q in columns["quality"])
+    assert len(built) == 1
+
+
+# ------------------------------------------------------------------------------------------ explicit poses
+
+POSES = """
+[study]
+name = "poses"
+seeds = [2]
+[vary]
+"markers.pitch_mm" = [8.0]
+[[frames.poses]]
+diameter_mm = 50
+alpha_deg = 12
+theta_deg = 45
+push_depth_mm = 2.5
+[[frames.poses]]
+diameter_mm = 40
+alpha_deg = 0
+[estimate]
+methods = ["refractive"]
+"""
+
+
+def test_explicit_poses_are_the_frames_in_their_order(tmp_path):
+    study = _study(POSES, tmp_path)
+    specs = study.spec.frame_specs()
+    assert len(specs) == 3 and specs[0].part is None  # the reference first
+    assert [(s.part.diameter_mm, round(math.degrees(s.pose.alpha_rad), 9)) for s in specs[1:]] == [
+        (50.0, 12.0),
+        (40.0, 0.0),
+    ]
+    assert (math.degrees(specs[1].pose.theta_rad), specs[1].pose.push_depth_mm) == pytest.approx((45.0, 2.5))
+    assert specs[2].pose.push_depth_mm == 3.0  # the default, as the sweep's
+    columns = run_task(next(task_inputs(study, make_tasks(study)))).columns
+    poses = zip(columns["diameter_mm"], columns["alpha_deg"], columns["theta_deg"], strict=True)
+    got = [v for pose in poses for v in pose]
+    assert got == pytest.approx([50.0, 12.0, 45.0, 40.0, 0.0, 0.0])
+    assert columns["depth_mm"][0] == pytest.approx(2.5, abs=0.3)  # the true depth, on the as-built jig
+    assert all(q != "failed" for q in columns["quality"])
+    assert columns["error_deg"][0] < 2.0
+    # a sweep's identity is what it was before poses existed (its folders still resume)
+    sweep = _study(SMALL, tmp_path, "sweep.toml").spec.canonical()["frames"]
+    assert set(sweep) == {"diameters_mm", "alphas_deg", "theta_step_deg", "push_depth_mm"}
+    assert study.spec.canonical()["frames"] == {
+        "poses": [
+            {"diameter_mm": 50.0, "alpha_deg": 12.0, "theta_deg": 45.0, "push_depth_mm": 2.5},
+            {"diameter_mm": 40.0, "alpha_deg": 0.0, "theta_deg": 0.0, "push_depth_mm": 3.0},
+        ]
+    }
+
+
+_ONE_POSE = {"diameter_mm": 50, "alpha_deg": 10}
+
+
+@pytest.mark.parametrize(
+    ("frames", "message"),
+    [
+        ({"poses": [_ONE_POSE], "alphas_deg": [5]}, "frames: give either poses or the paper sweep's"),
+        ({"poses": []}, "frames.poses: an empty list gives no frame"),
+        (
+            {"poses": [{**_ONE_POSE, "alpha_deg": 95}]},
+            "frames.poses.0.alpha_deg: Input should be less than 90",
+        ),
+        (
+            {"poses": [{**_ONE_POSE, "theta_deg": 360}]},
+            "frames.poses.0.theta_deg: Input should be less than 360",
+        ),
+        (
+            {"poses": [{**_ONE_POSE, "diameter_mm": -5}]},
+            "frames.poses.0.diameter_mm: Input should be greater",
+        ),
+        (
+            {"poses": [{**_ONE_POSE, "push_depth_mm": 0}]},
+            "frames.poses.0.push_depth_mm: Input should be greater",
+        ),
+        ({"poses": [_ONE_POSE, {**_ONE_POSE, "depth_mm": 2}]}, "frames.poses.1.depth_mm: Unexpected keyword"),
+        ({"poses": [{"alpha_deg": 10}]}, "frames.poses.0.diameter_mm"),
+        ({"poses": [{**_ONE_POSE, "diameter_mm": 500}]}, "frames: the 500 mm part does not fit the design"),
+        ({"poses": [{**_ONE_POSE, "push_depth_mm": 30}]}, "into the plate"),
+    ],
+)
+def test_bad_poses_are_errors_naming_the_pose_and_key(frames, message):
+    with pytest.raises(ConfigError) as info:
+        build_designs(parse_study({"study": {"name": "t"}, "frames": frames}))
+    assert message in str(info.value)
+
+
+def test_the_best_rigs_command_for_explicit_poses_renders_the_first_pose(tmp_path):
+    from softjig.io.dataset import Dataset
+    from softjig.study.report import _frames_text, _simulate_command
+
+    spec = _study(POSES, tmp_path).spec
+    command = _simulate_command(spec, 0)
+    assert command.startswith("softjig simulate --scenario single --config best/")
+    assert "--part-diameter 50 --alpha 12 --theta 45 --push-depth 2.5 --seed 2" in command
+    assert _frames_text(spec.frames) == "2 explicit poses of parts of diameter 40, 50 mm tilted by 0, 12 deg"
+    args = command.split()[1:]
+    args[args.index("--config") + 1] = str(tmp_path / "rig.toml")
+    assert runner.invoke(app, ["config", "--out", str(tmp_path / "rig.toml")]).exit_code == 0
+    result = runner.invoke(app, [*args, "--out", str(tmp_path / "ds"), "--no-progress", "--workers", "1"])
+    assert result.exit_code == 0, result.output
+    frame = Dataset.open(tmp_path / "ds")[0]
+    assert (frame.part.diameter_mm, frame.alpha_deg) == (50.0, pytest.approx(12.0))

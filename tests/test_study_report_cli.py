@@ -34,6 +34,11 @@ def test_a_small_study_reports_and_its_best_rig_simulates(tmp_path):
     result = runner.invoke(app, ["study", str(study), "--out", str(out), "--workers", "1", "--no-progress"])
     assert result.exit_code == 0, result.output
     assert "designs by RMSE" in result.stdout and "pitch_mm" in result.stdout
+    # it says where everything is
+    assert f"report: {out / 'report.html'} (3 figures)" in result.stdout
+    assert f"results: {out / 'results.parquet'}, designs: {out / 'designs.parquet'}" in result.stdout
+    assert f"in {out / 'best'} (the Pareto front's designs" in result.stdout
+    assert f"softjig simulate --config {out / 'best'}" in result.stdout
     page = (out / "report.html").read_text()
     assert "softjig study: tiny" in page
     assert page.count("data:image/png;base64,") == 3  # accuracy, cells, the front

@@ -113,6 +113,7 @@ def test_a_killed_study_resumes_and_equals_an_uninterrupted_run(tmp_path):
     stdout, stderr = third.communicate(timeout=WAIT_S)
     assert third.returncode == 0, stderr
     assert f"{N_TASKS - len(now)} tasks run ({len(now)} already finished)" in stdout
+    assert "designs by RMSE" in stdout  # the summary table, with --no-report too
     final = _parts(out)
     assert {name: final[name] for name in now} == now
     assert len(final) == N_TASKS

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -52,17 +52,39 @@ def study(
         f"{len(spec.frame_specs()) - 1} frames x {len(spec.methods)} methods"
     )
     run = run_study(loaded, out, workers=workers, ray=ray, resume=resume, progress=progress, report=report)
-    if run.outputs is not None:
-        from rich.console import Console
-
-        from softjig.study.report import summary_table
-
-        console = Console()
-        if not console.is_terminal:  # a file or a pipe: the whole table, not 80 columns of it
-            console = Console(width=WIDE_OUTPUT_COLUMNS)
-        console.print(summary_table(run.designs, paths=spec.paths))
+    _print_summary(run, spec.paths)
     skipped = f" ({run.skipped} already finished)" if run.skipped else ""
     typer.echo(
         f"wrote {len(run.results)} estimates of {len(run.designs)} design rows to {out} in "
         f"{run.wall_s:.1f} s: {run.ran} tasks run{skipped}"
     )
+    folder = run.folder.path
+    typer.echo(f"results: {folder / 'results.parquet'}, designs: {folder / 'designs.parquet'}")
+    if run.outputs is not None:
+        _print_outputs(run.outputs)
+
+
+def _print_summary(run: Any, paths: tuple[str, ...]) -> None:
+    """The designs ranked by RMSE (:func:`softjig.study.report.summary_table`), on stdout."""
+    from rich.console import Console
+
+    from softjig.study.report import summary_table
+
+    console = Console()
+    if not console.is_terminal:  # a file or a pipe: the whole table, not 80 columns of it
+        console = Console(width=WIDE_OUTPUT_COLUMNS)
+    console.print(summary_table(run.designs, paths=paths))
+
+
+def _print_outputs(outputs: Any) -> None:
+    """Where the report, its figures and the best rigs are (:class:`softjig.study.report.StudyOutputs`)."""
+    typer.echo(f"report: {outputs.report_html} ({len(outputs.figures)} figures)")
+    if outputs.best_rigs:
+        first = outputs.best_rigs[0]
+        typer.echo(
+            f"best rigs: {len(outputs.best_rigs)} in {first.parent} (the Pareto front's designs "
+            f"{', '.join(str(d) for d in outputs.front_design_ids)}); simulate one with "
+            f"`softjig simulate --config {first}`"
+        )
+    else:
+        typer.echo("best rigs: none (no design has an estimate)")

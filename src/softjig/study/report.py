@@ -474,6 +474,13 @@ def _note(design_id: int, rows: list[dict[str, Any]], paths: Sequence[str], meth
 def _simulate_command(spec: StudySpec, design_id: int) -> str:
     """The command that renders a design's study frames again (its first seed), from ``DIR``."""
     f = spec.frames
+    if f.poses:  # the first pose (softjig simulate renders one explicit pose at a time)
+        p = f.poses[0]
+        return (
+            f"softjig simulate --scenario single --config best/{best_rig_name(design_id)} "
+            f"--part-diameter {p.diameter_mm:g} --alpha {p.alpha_deg:g} --theta {p.theta_deg:g} "
+            f"--push-depth {p.push_depth_mm:g} --seed {spec.seeds[0]}"
+        )
     return (
         f"softjig simulate --scenario paper-sweep --config best/{best_rig_name(design_id)} "
         f"--diameters {','.join(f'{d:g}' for d in f.diameters_mm)} "
@@ -490,17 +497,36 @@ def _make_fronts(designs: pa.Table, points: DesignPoints, costs: Sequence[str]) 
     return out
 
 
+def _frames_note(spec: StudySpec) -> str:
+    """What :func:`_simulate_command` renders again."""
+    if spec.frames.poses:
+        return "its study's first pose (the others: their own --part-diameter, --alpha, --theta)"
+    return "its study frames"
+
+
+def _frames_text(f: Any) -> str:
+    """What the study's frames are, in words."""
+    if f.poses:
+        return (
+            f"{len(f.poses)} explicit poses of parts of diameter "
+            f"{', '.join(sorted({f'{p.diameter_mm:g}' for p in f.poses}, key=float))} mm tilted by "
+            f"{', '.join(sorted({f'{p.alpha_deg:g}' for p in f.poses}, key=float))} deg"
+        )
+    return (
+        f"parts of diameter {', '.join(f'{d:g}' for d in f.diameters_mm)} mm tilted by "
+        f"{', '.join(f'{a:g}' for a in f.alphas_deg)} deg every {f.theta_step_deg:g} deg of azimuth, "
+        f"pushed {f.push_depth_mm:g} mm"
+    )
+
+
 def _overview(spec: StudySpec, results: pa.Table, ranked: list[dict[str, Any]]) -> str:
     quality = results.column("quality").to_pylist() if "quality" in results.column_names else []
     n_designs = len({r["design_id"] for r in ranked})
-    f = spec.frames
     return (
         f"Written {_dt.datetime.now().astimezone().isoformat(timespec='seconds')}. {n_designs} designs "
         f"(of {spec.n_designs}) x methods {', '.join(spec.methods)}; "
         f"seeds {', '.join(map(str, spec.seeds))}; "
-        f"frames: parts of diameter {', '.join(f'{d:g}' for d in f.diameters_mm)} mm tilted by "
-        f"{', '.join(f'{a:g}' for a in f.alphas_deg)} deg every {f.theta_step_deg:g} deg of azimuth, "
-        f"pushed {f.push_depth_mm:g} mm. {len(quality)} estimates: {quality.count('ok')} ok, "
+        f"frames: {_frames_text(spec.frames)}. {len(quality)} estimates: {quality.count('ok')} ok, "
         f"{quality.count('suspect')} suspect, {quality.count('failed')} failed; "
         f"{sum(r['silent'] for r in ranked)} silent failures (error > 3 deg and > 4 sigma, quality ok)."
     )
@@ -606,7 +632,7 @@ def write_study_outputs(
         config_for or _spec_config_for(spec),
         notes={
             i: f'study "{spec.name}"\n{_note(i, rows, paths, spec.methods)}\n'
-            f"its study frames, from the study's folder:\n  {_simulate_command(spec, i)}"
+            f"{_frames_note(spec)}, from the study's folder:\n  {_simulate_command(spec, i)}"
             for i in front_ids
         },
     )

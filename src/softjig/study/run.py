@@ -2,14 +2,22 @@
 
 A **task** is one design, one seed and a chunk of the design's loaded frames (all of them up to
 ``[study] frames_per_task``, 96 by default): :func:`run_task` draws the design's as-built jig from the
-seed, renders the unloaded reference frame and the chunk's frames with the simulator's renderer
-(:func:`softjig.sim.render.render_pair`; images never touch the disk) and estimates each frame with every
-method of the study (:func:`softjig.sensing.pipeline.estimate_pair`; the refractive method against the
-reference frame). Frame ``k`` is rendered from ``SeedSequence(seed, spawn_key=(1, k + 1))`` and the
+seed, renders the unloaded reference frame and the chunk's frames with one simulator
+(:class:`softjig.sim.render.Renderer` of the as-built jig, built once for the task; images never touch
+the disk) and estimates each frame with every method of the study. It builds one
+:class:`~softjig.sensing.estimator.Estimator` per method for the task (the per-jig set-up paid once; the
+methods share the jig's model), the refractive one against the reference frame's markers, and calls it
+frame after frame. Frame ``k`` is rendered from ``SeedSequence(seed, spawn_key=(1, k + 1))`` and the
 as-built jig from ``SeedSequence(seed, spawn_key=(0,))``, exactly as ``softjig simulate`` numbers a paper
 sweep's frames after its reference: a study's frame is the frame ``softjig simulate --config
 best/NNN.toml --seed S`` renders, whatever the chunking or the machine. Every design sees the same
 seeds' noise (common random numbers: designs are compared on the same draws).
+
+**Timing.** A row's ``estimate_ms`` is the wall time of that frame's ``Estimator.estimate`` alone, warm:
+the estimators' build is not in it, and each estimator estimates the task's first frame once untimed
+before its timed estimates (the first call's lazy tables and compiled kernels; its result is discarded,
+an estimator's answer does not depend on what it estimated before). So ``latency_ms_median`` in
+``designs.parquet`` is what one more frame costs a running estimator.
 
 **Sizing.** A task of the default study is 73 renders and 72 estimates: about 3-6 s of work on one core
 (about 45 ms a pair rendered, 5 ms an estimate), against about 1 ms to send it and its rows through a
@@ -24,9 +32,6 @@ cluster (``address``: ``"auto"``, ``"ray://host:10001"``, ``"host:6379"``, or ``
 this machine with ``workers`` CPUs); every node needs softjig installed (``pip install softjig[ray]``).
 Both yield :class:`TaskResult` as tasks finish; the study is the same either way.
 
-The Estimator of issue 16 (one object built per jig) should replace the calls to ``estimate_pair`` and
-``reference_from_pair`` in :func:`run_task` once it lands: one Estimator per design and method, built
-once per task.
 """
 
 from __future__ import annotations
@@ -183,63 +188,79 @@ def _failed(row: dict[str, Any], reason: str, elapsed_ms: float) -> dict[str, An
     }
 
 
-def _estimate_row(
-    row: dict[str, Any], pair: Any, jig: JigConfig, method: str, reference: Any
-) -> dict[str, Any]:
-    from softjig.sensing.pipeline import estimate_pair
-
-    if isinstance(reference, str):  # the reference frame failed: the refractive method has no reference
-        return _failed(row, reference, 0.0)
+def _estimate_row(row: dict[str, Any], pair: Any, estimator: Any) -> dict[str, Any]:
+    """One frame's row by one method: ``estimator`` an :class:`Estimator`, or why the method has none."""
+    if isinstance(estimator, str):  # the reference frame failed: the refractive method has no reference
+        return _failed(row, estimator, 0.0)
     t0 = time.perf_counter()
     try:
-        estimate = estimate_pair(
-            pair.left,
-            pair.right,
-            jig,
-            part_diameter_mm=row["diameter_mm"],
-            method=method,
-            reference=reference,
-        ).estimate
+        estimate = estimator.estimate(pair.left, pair.right, part_diameter_mm=row["diameter_mm"]).estimate
     except (EstimationError, InputError) as exc:
         return _failed(row, str(exc), 1e3 * (time.perf_counter() - t0))
     return _estimated(row, estimate, 1e3 * (time.perf_counter() - t0))
 
 
+def _estimators(jig: JigConfig, methods: tuple[str, ...], unloaded: Any) -> dict[str, Any]:
+    """One :class:`Estimator` per method, sharing the jig's model; the refractive one against the
+    ``unloaded`` pair's markers (or, when they cannot be had, the reason, as a string)."""
+    from softjig.sensing.estimator import Estimator
+
+    if not methods:
+        return {}
+    base = Estimator(jig, method=methods[0])
+    out: dict[str, Any] = {}
+    for method in methods:
+        if method == "refractive":
+            try:
+                reference = base.reference_from_pair(unloaded.left, unloaded.right)
+            except (EstimationError, InputError) as exc:
+                out[method] = f"reference frame: {exc}"
+                continue
+            out[method] = Estimator(jig, method=method, reference=reference, model=base.model)
+        else:
+            out[method] = base if base.method == method else Estimator(jig, method=method, model=base.model)
+    return out
+
+
+def _warm(estimators: dict[str, Any], pair: Any, diameter_mm: float) -> None:
+    """Estimate ``pair`` once with each estimator, untimed and discarded (the first call's warm-up)."""
+    for estimator in estimators.values():
+        if not isinstance(estimator, str):
+            with contextlib.suppress(EstimationError, InputError):
+                estimator.estimate(pair.left, pair.right, part_diameter_mm=diameter_mm)
+
+
 def run_task(inp: TaskInput) -> TaskResult:
     """Render and estimate one task's frames in memory (see the module docstring); never raises for a
     frame: a frame without an estimate is a row of quality ``"failed"`` with the reason."""
-    from softjig.sensing.pipeline import reference_from_pair
     from softjig.sim.asbuilt import draw_as_built
-    from softjig.sim.render import render_pair
+    from softjig.sim.render import Renderer
     from softjig.sim.scenarios import frame_truth
 
     t_start = time.perf_counter()
     task, jig = inp.task, inp.jig
     as_built = draw_as_built(jig, np.random.default_rng(np.random.SeedSequence(task.seed, spawn_key=(0,))))
-    render_s = 0.0
+    render_s, renderer = 0.0, None
 
     def render(spec: Any, index: int) -> Any:
-        nonlocal render_s
+        nonlocal render_s, renderer
         t0 = time.perf_counter()
+        renderer = renderer or Renderer(as_built)  # built at the first frame (a task may render none)
         rng = np.random.default_rng(np.random.SeedSequence(task.seed, spawn_key=(1, index)))
-        pair = render_pair(as_built, spec.part, spec.pose, rng)
+        pair = renderer.render_pair(spec.part, spec.pose, rng)
         render_s += time.perf_counter() - t0
         return pair
 
-    reference: Any = None
-    if "refractive" in inp.methods:
-        unloaded = render(inp.frames[0], 0)
-        try:
-            reference = reference_from_pair(unloaded.left, unloaded.right, jig)
-        except (EstimationError, InputError) as exc:
-            reference = f"reference frame: {exc}"
+    unloaded = render(inp.frames[0], 0) if "refractive" in inp.methods else None
+    estimators = _estimators(jig, inp.methods, unloaded)
     rows = []
     for k, spec in zip(range(task.first, task.stop), inp.frames[1:], strict=True):
         pair = render(spec, k + 1)
         base = _row(task, "", k, spec, frame_truth(as_built.jig, spec.pose))
+        if k == task.first:
+            _warm(estimators, pair, base["diameter_mm"])
         for method in inp.methods:
-            ref = reference if method == "refractive" else None
-            rows.append(_estimate_row({**base, "method": method}, pair, jig, method, ref))
+            rows.append(_estimate_row({**base, "method": method}, pair, estimators[method]))
     columns = {name: [r[name] for r in rows] for name in (rows[0] if rows else {})}
     return TaskResult(task, columns, time.perf_counter() - t_start, render_s)
 
@@ -270,7 +291,7 @@ def _one_thread_each() -> Iterator[None]:
 
 def _warm_up() -> None:
     """Import the renderer and the estimator once per worker, before its first task."""
-    from softjig.sensing import pipeline  # noqa: F401
+    from softjig.sensing import estimator  # noqa: F401
     from softjig.sim import render  # noqa: F401
 
 

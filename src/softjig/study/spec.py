@@ -51,10 +51,10 @@ import tomllib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 import numpy as np
-from pydantic import ConfigDict, TypeAdapter, ValidationError
+from pydantic import ConfigDict, Field, TypeAdapter, ValidationError
 
 from softjig.config import (
     CylinderPart,
@@ -71,6 +71,7 @@ __all__ = [
     "ALIASES",
     "Design",
     "FramesSpec",
+    "PoseSpec",
     "Study",
     "StudySpec",
     "build_designs",
@@ -113,16 +114,48 @@ class _StudySection:
 
 
 @dataclass(frozen=True)
+class PoseSpec:
+    """One explicit frame: a cylinder (30 mm high) of ``diameter_mm`` centred on the jig axis, pushed in
+    by ``push_depth_mm`` and tilted by ``alpha_deg`` towards the azimuth ``theta_deg`` (from J's +x
+    towards +y), as ``softjig simulate --scenario single`` renders it."""
+
+    __pydantic_config__ = _STRICT
+    diameter_mm: Annotated[float, Field(gt=0)]
+    alpha_deg: Annotated[float, Field(ge=0, lt=90)]
+    theta_deg: Annotated[float, Field(ge=0, lt=360)] = 0.0
+    push_depth_mm: Annotated[float, Field(gt=0)] = 3.0
+
+
+#: ``[frames]`` keys of the paper sweep (exclusive with ``poses``).
+SWEEP_KEYS = ("diameters_mm", "alphas_deg", "theta_step_deg", "push_depth_mm")
+
+
+@dataclass(frozen=True)
 class FramesSpec:
     """The poses each design is tested on: the paper sweep (:func:`softjig.sim.scenarios.paper_sweep`),
     cylinders of ``diameters_mm`` centred on the jig axis, pushed in by ``push_depth_mm`` and tilted by
-    each of ``alphas_deg`` towards azimuths ``0, theta_step_deg, ...`` below 360 degrees."""
+    each of ``alphas_deg`` towards azimuths ``0, theta_step_deg, ...`` below 360 degrees; or, when
+    ``poses`` is given (and none of the sweep's keys), exactly those poses in their order."""
 
     __pydantic_config__ = _STRICT
     diameters_mm: tuple[float, ...] = (40.0, 60.0)
     alphas_deg: tuple[float, ...] = (5.0, 10.0, 20.0)
     theta_step_deg: float = 30.0
     push_depth_mm: float = 3.0
+    poses: tuple[PoseSpec, ...] = ()
+
+    def canonical(self) -> dict[str, Any]:
+        """JSON-ready: the poses alone when given, else the sweep (so a sweep's hash is what it was)."""
+        if self.poses:
+            return {"poses": [_plain(dataclasses.asdict(p)) for p in self.poses]}
+        return _plain({k: v for k, v in dataclasses.asdict(self).items() if k != "poses"})
+
+    def parts_and_poses(self) -> list[tuple[float, float, float, float]]:
+        """``(diameter_mm, alpha_deg, theta_deg, push_depth_mm)`` of each distinct part and tilt to check
+        on a design (the sweep's at azimuth 0: the jig is symmetric about its axis)."""
+        if self.poses:
+            return sorted({(p.diameter_mm, p.alpha_deg, 0.0, p.push_depth_mm) for p in self.poses})
+        return [(d, a, 0.0, self.push_depth_mm) for d in self.diameters_mm for a in self.alphas_deg]
 
 
 @dataclass(frozen=True)
@@ -178,7 +211,7 @@ class StudySpec:
                 "frames_per_task": self.frames_per_task,
             },
             "vary": {path: [_plain(v) for v in values] for path, values in self.vary},
-            "frames": _plain(dataclasses.asdict(self.frames)),
+            "frames": self.frames.canonical(),
             "estimate": {"methods": list(self.methods)},
             "base": jig_to_dict(self.base),
         }
@@ -191,16 +224,43 @@ class StudySpec:
 
     def frame_specs(self) -> list:
         """The unloaded reference frame, then the loaded frames (:func:`~softjig.sim.scenarios.paper_sweep`
-        order: diameter, alpha, theta); loaded frame ``k`` is the list's ``k + 1``."""
-        from softjig.sim.scenarios import paper_sweep
+        order: diameter, alpha, theta; or the explicit poses in their order); loaded frame ``k`` is the
+        list's ``k + 1``."""
+        from softjig.sim.scenarios import FrameSpec, paper_sweep, single
 
         f = self.frames
         try:
+            if f.poses:
+                frames = [
+                    single(_cylinder(p.diameter_mm), p.alpha_deg, p.theta_deg, p.push_depth_mm)[0]
+                    for p in f.poses
+                ]
+                return [FrameSpec(None, None, {"reference": True}), *frames]
             return list(
                 paper_sweep(f.diameters_mm, f.alphas_deg, f.theta_step_deg, f.push_depth_mm, reference=True)
             )
         except InputError as exc:
             raise ConfigError(f"frames: {exc}") from None
+
+
+def _cylinder(diameter_mm: float) -> CylinderPart:
+    from softjig.sim.scenarios import CYLINDER_HEIGHT_MM
+
+    return CylinderPart(diameter_mm=float(diameter_mm), height_mm=CYLINDER_HEIGHT_MM)
+
+
+def _parse_frames(data: Any) -> FramesSpec:
+    """``[frames]``: the paper sweep's keys, or ``poses`` (a list of tables), not both."""
+    if isinstance(data, dict) and "poses" in data:
+        given = [k for k in SWEEP_KEYS if k in data]
+        if given:
+            raise ConfigError(
+                f"frames: give either poses or the paper sweep's {', '.join(SWEEP_KEYS)}, not both "
+                f"(also given: {', '.join(given)})"
+            )
+        if not data["poses"]:
+            raise ConfigError("frames.poses: an empty list gives no frame; give at least one pose")
+    return _parse(FramesSpec, data, "frames")
 
 
 def _is_number(value: Any) -> bool:
@@ -278,7 +338,7 @@ def parse_study(data: dict[str, Any], *, folder: Path | None = None) -> StudySpe
     if section.frames_per_task < 1:
         raise ConfigError(f"study.frames_per_task: must be at least 1, got {section.frames_per_task}")
     base = _base_jig(section.config, folder)
-    frames = _parse(FramesSpec, data.get("frames", {}), "frames")
+    frames = _parse_frames(data.get("frames", {}))
     methods = _parse(_EstimateSection, data.get("estimate", {}), "estimate").methods
     _check_methods(methods)
     vary = _parse_vary(data.get("vary", {}))
@@ -576,16 +636,14 @@ def _where(spec: StudySpec, values: Sequence[Value]) -> str:
 def _check_frames(spec: StudySpec, jig: JigConfig, values: Sequence[Value]) -> None:
     """Every part of ``[frames]`` fits the design's membrane and stays clear of its plate."""
     from softjig.sim.parts import PartPose
-    from softjig.sim.scenarios import CYLINDER_HEIGHT_MM, FrameSpec, check_reachable
+    from softjig.sim.scenarios import FrameSpec, check_reachable
 
-    f = spec.frames
-    for d in f.diameters_mm:
-        part = CylinderPart(diameter_mm=float(d), height_mm=CYLINDER_HEIGHT_MM)
+    for d, a, t, depth in spec.frames.parts_and_poses():
+        part = _cylinder(d)
         try:
             validate_part(part, jig)
-            for a in f.alphas_deg:
-                pose = PartPose(alpha_rad=math.radians(a), push_depth_mm=f.push_depth_mm)
-                check_reachable(jig, FrameSpec(part, pose))
+            pose = PartPose(alpha_rad=math.radians(a), theta_rad=math.radians(t), push_depth_mm=depth)
+            check_reachable(jig, FrameSpec(part, pose))
         except InputError as exc:
             raise ConfigError(
                 f"frames: the {d:g} mm part does not fit the design {_where(spec, values)}: {exc}"
