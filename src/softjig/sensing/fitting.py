@@ -594,7 +594,10 @@ class ContactPlaneFitter:
         )
         if selection.sum() < self._minimum:
             return None
-        inliers, plane = fit(points_J[selection])
+        try:
+            inliers, plane = fit(points_J[selection])
+        except EstimationError:  # no plane there: no rival (never a reason to refuse the estimate)
+            return None
         used = np.zeros(len(points_J), dtype=bool)
         used[np.flatnonzero(selection)[inliers]] = True
         other = (used, plane)
