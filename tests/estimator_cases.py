@@ -1,37 +1,14 @@
-"""Shared cases for the estimator's trust tests: jig designs other than the default, and a bead pack whose
-speckle is the same in every frame (as in a real jig, whose beads do not move).
+"""Shared cases for the estimator's trust tests: jig designs other than the default.
 
-Until the simulator has a static speckle of its own, :func:`static_speckle` makes it so by drawing each
-camera's speckle texture from a fixed seed (the left camera's, then the right's, in turn) instead of the
-frame's generator; the rest of the frame (ripple, sensor noise) stays random.
+Their bead speckle is the simulator's static one (``medium.speckle_static``, the default): the same bead
+pack in every frame, as in a real jig, re-packed only where the membrane moved.
 """
 
 from __future__ import annotations
 
-import contextlib
-import itertools
 from dataclasses import replace
 
-import numpy as np
-
-import softjig.sim.render as render
 from softjig.config import CameraConfig, JigConfig, StereoConfig, default_jig
-
-
-@contextlib.contextmanager
-def static_speckle(seed: int = 1234):
-    """Within the block, every rendered pair carries the same speckle texture per camera."""
-    original = render._speckle
-    calls = itertools.count()
-
-    def fixed(rng, shape, corr_px, std):
-        return original(np.random.default_rng(seed + next(calls) % 2), shape, corr_px, std)
-
-    render._speckle = fixed
-    try:
-        yield
-    finally:
-        render._speckle = original
 
 
 def stereo_cameras(

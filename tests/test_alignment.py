@@ -154,26 +154,14 @@ def _align_cli(tmp_path):
     return CliRunner().invoke(app, args), out
 
 
-def _stereo_camera_image():
-    """A crop of the stereo camera's view of the membrane's markers (many bright blobs, no circles)."""
-    from softjig.config import CylinderPart
-    from softjig.sim.asbuilt import draw_as_built
-    from softjig.sim.parts import PartPose
-    from softjig.sim.render import render_pair
-
-    jig = default_jig()
-    left = render_pair(draw_as_built(jig, rng=0), CylinderPart(diameter_mm=50.0), PartPose(), rng=0).left
-    return np.ascontiguousarray(left[100:580, 300:940])
-
-
 @pytest.mark.parametrize("kind", ["noise", "stereo"])
-def test_an_image_without_the_circles_gives_no_pose(tmp_path, scene, kind):
+def test_an_image_without_the_circles_gives_no_pose(tmp_path, scene, default_scene, kind):
     """Issue 14: a noise image and a stereo image gave exit 0 and a robot pose (RMS 64-128 px)."""
     _, _, T_flange = scene
     if kind == "noise":
         image = (np.random.default_rng(0).random((480, 640)) * 255).astype(np.uint8)
-    else:
-        image = _stereo_camera_image()
+    else:  # a crop of the stereo camera's view of the markers (many bright blobs, no circles)
+        image = np.ascontiguousarray(default_scene.left[100:580, 300:940])
     _write_inputs(tmp_path, image, T_flange)
     result, out = _align_cli(tmp_path)
     assert result.exit_code == 3, result.output

@@ -20,15 +20,11 @@ from softjig.io.cameras import (
     parse_source_spec,
 )
 from softjig.io.dataset import DatasetWriter
-from softjig.io.simulated import simulate_dataset
-from softjig.sim.scenarios import paper_sweep
 
 
 @pytest.fixture(scope="module")
-def sweep(tmp_path_factory):
-    out = tmp_path_factory.mktemp("cams") / "sweep"
-    specs = list(paper_sweep(diameters_mm=(50,), alphas_deg=(10,), theta_step_deg=90))
-    return simulate_dataset(out, specs, default_jig(), seed=3, workers=1, progress=False)
+def sweep(small_dataset):
+    return small_dataset
 
 
 @pytest.fixture()

@@ -130,8 +130,11 @@ def test_out_onto_a_link_to_the_index_or_an_input_is_refused(ds, tmp_path):
 def test_out_elsewhere_in_the_dataset_folder_is_fine(ds):
     result = _estimate(ds, "--out", ds / "results.csv")
     assert result.exit_code == 0, result.output
-    again = _estimate(ds, "--out", ds / "results.csv")  # our own results file: replaced
+    first = (ds / "results.csv").read_text()
+    assert len(first.splitlines()) == 1 + len(Dataset.open(ds))  # the header and a row a frame
+    again = _estimate(ds, "--out", ds / "results.csv")  # our own results file: replaced, not appended to
     assert again.exit_code == 0, again.output
+    assert (ds / "results.csv").read_text() == first
 
 
 def test_out_into_another_datasets_files_or_not_a_results_file_is_refused(ds, source, tmp_path):

@@ -12,21 +12,14 @@ from typer.testing import CliRunner
 from softjig.cli import app
 from softjig.config import dumps_jig
 from softjig.io.dataset import Dataset
-from softjig.io.simulated import simulate_dataset
-from softjig.sim.scenarios import paper_sweep
 
 runner = CliRunner()
 
 
 @pytest.fixture(scope="module")
-def sweep(tmp_path_factory):
+def sweep(small_dataset):
     """The small sweep of DESIGN.md's contract: a reference frame and 4 loaded frames (D = 50 mm)."""
-    out = tmp_path_factory.mktemp("cli") / "sweep"
-    from softjig.config import default_jig
-
-    specs = list(paper_sweep(diameters_mm=(50,), alphas_deg=(10,), theta_step_deg=90))
-    simulate_dataset(out, specs, default_jig(), seed=2, workers=1, progress=False)
-    return Dataset.open(out)
+    return Dataset.open(small_dataset)
 
 
 def _pair_args(sweep, k=1):

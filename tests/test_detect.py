@@ -123,6 +123,7 @@ def nominal_frame() -> tuple[np.ndarray, np.ndarray]:
 # Detection and accuracy
 
 
+@pytest.mark.accuracy
 def test_nominal_grid_full_recall_no_false_positives(nominal_frame):
     truth, image = nominal_frame
     markers = detect_markers(image, sigma_px=SIGMA_PX)
@@ -148,6 +149,7 @@ def test_subpixel_rmse_camera_noise_only(refine, limit):
     assert rmse < limit
 
 
+@pytest.mark.accuracy
 def test_subpixel_rmse_nominal_speckle(nominal_frame):
     # Measured: 0.37 px RMS on this frame (0.35 px over 4 seeds). Bead speckle of std
     # 10/255 dominates the error: it shifts the LoG peak itself, whatever the refinement.
@@ -179,6 +181,7 @@ def test_quadratic_refinement_beats_integer_peaks():
     assert np.sqrt(np.mean(refined**2)) < 0.2 * np.sqrt(np.mean(whole**2))
 
 
+@pytest.mark.accuracy
 @settings(max_examples=60, deadline=None)
 @given(
     u=st.floats(30.0, 34.0),
@@ -234,6 +237,7 @@ def test_border_is_tested_on_fitted_centres_so_both_candidate_paths_keep_the_sam
     assert np.all(np.floor(found[0][:, 1] + 0.5) >= border)
 
 
+@pytest.mark.smoke
 def test_full_frame_finds_every_marker_near_its_truth():
     # (its time is benchmarks/suite.py's, not a test's)
     truth = marker_grid(FRAME, pitch_px=46.0, margin_px=25.0)
@@ -291,6 +295,7 @@ def test_default_threshold_keeps_faint_markers_and_rejects_speckle():
         assert len(detect_markers(background, sigma_px=SIGMA_PX)) == 0
 
 
+@pytest.mark.shapes
 def test_empty_result_on_dark_noisy_image():
     rng = np.random.default_rng(8)
     image = quantise(20 / 255 + 3 / 255 * rng.standard_normal(FRAME))
@@ -384,6 +389,7 @@ def test_to_gray_float_scaling_and_rgb_weights():
 # Errors
 
 
+@pytest.mark.exceptions
 @pytest.mark.parametrize(
     ("image", "words"),
     [
@@ -434,6 +440,7 @@ def test_check_image_content():
         check_image_content(np.zeros((5, 5, 3), np.uint8))
 
 
+@pytest.mark.exceptions
 @pytest.mark.parametrize(
     ("kwargs", "words"),
     [
@@ -479,6 +486,7 @@ def test_markers_is_immutable():
 # The fast path (pyramid candidates) against the straightforward one (full-resolution LoG)
 
 
+@pytest.mark.agreement
 @pytest.mark.parametrize("refine", ["model", "quadratic", None])
 def test_pyramid_and_full_find_the_same_markers(nominal_frame, refine):
     truth, image = nominal_frame
@@ -555,18 +563,19 @@ def test_exclude_drops_candidates_before_refinement(nominal_frame):
 
 
 @pytest.fixture(scope="module")
-def default_pairs():
-    from softjig.config import CylinderPart, default_jig
-    from softjig.sim.asbuilt import draw_as_built
+def default_pairs(default_scene):
+    """The default pair and the benchmark's next two (the part turned 72 and 144 deg)."""
+    from scenes import render_scene
     from softjig.sim.parts import PartPose
-    from softjig.sim.render import render_pair
 
-    jig = default_jig()
-    as_built = draw_as_built(jig, rng=0)
-    pose = [PartPose(np.radians(10), np.radians(a), 3.0) for a in (0, 72, 144)]
-    return jig, [render_pair(as_built, CylinderPart(50.0), p, rng=k) for k, p in enumerate(pose)]
+    turned = [
+        render_scene(pose=PartPose(np.radians(10), np.radians(a), 3.0), seed=k)
+        for k, a in ((1, 72), (2, 144))
+    ]
+    return default_scene.jig, [default_scene.pair, *(scene.pair for scene in turned)]
 
 
+@pytest.mark.agreement
 def test_pipeline_normals_fast_equal_straightforward(default_pairs, monkeypatch):
     # The default pipeline (pyramid candidates) against the full-resolution LoG, with the same
     # refinement: plane normals within 0.05 deg (measured: below 0.04 deg on the benchmark's 5 pairs).

@@ -12,15 +12,13 @@ from softjig.cli import app
 from softjig.config import default_jig, load_jig
 from softjig.errors import ConfigError
 from softjig.sensing.fiducials import detect_fiducials
-from softjig.sim.asbuilt import draw_as_built
-from softjig.sim.render import render_pair
 
 JIG = default_jig()
 
 
 @pytest.fixture(scope="module")
-def pair():
-    return render_pair(draw_as_built(JIG, 1), None, None, 2)
+def pair(unloaded_scene):
+    return unloaded_scene.pair
 
 
 def test_png_sheet_puts_each_marker_at_its_place_and_size():

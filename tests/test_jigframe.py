@@ -33,6 +33,7 @@ def _pose_difference(T_a: np.ndarray, T_b: np.ndarray) -> tuple[float, float]:
     return float(np.linalg.norm(dT[:3, 3])), float(np.degrees(angle))
 
 
+@pytest.mark.agreement
 def test_fast_path_finds_the_same_corners_as_the_aruco_detector(pair):
     for image, quads in (
         (pair.left, EXPECTED.fiducial_quads_left_px),
@@ -45,6 +46,7 @@ def test_fast_path_finds_the_same_corners_as_the_aruco_detector(pair):
             assert np.abs(corners - aruco[marker_id]).max() < 0.01
 
 
+@pytest.mark.agreement
 def test_fast_path_gives_the_oracles_pose(pair):
     fast = jig_frame_from_fiducials(pair.left, pair.right, JIG)
     oracle = oracle_jig_frame(pair.left, pair.right, JIG)
@@ -103,6 +105,7 @@ def test_wrong_ids_are_not_read_as_the_expected_fiducials(pair):
     assert locate_fiducials_near(pair.left, JIG.fiducials, rotated) is None
 
 
+@pytest.mark.shapes
 def test_nothing_to_find():
     blank = np.full((JIG.cameras.left.height_px, JIG.cameras.left.width_px), 30, np.uint8)
     assert locate_fiducials_near(blank, JIG.fiducials, EXPECTED.fiducial_quads_left_px) is None

@@ -12,21 +12,15 @@ import warnings
 import numpy as np
 import pytest
 
-from softjig.config import default_jig
 from softjig.errors import InputError
 from softjig.io.cameras import ReplaySource
 from softjig.io.dataset import Dataset, DatasetTruncationWarning
-from softjig.io.simulated import simulate_dataset
 from softjig.live.loop import LiveLoop, LiveSettings, Recorder
-from softjig.sim.scenarios import paper_sweep
 
 
 @pytest.fixture(scope="module")
-def sweep(tmp_path_factory):
-    out = tmp_path_factory.mktemp("rec") / "sweep"
-    specs = list(paper_sweep(diameters_mm=(50,), alphas_deg=(10,), theta_step_deg=90))
-    simulate_dataset(out, specs, default_jig(), seed=5, workers=1, progress=False)
-    return Dataset.open(out)
+def sweep(small_dataset):
+    return Dataset.open(small_dataset)
 
 
 def test_recording_a_replay_is_a_lossless_dataset(sweep, tmp_path):

@@ -47,6 +47,7 @@ def test_rectified_jig_satisfies_the_rectified_rules(raw_pair):
     assert jig.cameras.baseline_mm == pytest.approx(RAW.cameras.baseline_mm)
 
 
+@pytest.mark.accuracy
 def test_rectified_images_put_every_marker_where_the_virtual_cameras_see_it(raw_pair):
     rect = rectification(RAW.cameras)
     layers = flat_layers(RAW)
@@ -102,6 +103,7 @@ def test_an_estimator_rectifies_with_maps_it_computed_once(monkeypatch):
     assert Estimator(RAW, model=estimator.model).model.rectification is estimator.model.rectification
 
 
+@pytest.mark.exceptions
 def test_swapped_cameras_are_an_input_error():
     swapped = StereoConfig(
         left=replace(RAW_RIGHT, position_mm=(-15.0, 0.0, -155.0)),
@@ -112,6 +114,7 @@ def test_swapped_cameras_are_an_input_error():
         rectification(swapped)
 
 
+@pytest.mark.exceptions
 def test_wrong_image_size_is_an_input_error(raw_pair):
     with pytest.raises(InputError, match=r"cameras\.left"):
         rectify_pair(raw_pair.left[:100], raw_pair.right, RAW)

@@ -34,6 +34,7 @@ def _project(points):
     )
 
 
+@pytest.mark.accuracy
 @settings(max_examples=50, deadline=None)
 @given(st.floats(-50, 50), st.floats(-30, 30), st.floats(0.5, 35))
 def test_refracted_triangulation_inverts_the_exact_projection(x, y, z):
@@ -60,6 +61,7 @@ def test_refraction_matters():
     assert triangulate_refracted(left, right, JIG, FRAME).points_J[0, 2] == pytest.approx(30.0, abs=1e-9)
 
 
+@pytest.mark.agreement
 def test_closed_form_and_traced_triangulation_agree():
     """The closed-form rays against the oracle tracing every interface (backproject_pixels), for a head
     that is off its nominal pose and a camera with distortion."""
@@ -81,6 +83,7 @@ def test_closed_form_and_traced_triangulation_agree():
     assert np.all(fast.ray_gap_mm > 0)  # noisy matches: skew rays
 
 
+@pytest.mark.exceptions
 @pytest.mark.parametrize(
     ("left", "right", "words"),
     [
@@ -94,6 +97,7 @@ def test_triangulate_refracted_rejects_bad_input(left, right, words):
         triangulate_refracted(left, right, JIG, FRAME)
 
 
+@pytest.mark.shapes
 def test_triangulate_nothing():
     result = triangulate_refracted(np.zeros((0, 2)), [], JIG, FRAME)
     assert result.points_J.shape == (0, 3) and result.ray_gap_mm.shape == (0,)
@@ -110,6 +114,7 @@ def test_closest_points_of_skew_rays():
     assert np.isnan(mid).all()  # parallel rays: no unique point
 
 
+@pytest.mark.accuracy
 def test_identities_follow_markers_that_moved():
     reference = rest_shape_reference(JIG)
     rng = np.random.default_rng(0)
@@ -161,6 +166,7 @@ def test_partial_contact_is_flagged_with_its_side():
     assert region.centroid_xy_mm[0] > 5.0  # the contact lies on the lowered side
 
 
+@pytest.mark.exceptions
 def test_triangulate_refracted_says_why_rays_cannot_be_traced():
     above = np.eye(4)
     above[:3, 3] = (0.0, 0.0, -2.0)  # a camera inside the plate
@@ -175,6 +181,7 @@ def test_triangulate_refracted_says_why_rays_cannot_be_traced():
         )
 
 
+@pytest.mark.agreement
 def test_identities_match_a_kd_tree_resolved_nearest_first():
     reference = rest_shape_reference(default_jig())
     rng = np.random.default_rng(6)

@@ -24,9 +24,8 @@ def _pair(diameter, alpha_deg, theta_deg, seed):
 
 
 @pytest.fixture(scope="module")
-def reference():
-    pair = render_pair(AS_BUILT, None, None, 99)
-    return reference_from_pair(pair.left, pair.right, JIG)
+def reference(unloaded_scene):
+    return reference_from_pair(unloaded_scene.left, unloaded_scene.right, JIG)
 
 
 @pytest.mark.parametrize(("diameter", "alpha", "theta"), [(50, 5, 20), (80, 10, 110), (80, 15, 200)])

@@ -80,6 +80,7 @@ OUTLIER_CASES = [  # (lift fraction of the disc, wall markers as a fraction of t
 ]
 
 
+@pytest.mark.accuracy
 @pytest.mark.parametrize("one_sided", [True, False])
 @pytest.mark.parametrize(("lift", "wall"), OUTLIER_CASES)
 @pytest.mark.parametrize("alpha_deg", [8.0, 20.0])
@@ -103,6 +104,7 @@ def test_exact_plane_recovered_where_svd_fails(lift, wall, alpha_deg, one_sided)
     assert worst < 0.1
 
 
+@pytest.mark.accuracy
 @pytest.mark.parametrize(("lift", "wall"), OUTLIER_CASES[1:])
 def test_noisy_plane_as_good_as_the_contact_markers_alone(lift, wall):
     # 0.05 mm depth noise: the robust fit is as good as a least-squares fit to the true contact set.
@@ -198,6 +200,7 @@ def test_adaptive_iterations_stay_small():
 # -------------------------------------------------------------------------------------- errors
 
 
+@pytest.mark.exceptions
 @pytest.mark.parametrize(
     "points",
     [np.zeros((2, 3)), np.zeros((5, 2)), np.array([[0, 0, 0], [1, 0, np.nan], [0, 1, 0.0]])],
@@ -207,12 +210,14 @@ def test_bad_points_raise(points):
         fit_plane_robust(points)
 
 
+@pytest.mark.exceptions
 def test_collinear_points_raise():
     pts = np.column_stack([np.arange(6.0), 2 * np.arange(6.0), np.zeros(6)])
     with pytest.raises(InputError, match="line"):
         fit_plane_robust(pts)
 
 
+@pytest.mark.exceptions
 def test_too_few_inliers_names_the_counts():
     rng = np.random.default_rng(9)
     pts, _, _ = contact_scene(rng, lift_fraction=0.33, noise_mm=0.02)
@@ -222,6 +227,7 @@ def test_too_few_inliers_names_the_counts():
         fit_plane_robust(pts, min_inliers=200)
 
 
+@pytest.mark.exceptions
 @pytest.mark.parametrize("threshold", [0.0, -1.0, float("nan")])
 def test_bad_threshold_raises(threshold):
     with pytest.raises(InputError, match="threshold_mm"):

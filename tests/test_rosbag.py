@@ -493,11 +493,14 @@ def test_estimating_our_bag_equals_estimating_the_dataset(sweep, sweep_bag, tmp_
 def test_estimating_the_bags_mcap_file_alone_equals_the_folder(sweep_bag, tmp_path):
     out = tmp_path / "file.jsonl"
     mcap_file = next(sweep_bag.glob("*.mcap"))
-    result = runner.invoke(
-        app, ["estimate", str(mcap_file), "--out", str(out), "--workers", "1", "--no-progress"]
-    )
-    assert result.exit_code == 0, result.output
-    assert len(out.read_text().splitlines()) == 5
+    folder = tmp_path / "folder.jsonl"
+    for source, target in ((mcap_file, out), (sweep_bag, folder)):
+        result = runner.invoke(
+            app, ["estimate", str(source), "--out", str(target), "--workers", "1", "--no-progress"]
+        )
+        assert result.exit_code == 0, result.output
+    rows = [json.loads(line) for line in out.read_text().splitlines()]
+    assert len(rows) == 5 and rows == [json.loads(line) for line in folder.read_text().splitlines()]
 
 
 def test_convert_round_trip_bag_to_dataset_keeps_images_parts_and_reference(sweep, sweep_bag, tmp_path):

@@ -50,6 +50,7 @@ def check_matches(matches: StereoMatches, true_right_of_left: dict[int, int]) ->
     assert found == true_right_of_left
 
 
+@pytest.mark.accuracy
 def test_marker_scene_with_row_jitter_spurious_and_missing_detections():
     rng = np.random.default_rng(0)
     points = marker_surface(seed=0)
@@ -191,6 +192,7 @@ def test_same_row_markers_keep_their_order():
     assert_array_equal(order[matches.right_index], matches.left_index)
 
 
+@pytest.mark.shapes
 def test_empty_inputs_and_no_candidates():
     window = {"row_tolerance_px": 2.0, "min_disparity_px": 100.0, "max_disparity_px": 200.0}
     points = np.array([[500.0, 100.0], [600.0, 300.0]])
@@ -203,6 +205,7 @@ def test_empty_inputs_and_no_candidates():
     assert len(match_rectified(points, points, **window)) == 0  # disparity 0
 
 
+@pytest.mark.agreement
 def test_matching_400_markers_is_the_dense_assignment():
     """A 416-marker grid (20 px window) and a 400-point random cloud (120 px window): the same pairs as one
     dense assignment over all markers."""
@@ -230,6 +233,7 @@ def test_matching_400_markers_is_the_dense_assignment():
 # Triangulation
 
 
+@pytest.mark.accuracy
 def test_triangulation_round_trip_is_exact():
     rng = np.random.default_rng(4)
     points = rng.uniform([-70, -40, 120], [70, 40, 300], (200, 3))
@@ -257,6 +261,7 @@ def test_triangulation_uses_the_mean_row():
     assert_allclose(triangulate_rectified(left, right, **CAMERA)[0], [10.0, 5.0, 200.0])
 
 
+@pytest.mark.shapes
 def test_triangulation_of_nothing():
     assert triangulate_rectified(np.empty((0, 2)), [], **CAMERA).shape == (0, 3)
 
@@ -280,6 +285,7 @@ def test_disparity_window():
 GOOD = np.array([[500.0, 100.0]])
 
 
+@pytest.mark.exceptions
 @pytest.mark.parametrize(
     ("left", "right", "kwargs", "words"),
     [
@@ -300,6 +306,7 @@ def test_match_rectified_rejects_bad_input(left, right, kwargs, words):
         match_rectified(left, right, **(window | kwargs))
 
 
+@pytest.mark.exceptions
 def test_triangulate_rectified_rejects_bad_input():
     left = np.array([[500.0, 100.0], [400.0, 120.0]])
     right = left - [150.0, 0.0]
@@ -335,6 +342,7 @@ def test_stereo_matches_is_immutable():
 # assignment)
 
 
+@pytest.mark.agreement
 @pytest.mark.parametrize("seed", range(6))
 def test_matching_equals_the_dense_assignment(seed):
     """Grids with row jitter, spurious detections and wide windows: few to hundreds of conflicts."""

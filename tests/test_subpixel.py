@@ -10,7 +10,6 @@ from numpy.testing import assert_allclose, assert_array_equal
 from scipy.spatial import cKDTree
 
 from oracles.subpixel import refine as reference_refine
-from softjig.config import CylinderPart, default_jig
 from softjig.errors import InputError
 from softjig.evaluation.cramer_rao import centre_crb_px
 from softjig.sensing.detect import detect_markers
@@ -22,9 +21,7 @@ from softjig.sensing.subpixel import (
     refine_centres,
     speckle_correlation_1d,
 )
-from softjig.sim.asbuilt import draw_as_built
-from softjig.sim.parts import PartPose
-from softjig.sim.render import _speckle, render_pair
+from softjig.sim.render import _speckle
 
 MODEL = MarkerModel(radius_px=8.0, blur_px=3.1, half_width_px=10)
 
@@ -59,6 +56,7 @@ def test_profile_is_the_shaded_disc_blurred():
     assert fv[0, c + 8, c] > 0 > fv[0, c - 8, c]
 
 
+@pytest.mark.accuracy
 def test_noise_free_fit_is_unbiased_from_any_start_within_a_pixel():
     rng = np.random.default_rng(0)
     offsets = rng.uniform(-0.5, 0.5, (30, 2))
@@ -125,6 +123,7 @@ def test_failed_fits_keep_the_start():
     assert fit.xy_px.shape == (2, 2)
 
 
+@pytest.mark.agreement
 @pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.float32])
 def test_compiled_fit_equals_the_plain_reference(dtype):
     # starts up to 1.4 px off (re-centred windows), on pixel boundaries, a marker whose window leaves the
@@ -197,6 +196,7 @@ def test_noise_covariance_terms():
     assert uncorrelated[0, 1] == 0
 
 
+@pytest.mark.exceptions
 def test_model_validation():
     with pytest.raises(InputError, match="radius_px"):
         MarkerModel(radius_px=0.0)
@@ -211,19 +211,11 @@ def test_model_validation():
     assert_allclose(model.blur_px, 3.0, atol=0.01)
 
 
-@pytest.fixture(scope="module")
-def default_pair():
-    jig = default_jig()
-    pair = render_pair(
-        draw_as_built(jig, rng=0), CylinderPart(50.0), PartPose(np.radians(10), 0.0, 3.0), rng=0
-    )
-    return jig, pair
-
-
-def test_within_one_and_a_half_cramer_rao_bounds_on_default_frames(default_pair):
+@pytest.mark.accuracy
+def test_within_one_and_a_half_cramer_rao_bounds_on_default_frames(default_scene):
     # Measured over the benchmark's 5 pairs (2895 markers): model fit 0.161 px RMS, 3x3 quadratic on the
     # LoG 0.271 px, bound 0.134 px (nominal marker; the illumination fall-off raises it at the corners).
-    jig, pair = default_pair
+    jig, pair = default_scene.jig, default_scene.pair
     setup = sensing_setup(jig)
     errors = {}
     for refine in ("model", "quadratic"):

@@ -13,22 +13,16 @@ from scipy.spatial.transform import Rotation
 pytest.importorskip("foxglove")
 mcap_reader = pytest.importorskip("mcap.reader")
 
-from softjig.config import default_jig  # noqa: E402
 from softjig.errors import InputError  # noqa: E402
 from softjig.io.cameras import ReplaySource  # noqa: E402
 from softjig.io.dataset import Dataset  # noqa: E402
-from softjig.io.simulated import simulate_dataset  # noqa: E402
 from softjig.live.loop import LiveLoop, LiveSettings  # noqa: E402
 from softjig.live.viewer import FoxgloveViewer, plane_square_pose  # noqa: E402
-from softjig.sim.scenarios import paper_sweep  # noqa: E402
 
 
 @pytest.fixture(scope="module")
-def sweep(tmp_path_factory):
-    out = tmp_path_factory.mktemp("view") / "sweep"
-    specs = list(paper_sweep(diameters_mm=(50,), alphas_deg=(10,), theta_step_deg=90))
-    simulate_dataset(out, specs, default_jig(), seed=6, workers=1, progress=False)
-    return Dataset.open(out)
+def sweep(small_dataset):
+    return Dataset.open(small_dataset)
 
 
 @pytest.mark.parametrize("normal", [(0.0, 0.0, 1.0), (0.17, -0.1, 0.98), (0.0, 0.0, -1.0), (1.0, 0.0, 0.0)])
