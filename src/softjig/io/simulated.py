@@ -1,9 +1,10 @@
 """The simulator's dataset writer: render frame specs on an as-built jig and write them with their truth.
 
 :func:`simulate_dataset` draws an as-built jig from a seed (:func:`softjig.sim.asbuilt.draw_as_built`),
-renders every :class:`~softjig.sim.scenarios.FrameSpec` with :func:`softjig.sim.render.render_pair`, in
-worker processes, and writes an ordinary dataset (:class:`softjig.io.dataset.DatasetWriter`) with each
-frame's ground truth (:func:`softjig.sim.scenarios.frame_truth`). It sits in ``io`` because it writes
+renders every :class:`~softjig.sim.scenarios.FrameSpec` with the jig's :class:`softjig.sim.render.Renderer`
+(built once per task of up to :data:`FRAMES_PER_TASK` frames), in worker processes, and writes an
+ordinary dataset (:class:`softjig.io.dataset.DatasetWriter`) with each frame's ground truth
+(:func:`softjig.sim.scenarios.frame_truth`). It sits in ``io`` because it writes
 files and runs processes; what it renders is pure and lives in :mod:`softjig.sim`.
 
 Random numbers: the as-built jig is drawn from ``SeedSequence(seed, spawn_key=(0,))`` and frame ``i`` is
@@ -21,7 +22,7 @@ from collections import deque
 from collections.abc import Iterable, Iterator
 from concurrent.futures import Future, ProcessPoolExecutor
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -32,24 +33,28 @@ from softjig.io.workers import worker_pool
 from softjig.sim.asbuilt import AsBuiltJig, draw_as_built
 from softjig.sim.scenarios import FrameSpec, check_reachable, frame_truth
 
+if TYPE_CHECKING:  # the renderer (Numba kernels) is imported when a frame is rendered
+    from softjig.sim.render import Renderer
+
 __all__ = ["simulate_dataset"]
 
-#: Frames in flight per worker process: enough queued work to absorb a stall in writing the frames.
-FRAMES_IN_FLIGHT_PER_WORKER = 8
+#: Frames rendered by one task: the task builds the jig's :class:`~softjig.sim.render.Renderer` once
+#: (~12 ms of per-jig work) and renders its frames with it, so that cost is shared by this many frames.
+FRAMES_PER_TASK = 8
+#: Tasks in flight per worker process: enough queued work to absorb a stall in writing the frames.
+TASKS_IN_FLIGHT_PER_WORKER = 2
+
+_Frame = tuple[bytes, bytes, dict[str, np.ndarray]]
 
 
 def _frame_seed(seed: int, index: int) -> np.random.SeedSequence:
     return np.random.SeedSequence(seed, spawn_key=(1, index))
 
 
-def _render_one(
-    as_built: AsBuiltJig, spec: FrameSpec, seed: int, index: int, color: bool
-) -> tuple[bytes, bytes, dict[str, np.ndarray]]:
-    """Render one frame and encode it: (left PNG, right PNG, truth arrays)."""
-    from softjig.sim.render import render_pair
-
+def _render_one(renderer: Renderer, spec: FrameSpec, seed: int, index: int, color: bool) -> _Frame:
+    """Render one frame with the jig's renderer and encode it: (left PNG, right PNG, truth arrays)."""
     rng = np.random.default_rng(_frame_seed(seed, index))
-    pair = render_pair(as_built, spec.part, spec.pose, rng, color=color)
+    pair = renderer.render_pair(spec.part, spec.pose, rng, color=color)
     m = pair.markers
     truth = {
         "xyz_mm": m.xyz_mm,
@@ -63,6 +68,19 @@ def _render_one(
         "fiducial_corners_right_px": pair.fiducial_corners_right_px,
     }
     return encode_png(pair.left), encode_png(pair.right), {k: np.asarray(v) for k, v in truth.items()}
+
+
+def _render_chunk(
+    as_built: AsBuiltJig, chunk: list[tuple[int, FrameSpec]], seed: int, color: bool
+) -> list[_Frame]:
+    """Render a run of frames (each with its index in the run) with one renderer of the jig, in order.
+
+    A worker's task: it carries the as-built jig (a few kB), so the workers hold no state of their own.
+    """
+    from softjig.sim.render import Renderer
+
+    renderer = Renderer(as_built)
+    return [_render_one(renderer, spec, seed, index, color) for index, spec in chunk]
 
 
 def _warm_up() -> None:
@@ -160,24 +178,30 @@ def _rendered(
     n_workers: int,
     color: bool,
     first_index: int = 0,
-) -> Iterator[tuple[bytes, bytes, dict[str, np.ndarray]]]:
-    """The rendered frames, in order; in a pool, a bounded window of frames is in flight (each task carries
-    the as-built jig, a few kB, so the workers hold no state of their own)."""
+) -> Iterator[_Frame]:
+    """The rendered frames, in order. In this process one renderer of the jig renders them all; in a
+    pool, runs of up to :data:`FRAMES_PER_TASK` frames are tasks (:func:`_render_chunk`), a bounded window
+    of them in flight."""
     if pool is None:
+        from softjig.sim.render import Renderer
+
+        renderer = Renderer(as_built)
         for index, spec in enumerate(specs, start=first_index):
-            yield _render_one(as_built, spec, seed, index, color)
+            yield _render_one(renderer, spec, seed, index, color)
         return
-    todo = iter(enumerate(specs, start=first_index))
-    pending: deque[Future[tuple[bytes, bytes, dict[str, np.ndarray]]]] = deque(
-        pool.submit(_render_one, as_built, spec, seed, index, color)
-        for index, spec in itertools.islice(todo, FRAMES_IN_FLIGHT_PER_WORKER * n_workers)
+    per_task = max(1, min(FRAMES_PER_TASK, -(-len(specs) // n_workers)))
+    numbered = list(enumerate(specs, start=first_index))
+    todo = iter([numbered[i : i + per_task] for i in range(0, len(numbered), per_task)])
+    pending: deque[Future[list[_Frame]]] = deque(
+        pool.submit(_render_chunk, as_built, chunk, seed, color)
+        for chunk in itertools.islice(todo, TASKS_IN_FLIGHT_PER_WORKER * n_workers)
     )
     try:
         while pending:
-            result = pending.popleft().result()
-            for index, spec in itertools.islice(todo, 1):
-                pending.append(pool.submit(_render_one, as_built, spec, seed, index, color))
-            yield result
+            frames = pending.popleft().result()
+            for chunk in itertools.islice(todo, 1):
+                pending.append(pool.submit(_render_chunk, as_built, chunk, seed, color))
+            yield from frames
     finally:
         for f in pending:
             f.cancel()

@@ -229,6 +229,26 @@ def paste_excess(
 
 
 @numba.njit(cache=True, nogil=True)
+def blur_matrices(kernel: np.ndarray, size: int, g: np.ndarray, g_t: np.ndarray) -> None:
+    """Each marker's blur matrix and its transpose from its 1-D kernel, in place (:mod:`softjig.sim.render`,
+    step 3).
+
+    ``kernel`` is ``(n, 2 pad + 1)``; ``g[m]`` (``(size + 2 pad, size)``) has
+    ``g[m, i, j] = kernel[m, i - j]`` where ``0 <= i - j <= 2 pad`` and 0 elsewhere, and ``g_t[m]`` is its
+    transpose (contiguous, for the second product).
+    """
+    n, width = kernel.shape
+    t = g.shape[1]
+    for m in range(n):
+        for i in range(t):
+            for j in range(size):
+                k = i - j
+                v = kernel[m, k] if 0 <= k < width else _ZERO
+                g[m, i, j] = v
+                g_t[m, j, i] = v
+
+
+@numba.njit(cache=True, nogil=True)
 def sensor_uint8(
     image: np.ndarray,
     hi: np.ndarray,
@@ -286,6 +306,7 @@ def sensor_uint16(
     return out
 
 
+_MAX_LANES = 8  # running maxima of log_envelope's first pass: one AVX2 register of float32
 _ENVELOPE_CANDIDATE_WINDOW = np.float32(1e-3)  # >> the float32 error of sqrt(dx^2 + dy^2) against hypot
 
 
@@ -300,7 +321,8 @@ def log_envelope(
 ) -> np.ndarray:
     """``max_c (log_depth[c] - hypot(q - c) inv_decay[c])`` for each point ``q``, float32 ``(len(qx),)``.
 
-    A first pass finds the maximum with ``sqrt(dx^2 + dy^2)`` (which vectorises); the contacts within a
+    A first pass finds the maximum with ``sqrt(dx^2 + dy^2)`` (which vectorises, as does its maximum, taken
+    in :data:`_MAX_LANES` lanes); the contacts within a
     window of it are then evaluated with ``hypot``, so the result is the exact maximum of the ``hypot``
     values (those of the NumPy expression).
     """
@@ -308,16 +330,25 @@ def log_envelope(
     nc = cx.shape[0]
     out = np.empty(n, dtype=np.float32)
     approx = np.empty(nc, dtype=np.float32)
+    lanes = np.empty(_MAX_LANES, dtype=np.float32)
+    full = nc - nc % _MAX_LANES
     for i in range(n):
         x, y = qx[i], qy[i]
         for c in range(nc):  # no reduction in this loop: it vectorises
             dx = x - cx[c]
             dy = y - cy[c]
             approx[c] = log_depth[c] - math.sqrt(dx * dx + dy * dy) * inv_decay[c]
+        # The maximum in _MAX_LANES independent running maxima (a single one is a chain of dependent
+        # comparisons, one per contact; these proceed side by side). The maximum is the same number.
+        lanes[:] = -np.inf
+        for c0 in range(0, full, _MAX_LANES):
+            for lane in range(_MAX_LANES):
+                lanes[lane] = max(lanes[lane], approx[c0 + lane])
         best = np.float32(-np.inf)
-        for c in range(nc):
-            if approx[c] > best:
-                best = approx[c]
+        for lane in range(_MAX_LANES):
+            best = max(best, lanes[lane])
+        for c in range(full, nc):
+            best = max(best, approx[c])
         exact = np.float32(-np.inf)
         floor = best - _ENVELOPE_CANDIDATE_WINDOW
         for c in range(nc):

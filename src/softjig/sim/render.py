@@ -850,9 +850,9 @@ def _marker_excess(
     timer.lap("markers")
     if pad > 0:  # G P G^T, G (n, size + 2 pad, size)
         n, t = len(idx), size + 2 * pad
-        g = _gaussian_matrices(sigma_px[idx], size, pad, scratch.get("blur_g", (len(optics.px), t, size))[:n])
+        g = scratch.get("blur_g", (len(optics.px), t, size))[:n]
         g_t = scratch.get("blur_g_t", (len(optics.px), size, t))[:n]
-        np.copyto(g_t, np.swapaxes(g, 1, 2))
+        _kernels.blur_matrices(_gaussian_kernels(sigma_px[idx], pad), size, g, g_t)
         rows = np.matmul(g, patches, out=scratch.get("blur_rows", (len(optics.px), t, size))[:n])
         patches = np.matmul(rows, g_t, out=scratch.get("blurred", (len(optics.px), t, t))[:n])
         origin = origin - pad
@@ -1056,24 +1056,17 @@ def _cast_marker_patches(
     return out
 
 
-def _gaussian_matrices(
-    sigma_px: np.ndarray, size: int, pad: int, out: np.ndarray | None = None
-) -> np.ndarray:
-    """``(N, size + 2 pad, size)`` float32 (``out`` if given): column ``j`` spreads input pixel ``j`` over
-    output pixels ``j .. j + 2 pad`` with a Gaussian of ``sigma_px`` truncated at ``pad`` and normalised to
-    sum 1 (light is conserved; the kernel is symmetric, so centroids are too)."""
+def _gaussian_kernels(sigma_px: np.ndarray, pad: int) -> np.ndarray:
+    """``(N, 2 pad + 1)`` float32: each marker's Gaussian of ``sigma_px`` over the offsets ``-pad .. pad``,
+    truncated there and normalised to sum 1 (light is conserved; the kernel is symmetric, so centroids
+    are too). :func:`softjig.sim._kernels.blur_matrices` spreads it into the patch's blur matrix ``G``,
+    whose column ``j`` spreads input pixel ``j`` over output pixels ``j .. j + 2 pad``."""
     offsets = np.arange(-pad, pad + 1, dtype=np.float64)
     s = np.maximum(np.asarray(sigma_px, dtype=np.float64), 1e-3)[:, None]
     kernel = np.exp(-0.5 * np.minimum((offsets / s) ** 2, 200.0))
     kernel /= kernel.sum(axis=1, keepdims=True)
     kernel[kernel < 1e-20] = 0.0  # float32 denormals would slow the products down tenfold
-    i = np.arange(size + 2 * pad)[:, None]
-    j = np.arange(size)[None, :]
-    k = i - j  # index into the kernel: output i, input j
-    valid = (k >= 0) & (k <= 2 * pad)
-    g = np.take(kernel.astype(np.float32), np.clip(k, 0, 2 * pad), axis=1, out=out)
-    g *= valid
-    return g
+    return kernel.astype(np.float32)
 
 
 def _fiducial_texture(dictionary: str, marker_id: int, cell_px: int) -> np.ndarray:
