@@ -55,6 +55,12 @@ def fiducial_gray_u8(image: np.ndarray, *, name: str | None = None) -> np.ndarra
         gray, _ = gray_image(arr)
     except InputError as exc:
         raise InputError(f"{name}: {exc}" if name else str(exc)) from None
+    return gray_to_u8(gray)
+
+
+def gray_to_u8(gray: np.ndarray) -> np.ndarray:
+    """An already checked gray image (:func:`~softjig.sensing.detect.gray_image`) as 8 bits: ``uint8`` as
+    it is, ``uint16`` as ``round(x / 257)`` in integers, float in [0, 1] as ``round(255 x)``."""
     if gray.dtype == np.uint8:
         return gray
     if gray.dtype == np.uint16:  # x / 257 is never a half-integer: floor((x + 128) / 257) is the nearest
