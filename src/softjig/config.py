@@ -25,7 +25,7 @@ import tomli_w
 from pydantic import ConfigDict, TypeAdapter, ValidationError
 
 from softjig.errors import ConfigError, InputError
-from softjig.files import write_text_atomic
+from softjig.files import read_text_file, write_text_atomic
 
 # Unknown keys are refused, and so are NaN and infinities (TOML has ``nan`` and ``inf`` literals); values
 # built in Python without pydantic are checked for finiteness by :func:`validate_jig` as well.
@@ -1229,12 +1229,7 @@ def load_marker_csv(path: str | os.PathLike[str]) -> tuple[tuple[Vec2, ...], tup
     import csv
 
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        raise InputError(f"marker file {path} does not exist") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot read marker file {path}: {exc}") from None
+    text = read_text_file(path, "marker", encoding="utf-8-sig")
     rows = [row for row in csv.reader(text.splitlines()) if row and any(c.strip() for c in row)]
     if not rows:
         raise InputError(f"{path} is empty: give a header x_mm,y_mm (optionally z_mm) and one marker a line")

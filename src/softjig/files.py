@@ -133,3 +133,14 @@ def write_text_atomic(path: str | os.PathLike[str], text: str) -> None:
     of killed writers of the same file (:func:`remove_stale_temporaries`)."""
     remove_stale_temporaries(path)
     write_bytes_atomic(path, text.encode("utf-8"))
+
+
+def read_text_file(path: str | os.PathLike[str], what: str, *, encoding: str = "utf-8") -> str:
+    """The text of a file the user named (``what`` says which, e.g. ``"study"``), or an InputError that
+    names it: missing, unreadable, or not text in ``encoding``."""
+    try:
+        return Path(path).read_text(encoding=encoding)
+    except FileNotFoundError:
+        raise InputError(f"{what} file {path} does not exist") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"cannot read {what} file {path}: {exc}") from None

@@ -344,11 +344,11 @@ def _main(
 
 def read_json_file(path: Path, what: str) -> dict:
     """A JSON object from a file named by an option (``what``); InputError if missing or malformed."""
+    from softjig.files import read_text_file
+
     try:
-        data = json.loads(Path(path).read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise InputError(f"{what} file {path} does not exist") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        data = json.loads(read_text_file(path, what))
+    except json.JSONDecodeError as exc:
         raise InputError(f"cannot read {what} file {path}: {exc}") from None
     if not isinstance(data, dict):
         raise InputError(f"{what} file {path} must hold a JSON object")

@@ -37,7 +37,6 @@ import math
 import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -301,13 +300,9 @@ def parse_motive_csv(text: str, *, source: str = "Motive CSV") -> MotiveTake:
 
 def read_motive_csv(path: str | os.PathLike[str]) -> MotiveTake:
     """Read a Motive CSV export (see :func:`parse_motive_csv`)."""
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        raise InputError(f"Motive CSV file {path} does not exist") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot read Motive CSV file {path}: {exc}") from None
+    from softjig.files import read_text_file
+
+    text = read_text_file(path, "Motive CSV", encoding="utf-8-sig")
     return parse_motive_csv(text, source=str(path))
 
 

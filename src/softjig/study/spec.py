@@ -66,6 +66,7 @@ from softjig.config import (
     validate_part,
 )
 from softjig.errors import ConfigError, InputError
+from softjig.files import read_text_file
 
 __all__ = [
     "ALIASES",
@@ -299,12 +300,7 @@ def load_study(path: str | os.PathLike[str]) -> Study:
         Invalid TOML or any invalid entry, naming it (``vary.markers.pitch_mm``, ``frames.alphas_deg``).
     """
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise InputError(f"study file {path} does not exist") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot read study file {path}: {exc}") from None
+    text = read_text_file(path, "study")
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
