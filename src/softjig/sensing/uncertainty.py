@@ -30,12 +30,12 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 
 from softjig.checks import finite_float, positive_float
 from softjig.errors import InputError
 from softjig.geometry import PlaneFit
+from softjig.sensing._uncertainty_kernels import moments
 
 __all__ = [
     "NormalUncertainty",
@@ -166,9 +166,7 @@ def normal_uncertainty(
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise InputError(f"normal_uncertainty needs (N, 3) points, got shape {pts.shape}.")
     normal = np.ascontiguousarray(plane.normal, dtype=float)
-    finite, rss, xtx = _moments(np.ascontiguousarray(pts), normal, float(plane.offset_mm))
-    if not finite:
-        raise InputError("normal_uncertainty got non-finite points (NaN or inf); drop them first.")
+    rss, xtx = moments(np.ascontiguousarray(pts), normal, float(plane.offset_mm))  # raises on NaN or inf
     floor = finite_float(floor_mm, "floor_mm")
     if floor < 0:
         raise InputError(f"floor_mm must be >= 0, got {floor}.")
@@ -184,7 +182,7 @@ def normal_uncertainty(
         raise InputError(f"the plane's normal must be a finite 3-vector with n_z > 0, got {normal}.")
 
     # Scalar arithmetic on Python floats from here: the same formulas as with 2x2 NumPy arrays, without
-    # 15 NumPy calls (60 us, measured).
+    # their calls.
     n0, n1, n2 = normal.tolist()
     a, b = -n0 / n2, -n1 / n2
     if point_sigma_mm is None:
@@ -193,7 +191,7 @@ def normal_uncertainty(
         s = positive_float(point_sigma_mm, "point_sigma_mm")
     s = max(s, floor)
 
-    # The 2x2 eigenvalues and inverse in closed form (NumPy's eigvalsh and inv took 20 us, measured).
+    # The 2x2 eigenvalues and inverse in closed form (no eigvalsh and inv calls).
     (sxx, sxy), (_, syy) = xtx.tolist()
     half_trace, det = 0.5 * (sxx + syy), sxx * syy - sxy * sxy
     root = math.hypot(0.5 * (sxx - syy), sxy)
@@ -217,34 +215,6 @@ def normal_uncertainty(
     )
 
 
-@numba.njit(cache=True, error_model="numpy")  # n_z = 0 gives inf, reported below, not an exception
-def _moments(points: np.ndarray, normal: np.ndarray, offset: float) -> tuple[bool, float, np.ndarray]:
-    """Whether all points are finite, the sum of squared vertical residuals to the plane
-    ``normal . p + offset = 0``, and ``X^T X`` of the centred ``(x, y)`` (compiled: 10 NumPy calls)."""
-    n = points.shape[0]
-    mx, my, rss = 0.0, 0.0, 0.0
-    for i in range(n):
-        if not (np.isfinite(points[i, 0]) and np.isfinite(points[i, 1]) and np.isfinite(points[i, 2])):
-            return False, 0.0, np.zeros((2, 2))
-        mx += points[i, 0]
-        my += points[i, 1]
-        r = (
-            -(points[i, 0] * normal[0] + points[i, 1] * normal[1] + points[i, 2] * normal[2] + offset)
-            / normal[2]
-        )
-        rss += r * r
-    mx /= max(n, 1)
-    my /= max(n, 1)
-    xtx = np.zeros((2, 2))
-    for i in range(n):
-        dx, dy = points[i, 0] - mx, points[i, 1] - my
-        xtx[0, 0] += dx * dx
-        xtx[0, 1] += dx * dy
-        xtx[1, 1] += dy * dy
-    xtx[1, 0] = xtx[0, 1]
-    return True, rss, xtx
-
-
 def with_spread_between(
     uncertainty: NormalUncertainty, normal_a: np.ndarray, normal_b: np.ndarray, *, share: float = 1.0
 ) -> NormalUncertainty:
@@ -264,7 +234,7 @@ def with_spread_between(
     if not 0.0 <= share <= 1.0:
         raise InputError(f"share must be in [0, 1], got {share}.")
     half_n = share * (a - b) / 2.0
-    (ax_a, ay_a), (ax_b, ay_b) = _tilts(a.tolist()), _tilts(b.tolist())  # floats: 10 us fewer, measured
+    (ax_a, ay_a), (ax_b, ay_b) = _tilts(a.tolist()), _tilts(b.tolist())  # on floats
     covariance = uncertainty.covariance + np.outer(half_n, half_n)
     return NormalUncertainty(
         covariance=covariance,
