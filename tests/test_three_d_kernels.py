@@ -30,7 +30,6 @@ KERNELS = [
     "_geometry_kernels.py",
     "sensing/_contact_kernels.py",
     "sensing/_selfcheck_kernels.py",
-    "sensing/_uncertainty_kernels.py",
 ]
 
 

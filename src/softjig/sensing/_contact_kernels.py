@@ -261,25 +261,6 @@ def face_depth(points: np.ndarray, depth: np.ndarray, normal: np.ndarray, offset
 
 
 @numba.njit(cache=True)
-def under_face(
-    points: np.ndarray,
-    normal: np.ndarray,
-    offset: float,
-    cx: float,
-    cy: float,
-    centre_z: float,
-    radius: float,
-) -> np.ndarray:
-    out = np.empty(points.shape[0], dtype=np.bool_)
-    for i in range(points.shape[0]):
-        x, y = points[i, 0], points[i, 1]
-        dz = -(offset + normal[0] * x + normal[1] * y) / normal[2] - centre_z
-        dx, dy = x - cx, y - cy
-        out[i] = np.sqrt(dx * dx + dy * dy + dz * dz) < radius
-    return out
-
-
-@numba.njit(cache=True)
 def footprint(hull: np.ndarray, half_pitch: float) -> tuple[float, np.ndarray, float, np.ndarray]:
     """Area and centroid (shoelace formulas), perimeter, and the vertices moved out by
     ``half_pitch`` away from the centroid, of a polygon of at least 3 vertices."""

@@ -413,18 +413,14 @@ def under_face(
     above ``centre_xy_mm`` (under a face of that radius centred there; the jig axis by default), as
     booleans.
 
-    Compiled, the same arithmetic as :meth:`~softjig.geometry.PlaneFit.heights_mm` and a 3-D norm.
+    The same arithmetic as :meth:`~softjig.geometry.PlaneFit.heights_mm` and a 3-D norm.
     """
     cx, cy = (float(v) for v in centre_xy_mm)
-    return kernels.under_face(
-        np.ascontiguousarray(points_J, dtype=float),
-        np.ascontiguousarray(plane.normal, dtype=float),
-        float(plane.offset_mm),
-        cx,
-        cy,
-        plane.z_at(cx, cy),
-        float(radius_mm),
-    )
+    n0, n1, n2 = (float(v) for v in plane.normal)
+    x, y = points_J[:, 0], points_J[:, 1]
+    dz = -(float(plane.offset_mm) + n0 * x + n1 * y) / n2 - plane.z_at(cx, cy)
+    dx, dy = x - cx, y - cy
+    return np.sqrt(dx * dx + dy * dy + dz * dz) < float(radius_mm)
 
 
 def ambiguous_selection(

@@ -35,7 +35,6 @@ import numpy as np
 from softjig.checks import finite_float, positive_float
 from softjig.errors import InputError
 from softjig.geometry import PlaneFit
-from softjig.sensing._uncertainty_kernels import moments
 
 __all__ = [
     "NormalUncertainty",
@@ -165,8 +164,9 @@ def normal_uncertainty(
     pts = np.asarray(points_mm, dtype=float)
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise InputError(f"normal_uncertainty needs (N, 3) points, got shape {pts.shape}.")
-    normal = np.ascontiguousarray(plane.normal, dtype=float)
-    rss, xtx = moments(np.ascontiguousarray(pts), normal, float(plane.offset_mm))  # raises on NaN or inf
+    if not np.isfinite(pts).all():
+        raise InputError("normal_uncertainty got non-finite points (NaN or inf); drop them first.")
+    normal = np.asarray(plane.normal, dtype=float)
     floor = finite_float(floor_mm, "floor_mm")
     if floor < 0:
         raise InputError(f"floor_mm must be >= 0, got {floor}.")
@@ -185,14 +185,17 @@ def normal_uncertainty(
     # their calls.
     n0, n1, n2 = normal.tolist()
     a, b = -n0 / n2, -n1 / n2
+    x, y = pts[:, 0], pts[:, 1]
     if point_sigma_mm is None:
-        s = float(np.sqrt(rss / (n_pts - 3)))  # vertical residuals, 3 fitted parameters
+        residual = -(x * n0 + y * n1 + pts[:, 2] * n2 + float(plane.offset_mm)) / n2  # vertical (mm)
+        s = math.sqrt(float(residual @ residual) / (n_pts - 3))  # 3 fitted parameters
     else:
         s = positive_float(point_sigma_mm, "point_sigma_mm")
     s = max(s, floor)
 
     # The 2x2 eigenvalues and inverse in closed form (no eigvalsh and inv calls).
-    (sxx, sxy), (_, syy) = xtx.tolist()
+    dx, dy = x - x.mean(), y - y.mean()  # X^T X of the centred (x, y)
+    sxx, sxy, syy = float(dx @ dx), float(dx @ dy), float(dy @ dy)
     half_trace, det = 0.5 * (sxx + syy), sxx * syy - sxy * sxy
     root = math.hypot(0.5 * (sxx - syy), sxy)
     if half_trace - root <= 1e-12 * max(half_trace + root, 1e-300):
