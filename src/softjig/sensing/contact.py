@@ -51,6 +51,22 @@ SEED_DEPTH_SHARES = (0.5, 0.75, 0.25)
 HOLE_THRESHOLDS = 2.0
 #: A marker's neighbours lie within this many marker pitches (a square grid's 8 nearest).
 NEIGHBOUR_RADIUS_PITCHES = 1.5
+#: The steepest plausible contact plane (deg): no part pressed into a soft jig stands steeper.
+MAX_TILT_DEG = 45.0
+#: Violations of a contact's plane that noise explains: at least this many ...
+TOLERATED_VIOLATIONS = 2
+#: ... or this share of the contact's markers.
+TOLERATED_VIOLATION_SHARE = 0.05
+#: The plane within ``max(LIFT_NOISE_SIGMAS noise, MIN_LIFT_CLEARANCE_MM)`` of the rest membrane at the
+#: footprint's edge lifts off there (:func:`describe_contact`).
+LIFT_NOISE_SIGMAS = 3.0
+MIN_LIFT_CLEARANCE_MM = 0.3
+#: With the part's size known, a footprint under this share of its base is partial contact.
+PARTIAL_AREA_SHARE = 0.7
+#: A plane tilted less than this (deg) is level: its lift-off side is found from the clearance instead.
+LEVEL_PLANE_DEG = 1.0
+#: A plane whose horizontal normal component is below this is level for :func:`face_centre_xy`.
+LEVEL_SLOPE = 1e-6
 
 
 @dataclass(frozen=True)
@@ -176,7 +192,7 @@ def grow_contact(
     fit_plane,
     threshold_mm: float,
     min_points: int = 6,
-    max_tilt_rad: float = np.radians(45.0),
+    max_tilt_rad: float = np.radians(MAX_TILT_DEG),
     max_rounds: int = 30,
 ) -> tuple[np.ndarray, PlaneFit]:
     """The markers in contact: the robust plane of the deeply pushed-in markers, grown over neighbours.
@@ -254,7 +270,7 @@ def contact_violations(
     *,
     threshold_mm: float,
     pitch_mm: float,
-    max_tilt_rad: float = np.radians(45.0),
+    max_tilt_rad: float = np.radians(MAX_TILT_DEG),
     dent: Indentation | None = None,
 ) -> int:
     """How many markers contradict ``plane`` being the face of ``contact`` beyond the few that noise
@@ -334,7 +350,7 @@ def _violations(
     # A marker or two of a large contact lie above the plane by noise alone (the threshold is a few
     # sigmas, one-sided): only violations beyond that count, or a smaller, wrong contact peeled off
     # the seed (fewer markers inside its hull, so fewer chances) would beat the right one.
-    tolerated = max(2, int(0.05 * contact.sum()))
+    tolerated = max(TOLERATED_VIOLATIONS, int(TOLERATED_VIOLATION_SHARE * contact.sum()))
     # Penetration is judged inside the contact's core (its markers surrounded by contact), not its rim:
     # the growth takes in a ring of wall markers level with a deep edge, whose hull holds more wall above
     # the plane. Holes are judged in the whole hull: the membrane never falls far below a real face.
@@ -356,7 +372,9 @@ def _violations(
     return max(0, count - tolerated) + beside
 
 
-def _core(xy: np.ndarray, contact: np.ndarray, pitch_mm: float, min_neighbours: int = 4) -> np.ndarray:
+def _core(
+    xy: np.ndarray, contact: np.ndarray, pitch_mm: float, min_neighbours: int = kernels.CORE_NEIGHBOURS
+) -> np.ndarray:
     """The contact markers with at least ``min_neighbours`` contact markers within 1.5 pitches (all of
     them if fewer than 3 are)."""
     index = np.flatnonzero(contact)
@@ -570,21 +588,21 @@ def describe_contact(
 
     # The clearance is computed only where needed.
     clearance = None
-    tolerance = max(3.0 * noise_mm, 0.3)
+    tolerance = max(LIFT_NOISE_SIGMAS * noise_mm, MIN_LIFT_CLEARANCE_MM)
     if edge_face_depth_mm is not None and len(edge_face_depth_mm):
         edge_clearance = float(np.min(edge_face_depth_mm))
     else:
         clearance = clearance_at_edge()
         edge_clearance = float(clearance[int(np.argmin(clearance))])
     lifts = edge_clearance < tolerance
-    small = part_diameter_mm is not None and area < 0.7 * np.pi * (part_diameter_mm / 2.0) ** 2
+    small = part_diameter_mm is not None and area < PARTIAL_AREA_SHARE * np.pi * (part_diameter_mm / 2.0) ** 2
     lift_azimuth = None
     if lifts or small:
         # The side that lifts off: a flat face rises towards the plane's uphill direction, -(n_x, n_y);
         # for a nearly level plane, the middle of the footprint's edge where the plane meets the membrane
         # (a chord across the part), seen from the centroid.
         uphill = -plane.normal[:2]
-        if np.hypot(*uphill) > np.sin(np.radians(1.0)):
+        if np.hypot(*uphill) > np.sin(np.radians(LEVEL_PLANE_DEG)):
             direction = uphill
         else:
             clearance = clearance_at_edge() if clearance is None else clearance
@@ -627,7 +645,7 @@ def face_centre_xy(
     centroid = np.asarray(region.centroid_xy_mm, dtype=float)
     normal = plane.normal
     slope = float(np.hypot(normal[0], normal[1]))
-    if not region.partial or slope < 1e-6:
+    if not region.partial or slope < LEVEL_SLOPE:
         return (float(centroid[0]), float(centroid[1]))
     downhill = normal[:2] / slope  # the plane is lowest towards +(n_x, n_y)
     along_in_plane = (np.asarray(contact_xy_mm, dtype=float) - centroid) @ downhill / normal[2]
