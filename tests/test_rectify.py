@@ -134,3 +134,14 @@ def test_refractive_method_on_a_raw_pair_finds_the_true_normal(raw_pair):
     got = estimate_pair(raw_pair.left, raw_pair.right, RAW, part_diameter_mm=50, method="refractive").estimate
     truth = normal_from_tilt(POSE.alpha_rad, POSE.theta_rad)
     assert np.degrees(angle_between(np.array(got.normal), truth)) < 1.0
+
+
+@pytest.mark.exceptions
+@pytest.mark.parametrize(
+    ("dtype", "channels"), [(np.int32, ()), (np.bool_, ()), (np.uint8, (4,))], ids=["int32", "bool", "rgba"]
+)
+def test_unsupported_images_are_an_input_error(dtype, channels):
+    """Not an OpenCV traceback (int32, bool) nor a remapped 4-channel image the estimator then refuses."""
+    image = np.zeros((RAW.cameras.left.height_px, RAW.cameras.left.width_px, *channels), dtype)
+    with pytest.raises(InputError, match=f"left image .*{np.dtype(dtype)}"):
+        rectify_pair(image, image, RAW)

@@ -14,6 +14,7 @@ import cv2
 import numpy as np
 import pytest
 
+from softjig.errors import InputError
 from softjig.geometry import invert_pose
 from softjig.sensing.fiducials import detect_fiducials
 from softjig.sensing.identities import identify_markers, rest_shape_reference
@@ -194,3 +195,83 @@ class TestFitPlaneRobust:
         assert fit.plane.normal.shape == (3,) and fit.plane.normal[2] > 0
         face_normal = default_scene.pose.rotation()[:, 2]
         assert np.degrees(np.arccos(np.clip(fit.plane.normal @ face_normal, -1.0, 1.0))) < 0.3
+
+
+class TestStageExceptions:
+    """Bad input to each public stage function: an InputError naming the argument, or (a legitimate image
+    of another dtype: mono16, float in [0, 1], RGB) the same answer as the 8-bit gray image; never an
+    OpenCV traceback or a silently wrong answer."""
+
+    @pytest.mark.exceptions
+    @pytest.mark.parametrize(
+        "convert",
+        [
+            lambda g: g.astype(np.uint16) * 257,  # mono16, as the bags carry
+            lambda g: g.astype(np.float32) / 255.0,
+            lambda g: np.dstack([g, g, g]),
+        ],
+        ids=["mono16", "float32", "rgb"],
+    )
+    def test_fiducials_accept_other_image_types(self, default_scene, convert):
+        fid = default_scene.jig.fiducials
+        expected = detect_fiducials(default_scene.left, fid)
+        found = detect_fiducials(convert(default_scene.left), fid)
+        assert set(found) == set(expected)
+        for marker_id, corners in expected.items():
+            np.testing.assert_allclose(found[marker_id], corners, atol=1e-6)
+        left, right, jig = default_scene.left, default_scene.right, default_scene.jig
+        frame = jig_frame_from_fiducials(convert(left), convert(right), jig)
+        reference = jig_frame_from_fiducials(left, right, jig)
+        assert frame is not None and reference is not None
+        np.testing.assert_allclose(frame.T_J_left, reference.T_J_left, atol=1e-9)
+
+    @pytest.mark.exceptions
+    @pytest.mark.parametrize(
+        ("image", "message"),
+        [
+            (np.zeros((0, 0), np.uint8), "empty"),
+            (np.full((64, 64), np.nan, np.float32), r"\[0, 1\]"),
+            (np.zeros((64, 64), np.int32), "dtype int32"),
+            (np.zeros((64, 64, 4), np.uint8), "shape"),
+        ],
+        ids=["empty", "nan", "int32", "rgba"],
+    )
+    def test_fiducials_refuse_bad_images(self, default_scene, image, message):
+        with pytest.raises(InputError, match=message):
+            detect_fiducials(image, default_scene.jig.fiducials)
+        with pytest.raises(InputError, match=f"left image: .*{message}"):
+            jig_frame_from_fiducials(image, default_scene.right, default_scene.jig)
+
+    @pytest.mark.exceptions
+    @pytest.mark.parametrize(
+        ("points", "max_lateral_mm", "message"),
+        [
+            (np.zeros((3, 2)), 1.0, r"points_J .*\(3, 2\)"),
+            (np.zeros(6), 1.0, r"points_J .*\(6,\)"),
+            (np.full((2, 3), np.nan), 1.0, "points_J .*NaN"),
+            (np.zeros((2, 3)), -1.0, "max_lateral_mm"),
+            (np.zeros((2, 3)), float("nan"), "max_lateral_mm"),
+        ],
+        ids=["2-columns", "flat", "nan", "negative-tolerance", "nan-tolerance"],
+    )
+    def test_identify_markers_refuses(self, default_jig_config, points, max_lateral_mm, message):
+        reference = rest_shape_reference(default_jig_config)
+        with pytest.raises(InputError, match=message):
+            identify_markers(points, reference, max_lateral_mm=max_lateral_mm)
+
+    @pytest.mark.exceptions
+    @pytest.mark.parametrize(
+        ("image", "start", "kwargs", "message"),
+        [
+            (np.zeros((64, 64), np.int32), [[30.0, 30.0]], {}, "dtype int32"),
+            (np.zeros((0, 0), np.uint8), [[30.0, 30.0]], {}, "non-empty"),
+            (np.zeros((64, 64), np.uint8), np.zeros((3, 3)), {}, r"start_xy_px .*\(3, 3\)"),
+            (np.zeros((64, 64), np.uint8), [[np.nan, 30.0]], {}, "start_xy_px .*NaN"),
+            (np.zeros((64, 64), np.uint8), [[30.0, 30.0]], {"iterations": -1}, "iterations"),
+        ],
+        ids=["int32", "empty", "3-columns", "nan-start", "negative-iterations"],
+    )
+    def test_refine_centres_refuses(self, default_scene, image, start, kwargs, message):
+        model = sensing_setup(default_scene.jig).marker
+        with pytest.raises(InputError, match=message):
+            refine_centres(image, np.asarray(start, dtype=float), model, **kwargs)

@@ -59,7 +59,7 @@ from softjig.config import JigConfig
 from softjig.errors import EstimationError, InputError
 from softjig.files import fsync_folder, remove_stale_temporaries, temp_file_beside
 from softjig.io.dataset import Dataset, Frame
-from softjig.io.workers import worker_pool
+from softjig.io.workers import one_thread_per_worker, worker_pool
 from softjig.sensing.estimator import DEFAULT_METHOD, Estimator
 from softjig.sensing.identities import ReferenceMarkers
 
@@ -167,9 +167,9 @@ def _init_worker(settings: BatchSettings, dataset: Dataset | None) -> None:
     when chunks carry their frames), one OpenCV thread (the workers are the parallelism) and the
     settings' estimator (built once for the worker's life; a forked worker inherits the parent's).
 
-    A forked worker inherits one OpenCV thread from :func:`_one_thread_per_worker` and must not call
-    ``cv2.setNumThreads`` itself: in a forked copy of a parent whose OpenCV thread pool ran, it can wait
-    forever on threads that were not forked. A spawned worker is fresh and sets it here."""
+    A forked worker inherits one OpenCV thread from :func:`~softjig.io.workers.one_thread_per_worker`
+    and must not call ``cv2.setNumThreads`` itself: in a forked copy of a parent whose OpenCV thread pool
+    ran, it can wait forever on threads that were not forked. A spawned worker is fresh and sets it here."""
     global _WORKER_SETTINGS, _WORKER_DATASET
     import cv2
 
@@ -184,32 +184,6 @@ def _pool_context() -> multiprocessing.context.BaseContext:
     if "fork" in multiprocessing.get_all_start_methods():
         return multiprocessing.get_context("fork")
     return multiprocessing.get_context("spawn")
-
-
-_THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS")
-
-
-@contextlib.contextmanager
-def _one_thread_per_worker() -> Iterator[None]:
-    """Workers started inside run one OpenCV thread each (and, when spawned, one BLAS/OpenMP/Numba thread):
-    the workers are the parallelism, and more threads than cores slow every worker down. A forked worker
-    inherits this process's OpenCV setting, so it is set to one thread while the workers start and
-    restored after, with the environment variables."""
-    import cv2
-
-    saved = {name: os.environ.get(name) for name in _THREAD_VARIABLES}
-    threads = cv2.getNumThreads()
-    os.environ.update(dict.fromkeys(_THREAD_VARIABLES, "1"))
-    cv2.setNumThreads(1)
-    try:
-        yield
-    finally:
-        cv2.setNumThreads(threads)
-        for name, value in saved.items():
-            if value is None:
-                os.environ.pop(name, None)
-            else:
-                os.environ[name] = value
 
 
 def _estimate_chunk(frames: list[Frame]) -> list[dict]:
@@ -347,7 +321,7 @@ def _estimate_in_workers(
     with contextlib.ExitStack() as stack:
         # Workers die with this process, whatever kills it; an exception (Ctrl-C, SIGTERM, the caller
         # closing this generator) ends them at once rather than after their chunks (io.workers).
-        with _one_thread_per_worker():  # the first submission starts (forks) the workers
+        with one_thread_per_worker():  # the first submission starts (forks) the workers
             pool = stack.enter_context(
                 worker_pool(
                     workers,

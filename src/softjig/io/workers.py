@@ -189,3 +189,30 @@ def worker_pool(
             ) from None
         raise
     stop_pool(pool, abort=False)
+
+
+#: The environment variables that set the thread count of BLAS, OpenMP and Numba in a new process.
+THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS")
+
+
+@contextlib.contextmanager
+def one_thread_per_worker() -> Iterator[None]:
+    """Workers started inside run one OpenCV thread each (and, when spawned, one BLAS/OpenMP/Numba thread):
+    the workers are the parallelism, and more threads than cores slow every worker down. A forked worker
+    inherits this process's OpenCV setting, so it is set to one thread while the workers start and
+    restored after, with the environment variables."""
+    import cv2
+
+    saved = {name: os.environ.get(name) for name in THREAD_VARIABLES}
+    threads = cv2.getNumThreads()
+    os.environ.update(dict.fromkeys(THREAD_VARIABLES, "1"))
+    cv2.setNumThreads(1)
+    try:
+        yield
+    finally:
+        cv2.setNumThreads(threads)
+        for name, value in saved.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value

@@ -31,6 +31,7 @@ from softjig.sensing.detect import (
     packed_bit_depth,
     unpack_bit_depth,
 )
+from softjig.sensing.fiducials import gray_to_u8
 from softjig.sensing.fitting import ContactPlaneFitter, PaperPlaneFitter
 from softjig.sensing.identities import ReferenceMarkers
 from softjig.sensing.rectify import rectify_images
@@ -221,7 +222,7 @@ class Estimator:
             left, right = rectify_images(left, right, self.model.raw_jig, self.model.rectification)
         gray_left, gray_right, image_warnings = checked_pair(left, right, self.jig)
         clock.lap("checks")
-        frame, warnings = self.frame_finder.find(as_u8(gray_left), as_u8(gray_right))
+        frame, warnings = self.frame_finder.find(gray_to_u8(gray_left), gray_to_u8(gray_right))
         warnings = [*image_warnings, *warnings]
         clock.lap("frame")
         markers_left = self.detector.detect(gray_left, on_fiducials(frame.fiducial_quads_left_px))
@@ -358,17 +359,6 @@ def checked_pair(
     if same_sample and np.array_equal(grays[0], grays[1]):
         raise InputError("the left and right images are the same image: pass the two views of a stereo pair")
     return grays[0], grays[1], warnings
-
-
-def as_u8(gray: np.ndarray) -> np.ndarray:
-    """The 8-bit gray image ArUco needs, from a checked gray (:func:`checked_pair`): a ``uint8`` gray as it
-    is; ``uint16`` as ``round(x / 257)`` in integers; float in [0, 1] as ``round(255 x)``."""
-    if gray.dtype == np.uint8:
-        return gray
-    if gray.dtype == np.uint16:
-        # x / 257 is never a half-integer, so floor((x + 128) / 257) is the nearest level
-        return ((gray.astype(np.uint32) + 128) // 257).astype(np.uint8)
-    return np.clip(np.rint(gray * 255.0), 0, 255).astype(np.uint8)
 
 
 class _StageClock:

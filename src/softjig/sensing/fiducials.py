@@ -18,6 +18,8 @@ import numpy as np
 
 from softjig.aruco import aruco_dictionary
 from softjig.config import FiducialConfig
+from softjig.errors import InputError
+from softjig.sensing.detect import gray_image
 
 
 def fiducial_corners_J(fiducials: FiducialConfig) -> np.ndarray:
@@ -33,16 +35,48 @@ def fiducial_corners_J(fiducials: FiducialConfig) -> np.ndarray:
 
 
 MIN_SEARCH_WINDOW_PX = 8  # a search window narrower than this (cut by the image's edge) is skipped
+_U16_PER_U8 = 257  # 65535 / 255: a uint16 level per uint8 level
+_U8_MAX = 255
+
+
+def fiducial_gray_u8(image: np.ndarray, *, name: str | None = None) -> np.ndarray:
+    """The 8-bit gray image ArUco needs, from any image softjig accepts, or an InputError naming it.
+
+    A C-contiguous ``(H, W)`` uint8 gray comes back as it is (no copy, no scan: the estimator's path).
+    Other images are checked and converted by :func:`~softjig.sensing.detect.gray_image` (RGB to gray;
+    ``uint16`` such as mono16 infrared frames, float32/float64 in [0, 1]; empty, NaN and other dtypes
+    refused), then scaled as the estimator scales them: ``uint16`` as ``round(x / 257)``, float as
+    ``round(255 x)``.
+    """
+    arr = np.asarray(image)
+    if arr.dtype == np.uint8 and arr.ndim == 2 and arr.size and arr.flags.c_contiguous:
+        return arr
+    try:
+        gray, _ = gray_image(arr)
+    except InputError as exc:
+        raise InputError(f"{name}: {exc}" if name else str(exc)) from None
+    return gray_to_u8(gray)
+
+
+def gray_to_u8(gray: np.ndarray) -> np.ndarray:
+    """An already checked gray image (:func:`~softjig.sensing.detect.gray_image`) as 8 bits: ``uint8`` as
+    it is, ``uint16`` as ``round(x / 257)`` in integers, float in [0, 1] as ``round(255 x)``."""
+    if gray.dtype == np.uint8:
+        return gray
+    if gray.dtype == np.uint16:  # x / 257 is never a half-integer: floor((x + 128) / 257) is the nearest
+        return ((gray.astype(np.uint32) + _U16_PER_U8 // 2) // _U16_PER_U8).astype(np.uint8)
+    return np.clip(np.rint(gray * float(_U8_MAX)), 0, _U8_MAX).astype(np.uint8)
 
 
 def detect_fiducials(
     gray_u8: np.ndarray, fiducials: FiducialConfig, *, expected_quads_px: np.ndarray | None = None
 ) -> dict[int, np.ndarray]:
-    """Find the configured fiducials in one 8-bit gray image with OpenCV's ArUco detector.
+    """Find the configured fiducials in one gray image with OpenCV's ArUco detector.
 
     Parameters
     ----------
-    gray_u8 : (H, W) uint8 image.
+    gray_u8 : (H, W) uint8 image; other images softjig accepts (``uint16`` such as mono16, float in
+        [0, 1], RGB) are converted to it by :func:`fiducial_gray_u8`, others refused.
     fiducials : which markers to look for.
     expected_quads_px : (M, 4, 2) where the fiducials should be (e.g. projected with the config's
         camera poses). When given, each is first searched in a window around its expected place (a
@@ -53,7 +87,13 @@ def detect_fiducials(
     dict
         ``{id: (4, 2) corners in px}`` for each configured id found (sub-pixel corners, ArUco order);
         ids not in the config are ignored.
+
+    Raises
+    ------
+    InputError
+        An image that is not a gray or RGB image of a supported dtype, empty, or float outside [0, 1].
     """
+    gray_u8 = fiducial_gray_u8(gray_u8)
     found: dict[int, np.ndarray] = {}
     if expected_quads_px is not None:
         h, w = gray_u8.shape

@@ -14,7 +14,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from softjig.checks import positive_float
 from softjig.config import JigConfig
+from softjig.errors import InputError
 from softjig.jig_shape import rest_marker_points_mm
 from softjig.sensing._identities_kernels import one_to_one_nearest
 
@@ -88,14 +90,26 @@ def identify_markers(
     Returns
     -------
     MarkerIdentities
+
+    Raises
+    ------
+    InputError
+        ``points_J`` not of shape (M, 3) or not finite, or ``max_lateral_mm`` not a positive number.
     """
-    points = np.asarray(points_J, dtype=float).reshape(-1, 3)
+    max_lateral_mm = positive_float(max_lateral_mm, "max_lateral_mm")
+    points = np.asarray(points_J, dtype=float)
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise InputError(
+            f"points_J must be an (M, 3) array of marker positions in J (mm), got shape {points.shape}"
+        )
+    if not np.isfinite(points).all():  # M is at most a few hundred markers: cheap
+        raise InputError("points_J contains NaN or infinite positions: drop those markers first")
     ids = np.full(len(points), -1)
     displacement = np.full(points.shape, np.nan)
     if len(points) == 0 or len(reference) == 0:
         return MarkerIdentities(ids, displacement)
     xs, order, reference_xyz = reference.sorted_x()
     ids, displacement = one_to_one_nearest(
-        np.ascontiguousarray(points), reference_xyz, xs, order, float(max_lateral_mm)
+        np.ascontiguousarray(points), reference_xyz, xs, order, max_lateral_mm
     )
     return MarkerIdentities(ids, displacement)

@@ -37,6 +37,7 @@ from softjig.sensing.fiducials import (
     cell_patterns,
     detect_fiducials,
     fiducial_corners_J,
+    fiducial_gray_u8,
     locate_quads_near,
 )
 
@@ -143,7 +144,8 @@ def jig_frame_from_fiducials(
 
     Parameters
     ----------
-    left_u8, right_u8 : (H, W) uint8 images.
+    left_u8, right_u8 : (H, W) uint8 images; other images softjig accepts (``uint16`` such as mono16,
+        float in [0, 1], RGB) are converted by :func:`~softjig.sensing.fiducials.fiducial_gray_u8`.
     jig : the nominal jig: its fiducials and cameras (intrinsics, and poses to start from).
     constants : :func:`frame_constants` of ``jig`` (built here when not given: an estimator builds them
         once).
@@ -152,7 +154,14 @@ def jig_frame_from_fiducials(
     Returns ``None`` when fewer than :data:`MIN_FIDUCIALS_PER_IMAGE` configured fiducials are found in
     either image, or when the fitted pose does not explain the corners (the fit did not converge or the
     RMS reprojection error exceeds :data:`MAX_FIDUCIAL_RMS_PX`).
+
+    Raises
+    ------
+    InputError
+        An image that is not a gray or RGB image of a supported dtype, empty, or float outside [0, 1].
     """
+    left_u8 = fiducial_gray_u8(left_u8, name="the left image")
+    right_u8 = fiducial_gray_u8(right_u8, name="the right image")
     k = constants if constants is not None else frame_constants(jig)
     frame = _jig_frame_fast(left_u8, right_u8, jig, k, k.fast.expected_quads, k.fast.capture_tables)
     if frame is None and memory is not None and memory.quads is not None:

@@ -147,7 +147,8 @@ def rectify_pair(
 
     Parameters
     ----------
-    left, right : (H, W) or (H, W, 3) uint8/uint16 raw images of ``jig.cameras.left`` and ``.right``.
+    left, right : (H, W) or (H, W, 3) uint8/uint16 (or float in [0, 1]) raw images of
+        ``jig.cameras.left`` and ``.right``.
     jig : a jig with ``cameras.rectified = False`` (a rectified one is returned as is, images untouched).
     alpha : see :func:`rectification`.
 
@@ -160,13 +161,18 @@ def rectify_pair(
     Raises
     ------
     InputError
-        The images do not have the cameras' size, or see :func:`rectification`.
+        The images do not have the cameras' size or are not gray/RGB images of a supported dtype, or see
+        :func:`rectification`.
     """
     if jig.cameras.rectified:
         return left, right, jig
     rect = rectification(jig.cameras, alpha=alpha)
     left, right = rectify_images(left, right, jig, rect)
     return left, right, jig.replace(cameras=rect.cameras)
+
+
+#: The dtypes of the images :func:`rectify_images` remaps (as the estimator accepts them).
+_IMAGE_DTYPES = frozenset(np.dtype(t) for t in (np.uint8, np.uint16, np.float32, np.float64))
 
 
 def rectify_images(
@@ -178,7 +184,7 @@ def rectify_images(
     Raises
     ------
     InputError
-        The images do not have the cameras' size.
+        The images do not have the cameras' size, or are not gray/RGB images of a supported dtype.
     """
     out = []
     for name, image, cam, maps in (
@@ -186,6 +192,12 @@ def rectify_images(
         ("right", right, jig.cameras.right, rect.maps_right),
     ):
         image = np.asarray(image)
+        if image.dtype not in _IMAGE_DTYPES or not (image.ndim == 2 or image.shape[2:] == (3,)):
+            raise InputError(
+                f"the {name} image must be an (H, W) gray or (H, W, 3) RGB image of dtype uint8, uint16, "
+                f"float32 or float64, got dtype {image.dtype} and shape {image.shape}: pass the camera's "
+                "raw frame"
+            )
         if image.shape[:2] != (cam.height_px, cam.width_px):
             raise InputError(
                 f"the {name} image is {image.shape[1] if image.ndim > 1 else '?'}x{image.shape[0]} px but "

@@ -377,7 +377,7 @@ def refine_centres(
 
     Parameters
     ----------
-    image : (H, W) uint8, uint16 or float32 gray image (float scaled to [0, 1]).
+    image : (H, W) uint8, uint16 or float32 gray image (float scaled to [0, 1]; float64 is converted).
     start_xy_px : (N, 2) starting centres ``(u, v)`` (px), within about a pixel of the marker.
     model : the marker and noise model (:class:`MarkerModel`).
     iterations : at most this many Newton steps per window; they stop when a step is below 1e-6 px
@@ -406,11 +406,25 @@ def refine_centres(
     """
     from softjig.sensing._subpixel_kernels import refine_all  # Numba is imported on first use
 
-    start = np.ascontiguousarray(np.asarray(start_xy_px, dtype=np.float64).reshape(-1, 2))
+    start = np.asarray(start_xy_px, dtype=np.float64)
+    if start.size == 0:
+        start = start.reshape(0, 2)
+    if start.ndim != 2 or start.shape[1] != 2:
+        raise InputError(f"start_xy_px must be an (N, 2) array of pixel positions (x, y), got {start.shape}.")
+    if not np.isfinite(start).all():  # N markers, not the image's pixels: cheap
+        raise InputError("start_xy_px contains NaN or infinite positions: drop those markers first.")
+    start = np.ascontiguousarray(start)
+    if int(iterations) < 0:
+        raise InputError(f"iterations must be >= 0, got {iterations}.")
     arr = np.asarray(image)
-    if arr.ndim != 2:
-        raise InputError(f"refine_centres needs a gray (H, W) image, got shape {arr.shape}.")
-    if arr.dtype not in _FULL_SCALE and arr.dtype != np.float32:
+    if arr.ndim != 2 or arr.size == 0:
+        raise InputError(f"refine_centres needs a non-empty gray (H, W) image, got shape {arr.shape}.")
+    if arr.dtype not in _FULL_SCALE and arr.dtype not in (np.dtype(np.float32), np.dtype(np.float64)):
+        raise InputError(
+            f"refine_centres needs a uint8, uint16 or float (in [0, 1]) image, got dtype {arr.dtype}; "
+            "pass the camera's frame or gray_image()'s."
+        )
+    if arr.dtype == np.float64:
         arr = arr.astype(np.float32)
     arr = np.ascontiguousarray(arr)
     scale = 1.0 / _FULL_SCALE.get(arr.dtype, 1.0)

@@ -38,7 +38,6 @@ from __future__ import annotations
 
 import contextlib
 import math
-import os
 import time
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
@@ -63,7 +62,6 @@ __all__ = [
 
 #: Tasks in flight per worker: one running, one queued, so no worker waits for the parent.
 IN_FLIGHT_PER_WORKER = 2
-_THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS")
 _SUSPECT_PREFIX = "suspect: "
 _REASON_CHARS = 300  # a failure's message is kept to this length in the results
 
@@ -268,27 +266,6 @@ def run_task(inp: TaskInput) -> TaskResult:
 # ------------------------------------------------------------------------------------------ backends
 
 
-@contextlib.contextmanager
-def _one_thread_each() -> Iterator[None]:
-    """Workers started inside run one thread of OpenCV, BLAS, OpenMP and Numba each (the processes are
-    the parallelism); this process's settings are restored after."""
-    import cv2
-
-    saved = {name: os.environ.get(name) for name in _THREAD_VARIABLES}
-    threads = cv2.getNumThreads()
-    os.environ.update(dict.fromkeys(_THREAD_VARIABLES, "1"))
-    cv2.setNumThreads(1)
-    try:
-        yield
-    finally:
-        cv2.setNumThreads(threads)
-        for name, value in saved.items():
-            if value is None:
-                os.environ.pop(name, None)
-            else:
-                os.environ[name] = value
-
-
 def _warm_up() -> None:
     """Import the renderer and the estimator once per worker, before its first task."""
     from softjig.sensing import estimator  # noqa: F401
@@ -308,11 +285,14 @@ def local_results(inputs: Iterable[TaskInput], workers: int) -> Iterator[TaskRes
     import multiprocessing
     from concurrent.futures import FIRST_COMPLETED, wait
 
-    from softjig.io.workers import worker_pool
+    from softjig.io.workers import one_thread_per_worker, worker_pool
 
     _warm_up()  # forked workers inherit the imports
     todo = iter(inputs)
-    with _one_thread_each(), worker_pool(workers, mp_context=multiprocessing.get_context("fork")) as pool:
+    with (
+        one_thread_per_worker(),
+        worker_pool(workers, mp_context=multiprocessing.get_context("fork")) as pool,
+    ):
         pending = {pool.submit(run_task, inp) for inp in _take(todo, IN_FLIGHT_PER_WORKER * workers)}
         while pending:
             done, pending = wait(pending, return_when=FIRST_COMPLETED)
@@ -345,7 +325,9 @@ def _ray_init(ray: Any, address: str, workers: int | None) -> None:
     """Connect to (or start) the cluster, keeping this process's own SIGTERM and SIGINT handlers: Ray's
     C++ core installs a failure-signal handler that aborts the process on SIGTERM (exit 134, a stack
     dump), where softjig stops cleanly (:func:`softjig.io.workers.terminate_raises`, exit 143)."""
-    env = {"env_vars": dict.fromkeys(_THREAD_VARIABLES, "1")}
+    from softjig.io.workers import THREAD_VARIABLES
+
+    env = {"env_vars": dict.fromkeys(THREAD_VARIABLES, "1")}
     with _signal_handlers_kept():
         _connect(ray, address, workers, env)
 
