@@ -141,7 +141,7 @@ def test_inside_hull_matches_delaunay():
 def test_neighbour_helpers_match_a_kd_tree():
     from scipy.spatial import cKDTree
 
-    from softjig.sensing.contact import _neighbour_noise, just_outside
+    from softjig.sensing.contact import indentation, just_outside
 
     rng = np.random.default_rng(4)
     for trial in range(20):
@@ -154,7 +154,10 @@ def test_neighbour_helpers_match_a_kd_tree():
         enough = k >= 3
         residual = (raw[enough] - values[enough].sum(axis=1) / k[enough]) / np.sqrt(1 + 1 / k[enough])
         expected = max(1.4826 * np.median(np.abs(residual)), 1e-6)
-        assert _neighbour_noise(xy, raw, 8.0) == pytest.approx(expected, rel=1e-12)
+        points = np.column_stack([xy, -raw])  # indented by raw below a flat reference at 0
+        assert indentation(points, np.zeros(len(xy)), pitch_mm=8.0).noise_mm == pytest.approx(
+            expected, rel=1e-12
+        )
         contact = rng.random(len(xy)) < 0.3
         distance, _ = cKDTree(xy[contact]).query(xy, distance_upper_bound=12.0)
         assert np.array_equal(just_outside(xy, contact, 8.0), np.isfinite(distance) & ~contact)

@@ -20,12 +20,16 @@ THREE_D = [
     "geometry.py",
     "optics.py",
 ]
+#: The estimator's contact, self-check and uncertainty stages: Numba only in their kernel modules too.
+ESTIMATOR = ["sensing/contact.py", "sensing/selfcheck.py", "sensing/uncertainty.py"]
 KERNELS = [
     "sensing/_stereo_kernels.py",
     "sensing/_refractive_kernels.py",
     "sensing/_identities_kernels.py",
     "sensing/_robust_kernels.py",
     "_geometry_kernels.py",
+    "sensing/_contact_kernels.py",
+    "sensing/_selfcheck_kernels.py",
 ]
 
 
@@ -43,7 +47,7 @@ def _imports(tree: ast.Module) -> set[str]:
     return names
 
 
-@pytest.mark.parametrize("module", THREE_D)
+@pytest.mark.parametrize("module", THREE_D + ESTIMATOR)
 def test_numba_only_in_the_kernel_modules(module):
     assert "numba" not in _imports(_tree(module))
 

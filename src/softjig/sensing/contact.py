@@ -26,13 +26,21 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import cv2
-import numba
 import numpy as np
 
 from softjig.config import JigConfig
 from softjig.errors import EstimationError
-from softjig.geometry import PlaneFit, _inside_hull_kernel, inside_convex_hull_xy
+from softjig.geometry import PlaneFit, inside_convex_hull_xy
 from softjig.jig_shape import rest_inner_height_mm
+from softjig.sensing import _contact_kernels as kernels
+from softjig.sensing._contact_kernels import (
+    AT_REST_SIGMAS,
+    MAD_TO_SIGMA,
+    MIN_AT_REST,
+    NOISE_FLOOR_MM,
+    ZERO_ROUNDS,
+    ZERO_TOLERANCE_SIGMAS,
+)
 
 #: Seeds of :func:`grow_contact`, in the order tried: the candidates indented at least this share of the
 #: deepest tenth's depth.
@@ -41,7 +49,24 @@ SEED_DEPTH_SHARES = (0.5, 0.75, 0.25)
 #: hull, is a hole: no face pressed into the membrane leaves one (:func:`holes`). So is one just outside
 #: the contact where the plane would press into the membrane (:func:`holes_beside`).
 HOLE_THRESHOLDS = 2.0
-_LARGEST = float(np.finfo(float).max)
+#: A marker's neighbours lie within this many marker pitches (a square grid's 8 nearest).
+NEIGHBOUR_RADIUS_PITCHES = 1.5
+#: The steepest plausible contact plane (deg): no part pressed into a soft jig stands steeper.
+MAX_TILT_DEG = 45.0
+#: Violations of a contact's plane that noise explains: at least this many ...
+TOLERATED_VIOLATIONS = 2
+#: ... or this share of the contact's markers.
+TOLERATED_VIOLATION_SHARE = 0.05
+#: The plane within ``max(LIFT_NOISE_SIGMAS noise, MIN_LIFT_CLEARANCE_MM)`` of the rest membrane at the
+#: footprint's edge lifts off there (:func:`describe_contact`).
+LIFT_NOISE_SIGMAS = 3.0
+MIN_LIFT_CLEARANCE_MM = 0.3
+#: With the part's size known, a footprint under this share of its base is partial contact.
+PARTIAL_AREA_SHARE = 0.7
+#: A plane tilted less than this (deg) is level: its lift-off side is found from the clearance instead.
+LEVEL_PLANE_DEG = 1.0
+#: A plane whose horizontal normal component is below this is level for :func:`face_centre_xy`.
+LEVEL_SLOPE = 1e-6
 
 
 @dataclass(frozen=True)
@@ -83,210 +108,43 @@ def indentation(
     Zero: the median raw indentation of the markers within 2.5 sigma of it (iterated from the median of
     all), which also absorbs a uniform depth bias of an imperfectly calibrated camera pair.
     """
-    if pitch_mm:  # the usual case, in one compiled pass (0.1 ms of NumPy calls, measured)
-        depth, zero, noise = _indentation_kernel(
+    if pitch_mm:  # the usual case, in one compiled pass
+        depth, zero, noise = kernels.indentation(
             np.ascontiguousarray(points_J, dtype=float),
             np.ascontiguousarray(reference_z_mm, dtype=float),
-            1.5 * pitch_mm,
+            NEIGHBOUR_RADIUS_PITCHES * pitch_mm,
         )
         if noise > 0:
             return Indentation(depth, float(zero), float(noise))
+    # Too few markers with neighbours (or no pitch): the noise of the markers at rest.
     raw = np.asarray(reference_z_mm, dtype=float) - points_J[:, 2]
     finite = np.isfinite(raw)
     if not finite.any():
         return Indentation(np.full(len(raw), np.nan), 0.0, float("nan"))
-    raw_finite = raw[finite]
-    neighbour_noise = _neighbour_noise(points_J[finite, :2], raw_finite, pitch_mm) if pitch_mm else None
-    zero = float(np.median(raw_finite))
+    zero = float(np.median(raw[finite]))
     noise = float("nan")
-    for _ in range(5):
-        if neighbour_noise is not None:
-            noise = neighbour_noise
-        else:
-            # A part only pushes markers in, never out, so the markers indented less than the median are
-            # at rest however many the part displaced: the noise is the spread of that side.
-            low = finite & (raw <= zero)
-            noise = max(float(1.4826 * np.median(zero - raw[low])), 1e-6) if low.any() else 1e-6
-        at_rest = finite & (np.abs(raw - zero) < 2.5 * noise)
-        new_zero = float(np.median(raw[at_rest])) if at_rest.sum() >= 3 else zero
-        if abs(new_zero - zero) < 1e-3 * noise:
+    for _ in range(ZERO_ROUNDS):
+        # A part only pushes markers in, never out, so the markers indented less than the median are
+        # at rest however many the part displaced: the noise is the spread of that side.
+        low = finite & (raw <= zero)
+        noise = (
+            max(float(MAD_TO_SIGMA * np.median(zero - raw[low])), NOISE_FLOOR_MM)
+            if low.any()
+            else NOISE_FLOOR_MM
+        )
+        at_rest = finite & (np.abs(raw - zero) < AT_REST_SIGMAS * noise)
+        new_zero = float(np.median(raw[at_rest])) if at_rest.sum() >= MIN_AT_REST else zero
+        if abs(new_zero - zero) < ZERO_TOLERANCE_SIGMAS * noise:
             break
         zero = new_zero
     return Indentation(raw - zero, zero, noise)
 
 
-@numba.njit(cache=True)
-def _indentation_kernel(
-    points: np.ndarray, reference_z: np.ndarray, radius: float
-) -> tuple[np.ndarray, float, float]:
-    """:func:`indentation` with the neighbour noise: ``(depth, zero, noise)``, or ``noise = -1`` when
-    no marker is finite or too few have neighbours (the caller then takes the other way)."""
-    n = points.shape[0]
-    raw = np.empty(n)
-    finite = np.empty(n, dtype=np.bool_)
-    m = 0
-    for i in range(n):
-        raw[i] = reference_z[i] - points[i, 2]
-        finite[i] = np.isfinite(raw[i])
-        m += finite[i]
-    if m < 10:
-        return raw, 0.0, -1.0
-    xy = np.empty((m, 2))
-    raw_finite = np.empty(m)
-    k = 0
-    for i in range(n):
-        if finite[i]:
-            xy[k, 0], xy[k, 1], raw_finite[k] = points[i, 0], points[i, 1], raw[i]
-            k += 1
-    residual, enough = _neighbour_residuals(xy, raw_finite, radius, 8)
-    if enough < 10:
-        return raw, 0.0, -1.0
-    noise = max(1.4826 * np.median(np.abs(residual[:enough])), 1e-6)
-    zero = _settle_zero(raw_finite, noise, 5)
-    return raw - zero, zero, noise
-
-
-@numba.njit(cache=True)
-def _settle_zero(raw: np.ndarray, noise: float, rounds: int) -> float:
-    """The zero of :func:`indentation` for a known noise: from the median of all values, the median of
-    the values within 2.5 noise sigmas of it, iterated until it moves by less than 1e-3 sigma."""
-    zero = np.median(raw)
-    for _ in range(rounds):
-        at_rest = raw[np.abs(raw - zero) < 2.5 * noise]
-        new_zero = np.median(at_rest) if at_rest.shape[0] >= 3 else zero
-        if abs(new_zero - zero) < 1e-3 * noise:
-            break
-        zero = new_zero
-    return zero
-
-
-def _neighbour_noise(xy: np.ndarray, raw: np.ndarray, pitch_mm: float) -> float | None:
-    """Robust sigma of each value minus its neighbours' mean, scaled by ``1 / sqrt(1 + 1/k)``."""
-    if len(xy) < 10:
-        return None
-    # The 8 nearest within 1.5 pitches: a square grid's 4 edge and 4 diagonal neighbours. Compiled
-    # (:func:`_neighbour_residuals`, a sweep over the markers sorted by x): the k-d tree's k-nearest query
-    # and the NumPy reductions took 0.3-0.4 ms, measured; this, 20 us.
-    residual, enough = _neighbour_residuals(
-        np.ascontiguousarray(xy, dtype=float), np.ascontiguousarray(raw, dtype=float), 1.5 * pitch_mm, 8
-    )
-    if enough < 10:
-        return None
-    return max(float(1.4826 * _median_abs(residual[:enough])), 1e-6)
-
-
-@numba.njit(cache=True)
-def _median_abs(values: np.ndarray) -> float:
-    """``np.median(np.abs(values))``, compiled (NumPy's took 20-30 us on 300 values, measured)."""
-    return np.median(np.abs(values))
-
-
-@numba.njit(cache=True)
-def _x_window(xs: np.ndarray, x: float, radius: float) -> tuple[int, int]:
-    """The slice of the ascending ``xs`` within ``radius`` (and a hair) of ``x``."""
-    slack = radius * (1.0 + 1e-9)
-    return np.searchsorted(xs, x - slack), np.searchsorted(xs, x + slack, side="right")
-
-
-@numba.njit(cache=True)
-def _grid_cells(xy: np.ndarray, radius: float):
-    """Bin (N, 2) points into square cells of side ``radius`` (so each point's neighbours closer than
-    ``radius`` lie in its own and the 8 adjacent cells): each point's cell ``(cx, cy)``, the grid's size
-    ``(nx, ny)``, and the points of cell ``c = cx * ny + cy`` as ``members[start[c]:start[c + 1]]``."""
-    n = xy.shape[0]
-    x0, y0 = xy[:, 0].min(), xy[:, 1].min()
-    nx = int((xy[:, 0].max() - x0) / radius) + 1
-    ny = int((xy[:, 1].max() - y0) / radius) + 1
-    cx = np.empty(n, dtype=np.int64)
-    cy = np.empty(n, dtype=np.int64)
-    start = np.zeros(nx * ny + 1, dtype=np.int64)
-    for i in range(n):
-        cx[i] = min(int((xy[i, 0] - x0) / radius), nx - 1)
-        cy[i] = min(int((xy[i, 1] - y0) / radius), ny - 1)
-        start[cx[i] * ny + cy[i] + 1] += 1
-    for c in range(nx * ny):
-        start[c + 1] += start[c]
-    fill = start[:-1].copy()
-    members = np.empty(n, dtype=np.int64)
-    for i in range(n):
-        c = cx[i] * ny + cy[i]
-        members[fill[c]] = i
-        fill[c] += 1
-    return cx, cy, nx, ny, start, members
-
-
-@numba.njit(cache=True)
-def _neighbour_residuals(
-    xy: np.ndarray, raw: np.ndarray, radius: float, k_max: int
-) -> tuple[np.ndarray, int]:
-    """For each point with at least 3 others closer than ``radius`` (at most its ``k_max`` nearest):
-    its value minus their mean, over ``sqrt(1 + 1/k)``; the first ``count`` entries, in point order.
-
-    The points are binned into square cells of side ``radius``, so each one's neighbours lie in its own
-    and the 8 adjacent cells (half the candidates of a sweep along ``x``, measured 2x faster).
-    """
-    n = xy.shape[0]
-    cx, cy, nx, ny, start, members = _grid_cells(xy, radius)
-    r2 = radius * radius
-    residual = np.empty(n)
-    count = 0
-    d2s = np.empty(n)
-    idx = np.empty(n, dtype=np.int64)
-    for i in range(n):
-        m = 0
-        for gx in range(max(cx[i] - 1, 0), min(cx[i] + 2, nx)):
-            for gy in range(max(cy[i] - 1, 0), min(cy[i] + 2, ny)):
-                c = gx * ny + gy
-                for s in range(start[c], start[c + 1]):
-                    j = members[s]
-                    if j == i:
-                        continue
-                    dx, dy = xy[j, 0] - xy[i, 0], xy[j, 1] - xy[i, 1]
-                    d2 = dx * dx + dy * dy
-                    if d2 < r2:
-                        d2s[m] = d2
-                        idx[m] = j
-                        m += 1
-        if m < 3:
-            continue
-        total = 0.0
-        if m > k_max:
-            nearest = np.argsort(d2s[:m], kind="mergesort")[:k_max]
-            for q in nearest:
-                total += raw[idx[q]]
-            m = k_max
-        else:
-            for q in range(m):
-                total += raw[idx[q]]
-        residual[count] = (raw[i] - total / m) / np.sqrt(1.0 + 1.0 / m)
-        count += 1
-    return residual, count
-
-
-@numba.njit(cache=True)
-def _count_within(query: np.ndarray, points: np.ndarray, radius: float, inclusive: bool) -> np.ndarray:
-    """How many of ``points`` lie within ``radius`` of each ``query`` point (``<=`` when ``inclusive``,
-    else ``<``, as a k-d tree's ``query_ball_point`` and ``distance_upper_bound``)."""
-    order = np.argsort(points[:, 0], kind="mergesort")
-    xs = points[order, 0]
-    r2 = radius * radius
-    counts = np.zeros(query.shape[0], dtype=np.int64)
-    for i in range(query.shape[0]):
-        lo, hi = _x_window(xs, query[i, 0], radius)
-        for s in range(lo, hi):
-            j = order[s]
-            dx, dy = points[j, 0] - query[i, 0], points[j, 1] - query[i, 1]
-            d2 = dx * dx + dy * dy
-            if d2 <= r2 if inclusive else d2 < r2:
-                counts[i] += 1
-    return counts
-
-
 def _near(xy: np.ndarray, members: np.ndarray, radius: float) -> np.ndarray:
     """Which ``xy`` lie closer than ``radius`` to one of ``xy[members]``, as booleans (what a k-d tree's
-    query with ``distance_upper_bound`` finds; compiled: 10 us instead of 0.1-0.2 ms, measured)."""
+    query with ``distance_upper_bound`` finds)."""
     xy = np.ascontiguousarray(xy, dtype=float)
-    return _count_within(xy, xy[members], float(radius), False) > 0
+    return kernels.count_within(xy, xy[members], float(radius), False) > 0
 
 
 def contact_candidates(dent: Indentation, *, sigmas: float = 4.0, min_depth_mm: float = 0.3) -> np.ndarray:
@@ -319,7 +177,7 @@ def holes(points_J: np.ndarray, contact: np.ndarray, plane: PlaneFit, depth_mm: 
 def _inside_hull(xy: np.ndarray, contact: np.ndarray) -> np.ndarray:
     """Which ``(x, y)`` lie inside the convex hull of the contact's, as booleans (none for < 3 markers, or
     all on a line). A compiled hull test (:func:`~softjig.geometry.inside_convex_hull_xy`): it matches
-    ``Delaunay(xy[contact]).find_simplex(xy) >= 0``, which took up to 7 ms per call (measured)."""
+    ``Delaunay(xy[contact]).find_simplex(xy) >= 0``, at a fraction of its cost."""
     if contact.sum() < 3:
         return np.zeros(len(xy), dtype=bool)
     return inside_convex_hull_xy(xy[contact], xy)
@@ -334,7 +192,7 @@ def grow_contact(
     fit_plane,
     threshold_mm: float,
     min_points: int = 6,
-    max_tilt_rad: float = np.radians(45.0),
+    max_tilt_rad: float = np.radians(MAX_TILT_DEG),
     max_rounds: int = 30,
 ) -> tuple[np.ndarray, PlaneFit]:
     """The markers in contact: the robust plane of the deeply pushed-in markers, grown over neighbours.
@@ -412,7 +270,7 @@ def contact_violations(
     *,
     threshold_mm: float,
     pitch_mm: float,
-    max_tilt_rad: float = np.radians(45.0),
+    max_tilt_rad: float = np.radians(MAX_TILT_DEG),
     dent: Indentation | None = None,
 ) -> int:
     """How many markers contradict ``plane`` being the face of ``contact`` beyond the few that noise
@@ -467,7 +325,9 @@ def _holes_beside(points_J, dent, contact, plane, height, threshold_mm, pitch_mm
         return out
     members = np.flatnonzero(contact)
     gap = points_J[candidates, None, :2] - points_J[None, members, :2]
-    near = np.hypot(gap[..., 0], gap[..., 1]) < 1.5 * pitch_mm  # each has one: it is just outside
+    near = (
+        np.hypot(gap[..., 0], gap[..., 1]) < NEIGHBOUR_RADIUS_PITCHES * pitch_mm
+    )  # each has one: it is just outside
     deepest_near = np.where(near, depth[members][None, :], -np.inf).max(axis=1)
     out[candidates[depth[candidates] > deepest_near]] = True
     return out
@@ -490,18 +350,18 @@ def _violations(
     # A marker or two of a large contact lie above the plane by noise alone (the threshold is a few
     # sigmas, one-sided): only violations beyond that count, or a smaller, wrong contact peeled off
     # the seed (fewer markers inside its hull, so fewer chances) would beat the right one.
-    tolerated = max(2, int(0.05 * contact.sum()))
+    tolerated = max(TOLERATED_VIOLATIONS, int(TOLERATED_VIOLATION_SHARE * contact.sum()))
     # Penetration is judged inside the contact's core (its markers surrounded by contact), not its rim:
     # the growth takes in a ring of wall markers level with a deep edge, whose hull holds more wall above
     # the plane. Holes are judged in the whole hull: the membrane never falls far below a real face.
     # :func:`penetrating` (in the core) and :func:`holes` (in the hull), fused: the markers' heights above
     # the plane computed once, and the core and both hull tests in one compiled pass, made only for the
-    # markers above or below (same counts; 45 us in eleven NumPy and compiled calls, measured).
+    # markers above or below (the same counts).
     height = (points_J - plane.centroid_mm) @ plane.normal
     above = height > threshold_mm
     below = (height < -HOLE_THRESHOLDS * threshold_mm) & ~contact
     xy = np.ascontiguousarray(points_J[:, :2], dtype=float)
-    count = _violations_kernel(xy, contact, above, below, 1.5 * pitch_mm)
+    count = kernels.violations(xy, contact, above, below, NEIGHBOUR_RADIUS_PITCHES * pitch_mm)
     # A hole beside the contact is 5 depth-noise sigmas below a plane that would press there, where the
     # membrane can only be above it: noise does not explain one, and none is tolerated.
     beside = (
@@ -512,35 +372,14 @@ def _violations(
     return max(0, count - tolerated) + beside
 
 
-@numba.njit(cache=True)
-def _violations_kernel(
-    xy: np.ndarray, contact: np.ndarray, above: np.ndarray, below: np.ndarray, radius: float
-) -> int:
-    """How many markers are ``above`` inside the hull of the contact's core (:func:`_core` with
-    ``radius`` = 1.5 pitches) plus how many are ``below`` inside the contact's hull (as
-    :func:`penetrating` and :func:`holes` with :func:`_inside_hull`; a marker is never both)."""
-    index = np.flatnonzero(contact)
-    members = xy[index]
-    count = 0
-    upper = np.flatnonzero(above)
-    if len(upper) and len(index) >= 3:
-        counts = _count_within(members, members, radius, True) - 1
-        core = index[counts >= 4]
-        if len(core) < 3:
-            core = index
-        count += int(_inside_hull_kernel(xy[core], xy[upper], 1e-9).sum())
-    lower = np.flatnonzero(below)
-    if len(lower) and len(index) >= 3:
-        count += int(_inside_hull_kernel(members, xy[lower], 1e-9).sum())
-    return count
-
-
-def _core(xy: np.ndarray, contact: np.ndarray, pitch_mm: float, min_neighbours: int = 4) -> np.ndarray:
+def _core(
+    xy: np.ndarray, contact: np.ndarray, pitch_mm: float, min_neighbours: int = kernels.CORE_NEIGHBOURS
+) -> np.ndarray:
     """The contact markers with at least ``min_neighbours`` contact markers within 1.5 pitches (all of
     them if fewer than 3 are)."""
     index = np.flatnonzero(contact)
     members = np.ascontiguousarray(xy[index], dtype=float)
-    counts = _count_within(members, members, 1.5 * pitch_mm, True) - 1
+    counts = kernels.count_within(members, members, NEIGHBOUR_RADIUS_PITCHES * pitch_mm, True) - 1
     core = np.zeros_like(contact)
     core[index[counts >= min_neighbours]] = True
     return core if core.sum() >= 3 else contact.copy()
@@ -549,9 +388,10 @@ def _core(xy: np.ndarray, contact: np.ndarray, pitch_mm: float, min_neighbours: 
 def _grow(points_J, eligible, seed, pitch_mm, fit_plane, threshold_mm, max_rounds):
     """Alternate the robust fit of the contact and its growth over the connected markers on the plane.
 
-    Each round's growth is a flood fill (:func:`_flood`): every eligible marker on the plane connected to
-    the fit's inliers by steps of at most 1.5 pitches joins at once, so the rounds do not grow with the
-    contact's radius (one ring per round made the cost grow as ``N^1.5`` with the contact's markers).
+    Each round's growth is a flood fill (``_contact_kernels.flood``): every eligible marker on the plane
+    connected to the fit's inliers by steps of at most 1.5 pitches joins at once, so the rounds do not grow
+    with the contact's radius (one ring per round made the cost grow as ``N^1.5`` with the contact's
+    markers).
     """
     xy = np.ascontiguousarray(points_J[:, :2], dtype=float)
     contact = seed.copy()
@@ -561,73 +401,27 @@ def _grow(points_J, eligible, seed, pitch_mm, fit_plane, threshold_mm, max_round
         kept = np.zeros_like(contact)
         kept[np.flatnonzero(contact)[inliers]] = True
         on_plane = np.abs((points_J - plane.centroid_mm) @ plane.normal) < threshold_mm
-        grown = _flood(xy, kept, on_plane & eligible, 1.5 * pitch_mm) if kept.any() else kept
+        grown = (
+            kernels.flood(xy, kept, on_plane & eligible, NEIGHBOUR_RADIUS_PITCHES * pitch_mm)
+            if kept.any()
+            else kept
+        )
         if np.array_equal(grown, contact):
             break
         contact = grown
     return contact, plane
 
 
-@numba.njit(cache=True)
-def _flood(xy: np.ndarray, start: np.ndarray, allowed: np.ndarray, radius: float) -> np.ndarray:
-    """``start`` and every ``allowed`` point reached from it by steps shorter than ``radius``, as booleans.
-
-    A breadth-first search over square cells of side ``radius`` (each point's neighbours lie in its own
-    and the 8 adjacent cells): linear in the points for a grid of markers.
-    """
-    n = xy.shape[0]
-    cx, cy, nx, ny, start_of, members = _grid_cells(xy, radius)
-    reached = start.copy()
-    queue = np.empty(n, dtype=np.int64)
-    head, tail = 0, 0
-    for i in range(n):
-        if reached[i]:
-            queue[tail] = i
-            tail += 1
-    r2 = radius * radius
-    while head < tail:
-        i = queue[head]
-        head += 1
-        for gx in range(max(cx[i] - 1, 0), min(cx[i] + 2, nx)):
-            for gy in range(max(cy[i] - 1, 0), min(cy[i] + 2, ny)):
-                c = gx * ny + gy
-                for s in range(start_of[c], start_of[c + 1]):
-                    j = members[s]
-                    if reached[j] or not allowed[j]:
-                        continue
-                    dx, dy = xy[j, 0] - xy[i, 0], xy[j, 1] - xy[i, 1]
-                    if dx * dx + dy * dy < r2:
-                        reached[j] = True
-                        queue[tail] = j
-                        tail += 1
-    return reached
-
-
 def face_depth_mm(points_J: np.ndarray, dent: Indentation, plane: PlaneFit) -> np.ndarray:
     """How deep ``plane`` (the part's face) lies below the unloaded membrane at each marker (mm; NaN-free,
     ``-inf`` where the indentation is unknown): the marker's indentation minus its gap below the plane."""
-    # Compiled, the same arithmetic as PlaneFit.heights_mm: 5 NumPy calls took 25 us, measured, and this
-    # runs 4-6 times per estimate.
-    return _face_depth(
+    # Compiled, the same arithmetic as PlaneFit.heights_mm (this runs 4-6 times per estimate).
+    return kernels.face_depth(
         np.ascontiguousarray(points_J, dtype=float),
         np.ascontiguousarray(dent.depth_mm, dtype=float),
         np.ascontiguousarray(plane.normal, dtype=float),
         float(plane.offset_mm),
     )
-
-
-@numba.njit(cache=True)
-def _face_depth(points: np.ndarray, depth: np.ndarray, normal: np.ndarray, offset: float) -> np.ndarray:
-    out = np.empty(points.shape[0])
-    for i in range(points.shape[0]):
-        height = -(offset + normal[0] * points[i, 0] + normal[1] * points[i, 1]) / normal[2]
-        known = depth[i]  # as np.nan_to_num(depth, nan=-inf)
-        if np.isnan(known):
-            known = -np.inf
-        elif np.isinf(known):
-            known = _LARGEST if known > 0 else -_LARGEST
-        out[i] = known - (height - points[i, 2])
-    return out
 
 
 def under_face(
@@ -637,38 +431,14 @@ def under_face(
     above ``centre_xy_mm`` (under a face of that radius centred there; the jig axis by default), as
     booleans.
 
-    Compiled, the same arithmetic as :meth:`~softjig.geometry.PlaneFit.heights_mm` and a 3-D norm (six
-    NumPy calls took 40 us, measured).
+    The same arithmetic as :meth:`~softjig.geometry.PlaneFit.heights_mm` and a 3-D norm.
     """
     cx, cy = (float(v) for v in centre_xy_mm)
-    return _under_face(
-        np.ascontiguousarray(points_J, dtype=float),
-        np.ascontiguousarray(plane.normal, dtype=float),
-        float(plane.offset_mm),
-        cx,
-        cy,
-        plane.z_at(cx, cy),
-        float(radius_mm),
-    )
-
-
-@numba.njit(cache=True)
-def _under_face(
-    points: np.ndarray,
-    normal: np.ndarray,
-    offset: float,
-    cx: float,
-    cy: float,
-    centre_z: float,
-    radius: float,
-) -> np.ndarray:
-    out = np.empty(points.shape[0], dtype=np.bool_)
-    for i in range(points.shape[0]):
-        x, y = points[i, 0], points[i, 1]
-        dz = -(offset + normal[0] * x + normal[1] * y) / normal[2] - centre_z
-        dx, dy = x - cx, y - cy
-        out[i] = np.sqrt(dx * dx + dy * dy + dz * dz) < radius
-    return out
+    n0, n1, n2 = (float(v) for v in plane.normal)
+    x, y = points_J[:, 0], points_J[:, 1]
+    dz = -(float(plane.offset_mm) + n0 * x + n1 * y) / n2 - plane.z_at(cx, cy)
+    dx, dy = x - cx, y - cy
+    return np.sqrt(dx * dx + dy * dy + dz * dz) < float(radius_mm)
 
 
 def ambiguous_selection(
@@ -715,11 +485,8 @@ def drop_lifted_off(
     below the face, within the inlier band of any fit, and flattens the plane: those markers have a face
     depth near zero (or negative), the markers in contact one near their own indentation. Markers whose
     face depth is below ``clearance_mm`` are dropped and the plane fitted again, until nothing changes;
-    each refit steepens the plane, which uncovers more of the lift-off side.
-
-    Measured on the default jig (as-built, speckle on, 12 azimuths per cell, part size known): the mean
-    fitted tilt of an 80 mm part at 20 deg went from 18.43 to 19.83 deg, of a 60 mm one from 18.02 to
-    19.83 deg, with ``clearance_mm`` 1.5 indentation-noise sigmas; at 5-10 deg it changed by < 0.2 deg.
+    each refit steepens the plane, which uncovers more of the lift-off side (the gain on tilted large
+    parts is in ``benchmarks/RESULTS.md``).
 
     Parameters
     ----------
@@ -767,41 +534,10 @@ class ContactRegion:
     edge_clearance_mm: float
 
 
-@numba.njit(cache=True)
-def _footprint(hull: np.ndarray, half_pitch: float) -> tuple[float, np.ndarray, float, np.ndarray]:
-    """Area and centroid (shoelace formulas), perimeter, and the vertices moved out by
-    ``half_pitch`` away from the centroid, of a polygon of at least 3 vertices."""
-    k = hull.shape[0]
-    twice_area, cx, cy, perimeter = 0.0, 0.0, 0.0, 0.0
-    for i in range(k):
-        j = (i + 1) % k
-        cross = hull[i, 0] * hull[j, 1] - hull[j, 0] * hull[i, 1]
-        twice_area += cross
-        cx += (hull[i, 0] + hull[j, 0]) * cross
-        cy += (hull[i, 1] + hull[j, 1]) * cross
-        dx, dy = hull[j, 0] - hull[i, 0], hull[j, 1] - hull[i, 1]
-        perimeter += np.sqrt(dx * dx + dy * dy)
-    area = twice_area / 2.0
-    centroid = np.empty(2)
-    if abs(area) < 1e-12:
-        area = 0.0
-        centroid[0], centroid[1] = hull[:, 0].mean(), hull[:, 1].mean()
-    else:
-        centroid[0], centroid[1] = cx / (6.0 * area), cy / (6.0 * area)
-    edge = hull.copy()
-    for i in range(k):
-        ox, oy = hull[i, 0] - centroid[0], hull[i, 1] - centroid[1]
-        norm = np.sqrt(ox * ox + oy * oy)
-        if norm > 0:
-            edge[i, 0] += half_pitch * (ox / norm)
-            edge[i, 1] += half_pitch * (oy / norm)
-    return abs(area), centroid, perimeter, edge
-
-
 def _hull_indices(xy: np.ndarray) -> np.ndarray:
     """Indices of the convex hull's vertices of (N >= 3, 2) points, counter-clockwise (``x`` right, ``y``
-    up). ``cv2.convexHull`` on float32 copies (mm, so rounding of 1e-5 mm at most): 10 us for 100
-    markers, where ``scipy.spatial.ConvexHull`` (Qhull) took about 70 us (measured)."""
+    up). ``cv2.convexHull`` on float32 copies (mm, so rounding of 1e-5 mm at most), cheaper than
+    ``scipy.spatial.ConvexHull`` (Qhull)."""
     return cv2.convexHull(xy.astype(np.float32), clockwise=False, returnPoints=False).ravel()
 
 
@@ -833,8 +569,8 @@ def describe_contact(
     half_pitch = jig.markers.pitch_mm / 2.0
     xy = np.asarray(contact_xy_mm, dtype=float)
     hull = xy[_hull_indices(xy)] if len(xy) >= 3 else xy  # all on a line: its two ends
-    if len(hull) >= 3:  # the usual case, compiled: 15 NumPy calls took 0.1-0.2 ms, measured
-        hull_area, centroid, perimeter, edge = _footprint(np.ascontiguousarray(hull), half_pitch)
+    if len(hull) >= 3:  # the usual case, compiled
+        hull_area, centroid, perimeter, edge = kernels.footprint(np.ascontiguousarray(hull), half_pitch)
     else:
         hull_area, centroid = 0.0, xy.mean(axis=0)
         perimeter = (
@@ -850,23 +586,23 @@ def describe_contact(
         plane_z = plane.heights_mm(edge[:, 0], edge[:, 1])
         return rest_inner_height_mm(jig, edge[:, 0], edge[:, 1]) - plane_z
 
-    # The clearance is computed only where needed (12 NumPy calls, 30 us, measured).
+    # The clearance is computed only where needed.
     clearance = None
-    tolerance = max(3.0 * noise_mm, 0.3)
+    tolerance = max(LIFT_NOISE_SIGMAS * noise_mm, MIN_LIFT_CLEARANCE_MM)
     if edge_face_depth_mm is not None and len(edge_face_depth_mm):
         edge_clearance = float(np.min(edge_face_depth_mm))
     else:
         clearance = clearance_at_edge()
         edge_clearance = float(clearance[int(np.argmin(clearance))])
     lifts = edge_clearance < tolerance
-    small = part_diameter_mm is not None and area < 0.7 * np.pi * (part_diameter_mm / 2.0) ** 2
+    small = part_diameter_mm is not None and area < PARTIAL_AREA_SHARE * np.pi * (part_diameter_mm / 2.0) ** 2
     lift_azimuth = None
     if lifts or small:
         # The side that lifts off: a flat face rises towards the plane's uphill direction, -(n_x, n_y);
         # for a nearly level plane, the middle of the footprint's edge where the plane meets the membrane
         # (a chord across the part), seen from the centroid.
         uphill = -plane.normal[:2]
-        if np.hypot(*uphill) > np.sin(np.radians(1.0)):
+        if np.hypot(*uphill) > np.sin(np.radians(LEVEL_PLANE_DEG)):
             direction = uphill
         else:
             clearance = clearance_at_edge() if clearance is None else clearance
@@ -909,7 +645,7 @@ def face_centre_xy(
     centroid = np.asarray(region.centroid_xy_mm, dtype=float)
     normal = plane.normal
     slope = float(np.hypot(normal[0], normal[1]))
-    if not region.partial or slope < 1e-6:
+    if not region.partial or slope < LEVEL_SLOPE:
         return (float(centroid[0]), float(centroid[1]))
     downhill = normal[:2] / slope  # the plane is lowest towards +(n_x, n_y)
     along_in_plane = (np.asarray(contact_xy_mm, dtype=float) - centroid) @ downhill / normal[2]
@@ -922,4 +658,4 @@ def just_outside(xy_mm: np.ndarray, contact: np.ndarray, pitch_mm: float) -> np.
     """The markers not in the contact within 1.5 pitches of one that is, as booleans."""
     if not contact.any():
         return np.zeros(len(xy_mm), dtype=bool)
-    return _near(xy_mm, contact, 1.5 * pitch_mm) & ~contact
+    return _near(xy_mm, contact, NEIGHBOUR_RADIUS_PITCHES * pitch_mm) & ~contact

@@ -32,11 +32,11 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 
 from softjig.errors import InputError
 from softjig.geometry import PlaneFit
+from softjig.sensing._selfcheck_kernels import split_fits
 from softjig.sensing.uncertainty import normal_uncertainty
 
 __all__ = ["SplitCheck", "agreement", "split_halves"]
@@ -108,7 +108,7 @@ def split_halves(
     pts = np.ascontiguousarray(points_mm, dtype=float)
     if len(pts) < 2 * MIN_HALF_POINTS:
         return None
-    ok, normals, sigmas = _split_kernel(pts, float(point_sigma_mm), MIN_HALF_POINTS)
+    ok, normals, sigmas = split_fits(pts, float(point_sigma_mm), MIN_HALF_POINTS)
     worst: SplitCheck | None = None
     for k in range(2):  # the split across the minor and across the major axis
         if not ok[k]:
@@ -182,93 +182,8 @@ def agreement(
 def _angle_between(a: list[float], b: list[float]) -> float:
     """:func:`~softjig.geometry.angle_between` of two unit 3-vectors given as lists (rad): the same
     ``atan2(|a x b|, a . b)`` in the same order of operations, in scalars (``np.cross`` and
-    ``np.linalg.norm`` on (3,) arrays cost 40 us a pair, measured)."""
+    ``np.linalg.norm`` on (3,) arrays cost more than the arithmetic)."""
     cx = a[1] * b[2] - a[2] * b[1]
     cy = a[2] * b[0] - a[0] * b[2]
     cz = a[0] * b[1] - a[1] * b[0]
     return math.atan2(math.sqrt(cx * cx + cy * cy + cz * cz), a[0] * b[0] + a[1] * b[1] + a[2] * b[2])
-
-
-@numba.njit(cache=True)
-def _split_kernel(
-    points: np.ndarray, sigma: float, min_points: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`split_halves`' splits in one compiled pass (in NumPy, 0.3 ms per estimate, measured):
-    ``(ok (2,), normals (2, 2, 3), sigmas (2, 2))`` for the splits at the median along each principal
-    axis of the points' centred ``(x, y)`` (:func:`_half_fits`)."""
-    n = points.shape[0]
-    mx, my = points[:, 0].mean(), points[:, 1].mean()
-    sxx, sxy, syy = 0.0, 0.0, 0.0
-    for i in range(n):
-        dx, dy = points[i, 0] - mx, points[i, 1] - my
-        sxx += dx * dx
-        sxy += dx * dy
-        syy += dy * dy
-    # The 2x2 scatter's eigenvectors in closed form: the major axis at angle phi, the minor across it.
-    phi = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
-    ok = np.zeros(2, dtype=np.bool_)
-    normals = np.zeros((2, 2, 3))
-    sigmas = np.zeros((2, 2))
-    along = np.empty(n)
-    for k in range(2):
-        ux, uy = np.cos(phi + 0.5 * np.pi * k), np.sin(phi + 0.5 * np.pi * k)
-        for i in range(n):
-            along[i] = (points[i, 0] - mx) * ux + (points[i, 1] - my) * uy
-        side = along > np.median(along)
-        ok[k], normals[k], sigmas[k] = _half_fits(points, side, sigma, min_points)
-    return ok, normals, sigmas
-
-
-@numba.njit(cache=True)
-def _half_fits(
-    points: np.ndarray, side: np.ndarray, sigma: float, min_points: int
-) -> tuple[bool, np.ndarray, np.ndarray]:
-    """The least-squares planes of ``points[side]`` and ``points[~side]``: ``(ok, normals (2, 3),
-    sigmas (2,))``, each normal with ``n_z > 0`` and the RMS angle of its error for a depth noise
-    ``sigma`` (mm), as :func:`~softjig.sensing.uncertainty.normal_uncertainty` with ``point_sigma_mm``
-    (``ok`` false when a half has fewer than ``min_points`` or its ``(x, y)`` lie on a line).
-
-    One compiled pass (two SVD fits and two uncertainties in NumPy took 0.2 ms, measured).
-    """
-    normals = np.zeros((2, 3))
-    sigmas = np.zeros(2)
-    for h in range(2):
-        want = h == 0
-        m = 0
-        c = np.zeros(3)
-        for i in range(points.shape[0]):
-            if side[i] == want:
-                m += 1
-                for k in range(3):
-                    c[k] += points[i, k]
-        if m < min_points:
-            return False, normals, sigmas
-        c /= m
-        scatter = np.zeros((3, 3))
-        for i in range(points.shape[0]):
-            if side[i] == want:
-                for j in range(3):
-                    for k in range(3):
-                        scatter[j, k] += (points[i, j] - c[j]) * (points[i, k] - c[k])
-        _, vectors = np.linalg.eigh(scatter)
-        n = vectors[:, 0]
-        if n[2] < 0:
-            n = -n
-        if n[2] <= 1e-9:
-            return False, normals, sigmas
-        sxx, sxy, syy = scatter[0, 0], scatter[0, 1], scatter[1, 1]
-        det = sxx * syy - sxy * sxy
-        if det <= 1e-12 * (sxx + syy) ** 2:
-            return False, normals, sigmas
-        # cov(a, b) = sigma^2 (X^T X)^-1 of the slopes, propagated to the unit normal (normal_from_slopes)
-        scale = sigma * sigma / det
-        caa, cab, cbb = scale * syy, -scale * sxy, scale * sxx
-        a, b = -n[0] / n[2], -n[1] / n[2]
-        w3 = (1.0 + a * a + b * b) ** 1.5
-        j = np.array([[-(1.0 + b * b), a * b], [a * b, -(1.0 + a * a)], [-a, -b]]) / w3
-        trace = 0.0
-        for r in range(3):
-            trace += j[r, 0] * j[r, 0] * caa + 2.0 * j[r, 0] * j[r, 1] * cab + j[r, 1] * j[r, 1] * cbb
-        normals[h] = n
-        sigmas[h] = np.sqrt(trace)
-    return True, normals, sigmas

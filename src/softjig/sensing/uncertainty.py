@@ -30,7 +30,6 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 
 from softjig.checks import finite_float, positive_float
@@ -165,10 +164,9 @@ def normal_uncertainty(
     pts = np.asarray(points_mm, dtype=float)
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise InputError(f"normal_uncertainty needs (N, 3) points, got shape {pts.shape}.")
-    normal = np.ascontiguousarray(plane.normal, dtype=float)
-    finite, rss, xtx = _moments(np.ascontiguousarray(pts), normal, float(plane.offset_mm))
-    if not finite:
+    if not np.isfinite(pts).all():
         raise InputError("normal_uncertainty got non-finite points (NaN or inf); drop them first.")
+    normal = np.asarray(plane.normal, dtype=float)
     floor = finite_float(floor_mm, "floor_mm")
     if floor < 0:
         raise InputError(f"floor_mm must be >= 0, got {floor}.")
@@ -184,17 +182,20 @@ def normal_uncertainty(
         raise InputError(f"the plane's normal must be a finite 3-vector with n_z > 0, got {normal}.")
 
     # Scalar arithmetic on Python floats from here: the same formulas as with 2x2 NumPy arrays, without
-    # 15 NumPy calls (60 us, measured).
+    # their calls.
     n0, n1, n2 = normal.tolist()
     a, b = -n0 / n2, -n1 / n2
+    x, y = pts[:, 0], pts[:, 1]
     if point_sigma_mm is None:
-        s = float(np.sqrt(rss / (n_pts - 3)))  # vertical residuals, 3 fitted parameters
+        residual = -(x * n0 + y * n1 + pts[:, 2] * n2 + float(plane.offset_mm)) / n2  # vertical (mm)
+        s = math.sqrt(float(residual @ residual) / (n_pts - 3))  # 3 fitted parameters
     else:
         s = positive_float(point_sigma_mm, "point_sigma_mm")
     s = max(s, floor)
 
-    # The 2x2 eigenvalues and inverse in closed form (NumPy's eigvalsh and inv took 20 us, measured).
-    (sxx, sxy), (_, syy) = xtx.tolist()
+    # The 2x2 eigenvalues and inverse in closed form (no eigvalsh and inv calls).
+    dx, dy = x - x.mean(), y - y.mean()  # X^T X of the centred (x, y)
+    sxx, sxy, syy = float(dx @ dx), float(dx @ dy), float(dy @ dy)
     half_trace, det = 0.5 * (sxx + syy), sxx * syy - sxy * sxy
     root = math.hypot(0.5 * (sxx - syy), sxy)
     if half_trace - root <= 1e-12 * max(half_trace + root, 1e-300):
@@ -217,34 +218,6 @@ def normal_uncertainty(
     )
 
 
-@numba.njit(cache=True, error_model="numpy")  # n_z = 0 gives inf, reported below, not an exception
-def _moments(points: np.ndarray, normal: np.ndarray, offset: float) -> tuple[bool, float, np.ndarray]:
-    """Whether all points are finite, the sum of squared vertical residuals to the plane
-    ``normal . p + offset = 0``, and ``X^T X`` of the centred ``(x, y)`` (compiled: 10 NumPy calls)."""
-    n = points.shape[0]
-    mx, my, rss = 0.0, 0.0, 0.0
-    for i in range(n):
-        if not (np.isfinite(points[i, 0]) and np.isfinite(points[i, 1]) and np.isfinite(points[i, 2])):
-            return False, 0.0, np.zeros((2, 2))
-        mx += points[i, 0]
-        my += points[i, 1]
-        r = (
-            -(points[i, 0] * normal[0] + points[i, 1] * normal[1] + points[i, 2] * normal[2] + offset)
-            / normal[2]
-        )
-        rss += r * r
-    mx /= max(n, 1)
-    my /= max(n, 1)
-    xtx = np.zeros((2, 2))
-    for i in range(n):
-        dx, dy = points[i, 0] - mx, points[i, 1] - my
-        xtx[0, 0] += dx * dx
-        xtx[0, 1] += dx * dy
-        xtx[1, 1] += dy * dy
-    xtx[1, 0] = xtx[0, 1]
-    return True, rss, xtx
-
-
 def with_spread_between(
     uncertainty: NormalUncertainty, normal_a: np.ndarray, normal_b: np.ndarray, *, share: float = 1.0
 ) -> NormalUncertainty:
@@ -264,7 +237,7 @@ def with_spread_between(
     if not 0.0 <= share <= 1.0:
         raise InputError(f"share must be in [0, 1], got {share}.")
     half_n = share * (a - b) / 2.0
-    (ax_a, ay_a), (ax_b, ay_b) = _tilts(a.tolist()), _tilts(b.tolist())  # floats: 10 us fewer, measured
+    (ax_a, ay_a), (ax_b, ay_b) = _tilts(a.tolist()), _tilts(b.tolist())  # on floats
     covariance = uncertainty.covariance + np.outer(half_n, half_n)
     return NormalUncertainty(
         covariance=covariance,

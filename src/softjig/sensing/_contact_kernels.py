@@ -1,0 +1,291 @@
+"""Compiled kernels of :mod:`softjig.sensing.contact`: neighbour sweeps over square cells, the contact's
+flood fill and violation counts, and the per-marker plane arithmetic (each one pass over the markers).
+
+Numba is confined to this module (issue 16); ``benchmarks/bench_kernels.py`` measures what each kernel
+gains a pair over its NumPy counterpart.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from softjig._geometry_kernels import inside_hull
+
+#: The largest finite float: ``np.nan_to_num``'s stand-in for ``+inf``.
+LARGEST = float(np.finfo(float).max)
+#: How far outside a hull (mm) a point still counts as inside (as ``geometry.inside_convex_hull_xy``).
+HULL_TOLERANCE_MM = 1e-9
+#: The fewest finite markers, and the fewest with neighbours, for the neighbour noise of ``indentation``.
+MIN_NOISE_MARKERS = 10
+#: The neighbours averaged for the neighbour noise: a square grid's 4 edge and 4 diagonal neighbours.
+NEAREST_NEIGHBOURS = 8
+#: The fewest neighbours a marker needs for its residual to count.
+MIN_NEIGHBOURS = 3
+#: The median absolute deviation of a Gaussian times this is its standard deviation.
+MAD_TO_SIGMA = 1.4826
+#: The smallest noise reported (mm): a perfect simulation's zero noise would make every threshold zero.
+NOISE_FLOOR_MM = 1e-6
+#: The zero of the indentations: the median of the markers within this many noise sigmas of it ...
+AT_REST_SIGMAS = 2.5
+#: (when at least this many markers lie there) ...
+MIN_AT_REST = 3
+#: ... iterated at most this many times, until it moves by less than ...
+ZERO_ROUNDS = 5
+#: ... this many sigmas.
+ZERO_TOLERANCE_SIGMAS = 1e-3
+#: A contact marker with this many contact markers within 1.5 pitches is in the contact's core.
+CORE_NEIGHBOURS = 4
+#: A polygon of less area (mm^2) has no centroid by the shoelace formula: its vertices' mean is taken.
+DEGENERATE_AREA_MM2 = 1e-12
+#: ``noise`` returned by :func:`indentation` when the neighbour noise cannot be measured.
+NO_NOISE = -1.0
+
+
+@numba.njit(cache=True)
+def x_window(xs: np.ndarray, x: float, radius: float) -> tuple[int, int]:
+    """The slice of the ascending ``xs`` within ``radius`` (and a hair) of ``x``."""
+    slack = radius * (1.0 + 1e-9)
+    return np.searchsorted(xs, x - slack), np.searchsorted(xs, x + slack, side="right")
+
+
+@numba.njit(cache=True)
+def grid_cells(xy: np.ndarray, radius: float):
+    """Bin (N, 2) points into square cells of side ``radius`` (so each point's neighbours closer than
+    ``radius`` lie in its own and the 8 adjacent cells): each point's cell ``(cx, cy)``, the grid's size
+    ``(nx, ny)``, and the points of cell ``c = cx * ny + cy`` as ``members[start[c]:start[c + 1]]``."""
+    n = xy.shape[0]
+    x0, y0 = xy[:, 0].min(), xy[:, 1].min()
+    nx = int((xy[:, 0].max() - x0) / radius) + 1
+    ny = int((xy[:, 1].max() - y0) / radius) + 1
+    cx = np.empty(n, dtype=np.int64)
+    cy = np.empty(n, dtype=np.int64)
+    start = np.zeros(nx * ny + 1, dtype=np.int64)
+    for i in range(n):
+        cx[i] = min(int((xy[i, 0] - x0) / radius), nx - 1)
+        cy[i] = min(int((xy[i, 1] - y0) / radius), ny - 1)
+        start[cx[i] * ny + cy[i] + 1] += 1
+    for c in range(nx * ny):
+        start[c + 1] += start[c]
+    fill = start[:-1].copy()
+    members = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        c = cx[i] * ny + cy[i]
+        members[fill[c]] = i
+        fill[c] += 1
+    return cx, cy, nx, ny, start, members
+
+
+@numba.njit(cache=True)
+def neighbour_residuals(xy: np.ndarray, raw: np.ndarray, radius: float, k_max: int) -> tuple[np.ndarray, int]:
+    """For each point with at least 3 others closer than ``radius`` (at most its ``k_max`` nearest):
+    its value minus their mean, over ``sqrt(1 + 1/k)``; the first ``count`` entries, in point order.
+
+    The points are binned into square cells of side ``radius``, so each one's neighbours lie in its own
+    and the 8 adjacent cells (half the candidates of a sweep along ``x``, measured 2x faster).
+    """
+    n = xy.shape[0]
+    cx, cy, nx, ny, start, members = grid_cells(xy, radius)
+    r2 = radius * radius
+    residual = np.empty(n)
+    count = 0
+    d2s = np.empty(n)
+    idx = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        m = 0
+        for gx in range(max(cx[i] - 1, 0), min(cx[i] + 2, nx)):
+            for gy in range(max(cy[i] - 1, 0), min(cy[i] + 2, ny)):
+                c = gx * ny + gy
+                for s in range(start[c], start[c + 1]):
+                    j = members[s]
+                    if j == i:
+                        continue
+                    dx, dy = xy[j, 0] - xy[i, 0], xy[j, 1] - xy[i, 1]
+                    d2 = dx * dx + dy * dy
+                    if d2 < r2:
+                        d2s[m] = d2
+                        idx[m] = j
+                        m += 1
+        if m < MIN_NEIGHBOURS:
+            continue
+        total = 0.0
+        if m > k_max:
+            nearest = np.argsort(d2s[:m], kind="mergesort")[:k_max]
+            for q in nearest:
+                total += raw[idx[q]]
+            m = k_max
+        else:
+            for q in range(m):
+                total += raw[idx[q]]
+        residual[count] = (raw[i] - total / m) / np.sqrt(1.0 + 1.0 / m)
+        count += 1
+    return residual, count
+
+
+@numba.njit(cache=True)
+def settle_zero(raw: np.ndarray, noise: float, rounds: int) -> float:
+    """The zero of :func:`~softjig.sensing.contact.indentation` for a known noise: from the median of all
+    values, the median of the values within :data:`AT_REST_SIGMAS` noise sigmas of it, iterated until it
+    moves by less than :data:`ZERO_TOLERANCE_SIGMAS` sigmas."""
+    zero = np.median(raw)
+    for _ in range(rounds):
+        at_rest = raw[np.abs(raw - zero) < AT_REST_SIGMAS * noise]
+        new_zero = np.median(at_rest) if at_rest.shape[0] >= MIN_AT_REST else zero
+        if abs(new_zero - zero) < ZERO_TOLERANCE_SIGMAS * noise:
+            break
+        zero = new_zero
+    return zero
+
+
+@numba.njit(cache=True)
+def indentation(
+    points: np.ndarray, reference_z: np.ndarray, radius: float
+) -> tuple[np.ndarray, float, float]:
+    """:func:`~softjig.sensing.contact.indentation` with the neighbour noise: ``(depth, zero, noise)``,
+    or ``noise =`` :data:`NO_NOISE` when fewer than :data:`MIN_NOISE_MARKERS` markers are finite or have
+    neighbours (an expected outcome: the caller then measures the noise from the markers at rest)."""
+    n = points.shape[0]
+    raw = np.empty(n)
+    finite = np.empty(n, dtype=np.bool_)
+    m = 0
+    for i in range(n):
+        raw[i] = reference_z[i] - points[i, 2]
+        finite[i] = np.isfinite(raw[i])
+        m += finite[i]
+    if m < MIN_NOISE_MARKERS:
+        return raw, 0.0, NO_NOISE
+    xy = np.empty((m, 2))
+    raw_finite = np.empty(m)
+    k = 0
+    for i in range(n):
+        if finite[i]:
+            xy[k, 0], xy[k, 1], raw_finite[k] = points[i, 0], points[i, 1], raw[i]
+            k += 1
+    residual, enough = neighbour_residuals(xy, raw_finite, radius, NEAREST_NEIGHBOURS)
+    if enough < MIN_NOISE_MARKERS:
+        return raw, 0.0, NO_NOISE
+    noise = max(MAD_TO_SIGMA * np.median(np.abs(residual[:enough])), NOISE_FLOOR_MM)
+    zero = settle_zero(raw_finite, noise, ZERO_ROUNDS)
+    return raw - zero, zero, noise
+
+
+@numba.njit(cache=True)
+def count_within(query: np.ndarray, points: np.ndarray, radius: float, inclusive: bool) -> np.ndarray:
+    """How many of ``points`` lie within ``radius`` of each ``query`` point (``<=`` when ``inclusive``,
+    else ``<``, as a k-d tree's ``query_ball_point`` and ``distance_upper_bound``)."""
+    order = np.argsort(points[:, 0], kind="mergesort")
+    xs = points[order, 0]
+    r2 = radius * radius
+    counts = np.zeros(query.shape[0], dtype=np.int64)
+    for i in range(query.shape[0]):
+        lo, hi = x_window(xs, query[i, 0], radius)
+        for s in range(lo, hi):
+            j = order[s]
+            dx, dy = points[j, 0] - query[i, 0], points[j, 1] - query[i, 1]
+            d2 = dx * dx + dy * dy
+            if d2 <= r2 if inclusive else d2 < r2:
+                counts[i] += 1
+    return counts
+
+
+@numba.njit(cache=True)
+def violations(
+    xy: np.ndarray, contact: np.ndarray, above: np.ndarray, below: np.ndarray, radius: float
+) -> int:
+    """How many markers are ``above`` inside the hull of the contact's core (``contact._core`` with
+    ``radius`` = 1.5 pitches) plus how many are ``below`` inside the contact's hull (as
+    ``contact.penetrating`` and ``contact.holes``; a marker is never both)."""
+    index = np.flatnonzero(contact)
+    members = xy[index]
+    count = 0
+    upper = np.flatnonzero(above)
+    if len(upper) and len(index) >= 3:
+        counts = count_within(members, members, radius, True) - 1
+        core = index[counts >= CORE_NEIGHBOURS]
+        if len(core) < 3:
+            core = index
+        count += int(inside_hull(xy[core], xy[upper], HULL_TOLERANCE_MM).sum())
+    lower = np.flatnonzero(below)
+    if len(lower) and len(index) >= 3:
+        count += int(inside_hull(members, xy[lower], HULL_TOLERANCE_MM).sum())
+    return count
+
+
+@numba.njit(cache=True)
+def flood(xy: np.ndarray, start: np.ndarray, allowed: np.ndarray, radius: float) -> np.ndarray:
+    """``start`` and every ``allowed`` point reached from it by steps shorter than ``radius``, as booleans.
+
+    A breadth-first search over square cells of side ``radius`` (each point's neighbours lie in its own
+    and the 8 adjacent cells): linear in the points for a grid of markers.
+    """
+    n = xy.shape[0]
+    cx, cy, nx, ny, start_of, members = grid_cells(xy, radius)
+    reached = start.copy()
+    queue = np.empty(n, dtype=np.int64)
+    head, tail = 0, 0
+    for i in range(n):
+        if reached[i]:
+            queue[tail] = i
+            tail += 1
+    r2 = radius * radius
+    while head < tail:
+        i = queue[head]
+        head += 1
+        for gx in range(max(cx[i] - 1, 0), min(cx[i] + 2, nx)):
+            for gy in range(max(cy[i] - 1, 0), min(cy[i] + 2, ny)):
+                c = gx * ny + gy
+                for s in range(start_of[c], start_of[c + 1]):
+                    j = members[s]
+                    if reached[j] or not allowed[j]:
+                        continue
+                    dx, dy = xy[j, 0] - xy[i, 0], xy[j, 1] - xy[i, 1]
+                    if dx * dx + dy * dy < r2:
+                        reached[j] = True
+                        queue[tail] = j
+                        tail += 1
+    return reached
+
+
+@numba.njit(cache=True)
+def face_depth(points: np.ndarray, depth: np.ndarray, normal: np.ndarray, offset: float) -> np.ndarray:
+    out = np.empty(points.shape[0])
+    for i in range(points.shape[0]):
+        height = -(offset + normal[0] * points[i, 0] + normal[1] * points[i, 1]) / normal[2]
+        known = depth[i]  # as np.nan_to_num(depth, nan=-inf)
+        if np.isnan(known):
+            known = -np.inf
+        elif np.isinf(known):
+            known = LARGEST if known > 0 else -LARGEST
+        out[i] = known - (height - points[i, 2])
+    return out
+
+
+@numba.njit(cache=True)
+def footprint(hull: np.ndarray, half_pitch: float) -> tuple[float, np.ndarray, float, np.ndarray]:
+    """Area and centroid (shoelace formulas), perimeter, and the vertices moved out by
+    ``half_pitch`` away from the centroid, of a polygon of at least 3 vertices."""
+    k = hull.shape[0]
+    twice_area, cx, cy, perimeter = 0.0, 0.0, 0.0, 0.0
+    for i in range(k):
+        j = (i + 1) % k
+        cross = hull[i, 0] * hull[j, 1] - hull[j, 0] * hull[i, 1]
+        twice_area += cross
+        cx += (hull[i, 0] + hull[j, 0]) * cross
+        cy += (hull[i, 1] + hull[j, 1]) * cross
+        dx, dy = hull[j, 0] - hull[i, 0], hull[j, 1] - hull[i, 1]
+        perimeter += np.sqrt(dx * dx + dy * dy)
+    area = twice_area / 2.0
+    centroid = np.empty(2)
+    if abs(area) < DEGENERATE_AREA_MM2:
+        area = 0.0
+        centroid[0], centroid[1] = hull[:, 0].mean(), hull[:, 1].mean()
+    else:
+        centroid[0], centroid[1] = cx / (6.0 * area), cy / (6.0 * area)
+    edge = hull.copy()
+    for i in range(k):
+        ox, oy = hull[i, 0] - centroid[0], hull[i, 1] - centroid[1]
+        norm = np.sqrt(ox * ox + oy * oy)
+        if norm > 0:
+            edge[i, 0] += half_pitch * (ox / norm)
+            edge[i, 1] += half_pitch * (oy / norm)
+    return abs(area), centroid, perimeter, edge
