@@ -415,7 +415,8 @@ def ray_results(
 
     ``workers`` is the local cluster's CPUs (``address == "local"``; default: every CPU); a running
     cluster's size is its own. Tasks in flight are bounded by twice the cluster's CPUs. Closing the
-    generator cancels the tasks in flight and disconnects (a local cluster is shut down). If this process
+    generator disconnects (a local cluster is shut down, ending its tasks in flight; a running cluster's
+    finish and are dropped). If this process
     is connected to Ray already (:func:`ray_connection`, a notebook, a benchmark), that connection is used
     and left open."""
     ray = _ray()
@@ -428,13 +429,12 @@ def _ray_stream(ray: Any, inputs: Iterable[TaskInput]) -> Iterator[TaskResult]:
     cpus = max(1, int(ray.cluster_resources().get("CPU", 1)))
     todo = iter(inputs)
     pending = [remote.remote(inp) for inp in _take(todo, IN_FLIGHT_PER_WORKER * cpus)]
-    try:
-        while pending:
-            done, pending = ray.wait(pending, num_returns=1)
-            pending += [remote.remote(inp) for inp in _take(todo, len(done))]
-            for ref in done:
-                yield ray.get(ref)
-    finally:
-        for ref in pending:
-            with contextlib.suppress(Exception):
-                ray.cancel(ref, force=True)
+    # Tasks still in flight when the study stops are not cancelled: ray.cancel races with the task's reply
+    # in Ray's core and can abort this process ("Tried to complete task that was not pending",
+    # ray-project/ray#54738), losing the results written so far. Shutting a local cluster down ends its
+    # workers; a running cluster finishes them and their results are dropped (--resume recomputes them).
+    while pending:
+        done, pending = ray.wait(pending, num_returns=1)
+        pending += [remote.remote(inp) for inp in _take(todo, len(done))]
+        for ref in done:
+            yield ray.get(ref)
