@@ -46,6 +46,7 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMB
 import argparse  # noqa: E402
 import platform  # noqa: E402
 import statistics  # noqa: E402
+import sys  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
 from collections.abc import Callable, Iterable, Sequence  # noqa: E402
@@ -63,6 +64,9 @@ from softjig.study.run import (  # noqa: E402
     task_inputs,
 )
 from softjig.study.spec import Study, build_designs, parse_study  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from results_section import replace_section  # noqa: E402
 
 SECTION = "## Design studies at scale (benchmarks/bench_study.py)"
 PROJECTED_DESIGNS = 10_000
@@ -329,18 +333,8 @@ def projection(
 
 
 def write_section(path: Path, lines: Iterable[str]) -> None:
-    """Replace this benchmark's section of ``path`` (up to the next ``## `` heading), or append it."""
-    from softjig.files import write_text_atomic
-
-    text = path.read_text() if path.exists() else "# softjig benchmark results\n"
-    body = "\n".join([SECTION, "", *lines]).rstrip() + "\n"
-    start = text.find(SECTION)
-    if start < 0:
-        text = text.rstrip() + "\n\n" + body
-    else:
-        end = text.find("\n## ", start + len(SECTION))
-        text = text[:start] + body + ("" if end < 0 else text[end + 1 :])
-    write_text_atomic(path, text)
+    """Replace this benchmark's section of ``path``, or append it."""
+    replace_section(path, SECTION, lines)
 
 
 def main(argv: Sequence[str] | None = None) -> None:

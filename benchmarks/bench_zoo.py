@@ -72,6 +72,9 @@ from softjig.sim.asbuilt import draw_as_built  # noqa: E402
 from softjig.sim.render import render_pair  # noqa: E402
 from softjig.sim.scenarios import FrameSpec, frame_truth, paper_sweep  # noqa: E402
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from results_section import replace_section  # noqa: E402
+
 WAYS = (
     ("size+reference", True, True),
     ("size+rest shape", True, False),
@@ -339,18 +342,8 @@ def run_zoo(n_designs: int, n_frames: int, seed: int, render_jig=None, progress:
 
 
 def write_section(path: Path, lines: Iterable[str]) -> None:
-    """Replace this benchmark's section of ``path`` (up to the next ``## `` heading), or append it."""
-    text = path.read_text() if path.exists() else "# softjig benchmark results\n"
-    body = "\n".join([SECTION, "", *lines]).rstrip() + "\n"
-    start = text.find(SECTION)
-    if start < 0:
-        text = text.rstrip() + "\n\n" + body
-    else:
-        end = text.find("\n## ", start + len(SECTION))
-        text = text[:start] + body + ("" if end < 0 else text[end + 1 :])
-    from softjig.files import write_text_atomic
-
-    write_text_atomic(path, text)
+    """Replace this benchmark's section of ``path``, or append it."""
+    replace_section(path, SECTION, lines)
 
 
 def main(argv: Sequence[str] | None = None) -> None:
