@@ -136,6 +136,14 @@ BAD = [
         "vary.markers.pitch_mm: a range needs num >= 1",
     ),
     ({"markers.pitch_mm": []}, "vary.markers.pitch_mm: an empty list"),
+    (
+        {"markers.pitch_mm": {"start": 6, "stop": 8, "num": 100_000_000}},
+        "vary.markers.pitch_mm: num = 100,000,000 values is over the 20,000 designs",
+    ),
+    (
+        {"markers.pitch_mm": {"start": 6, "stop": 8, "num": 200}, "cameras.baseline_mm": [*range(20, 121)]},
+        "vary.cameras.baseline_mm: the study would hold 20,200 designs or more",
+    ),
     ({"markers.pitch_mm": ["wide"]}, "vary.markers.pitch_mm = 'wide': Input should be a valid number"),
     ({"markers.layout": ["triangle"]}, "vary.markers.layout = 'triangle': Input should be 'square', 'hex'"),
     (

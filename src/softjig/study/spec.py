@@ -368,10 +368,17 @@ def _check_methods(methods: Sequence[str]) -> None:
         raise ConfigError("estimate.methods: methods must be distinct")
 
 
+#: The most designs one study may hold. Every design's jig is built and kept before any work starts
+#: (about 1 ms each), so a product of millions would run for hours and fill the memory before saying
+#: anything; a larger study is split into several, each with its own ``--out``.
+MAX_DESIGNS = 20_000
+
+
 def _parse_vary(table: Any) -> tuple[tuple[str, tuple[Value, ...]], ...]:
     if not isinstance(table, dict):
         raise ConfigError("vary: must be a table of dotted config paths")
     out = []
+    designs = 1
     for path, raw in _flatten(table, ""):
         if isinstance(raw, dict):
             values = _expand_range(path, raw)
@@ -382,6 +389,12 @@ def _parse_vary(table: Any) -> tuple[tuple[str, tuple[Value, ...]], ...]:
         else:
             raise ConfigError(
                 f"vary.{path}: give a list of values or a range {{start, stop, num}}, got {raw!r}"
+            )
+        designs *= len(values)
+        if designs > MAX_DESIGNS:
+            raise ConfigError(
+                f"vary.{path}: the study would hold {designs:,} designs or more, over the {MAX_DESIGNS:,} "
+                "one study may hold; split it into several studies, each with its own --out"
             )
         resolve_path(path)
         out.append((path, tuple(check_value(path, value) for value in values)))
@@ -418,6 +431,10 @@ def _expand_range(path: str, raw: dict[str, Any]) -> tuple[float, ...]:
     r = _parse(_Range, raw, f"vary.{path}")
     if r.num < 1:
         raise ConfigError(f"vary.{path}: a range needs num >= 1 values, got num = {r.num}")
+    if r.num > MAX_DESIGNS:
+        raise ConfigError(
+            f"vary.{path}: num = {r.num:,} values is over the {MAX_DESIGNS:,} designs one study may hold"
+        )
     return tuple(float(v) for v in np.linspace(r.start, r.stop, r.num))
 
 
