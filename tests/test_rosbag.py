@@ -702,3 +702,11 @@ def test_estimate_bag_refuses_to_write_over_the_bag_and_exits_3_when_nothing_est
     assert result.exit_code == 3, result.output
     rows = [json.loads(line) for line in out.read_text().splitlines()]
     assert len(rows) == 3 and all("error" in r and "stamp_left_ns" in r for r in rows)
+
+
+def test_the_commands_stamp_tolerance_default_is_the_readers():
+    """cli.options keeps its own copy of the default (it must not import the bag reader): the same value."""
+    from softjig.cli.options import DEFAULT_STAMP_TOLERANCE_S as cli_default
+    from softjig.io.rosbag import DEFAULT_STAMP_TOLERANCE_S as reader_default
+
+    assert cli_default == reader_default

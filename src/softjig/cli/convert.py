@@ -11,7 +11,14 @@ from rich.progress import Progress
 
 from softjig.cli.app import app, handle_errors, load_config, stderr_console, warn
 from softjig.cli.choices import DEFAULT_METHOD, Method
-from softjig.cli.options import ConfigOption, MethodOption
+from softjig.cli.options import (
+    DEFAULT_STAMP_TOLERANCE_S,
+    ConfigOption,
+    LeftTopicOption,
+    MethodOption,
+    RightTopicOption,
+    StampToleranceOption,
+)
 from softjig.errors import InputError
 
 
@@ -42,15 +49,9 @@ def convert(
             show_default="now",
         ),
     ] = None,
-    left_topic: Annotated[
-        str | None, typer.Option(help="BAG: topic of the left images.", show_default="picked by name")
-    ] = None,
-    right_topic: Annotated[
-        str | None, typer.Option(help="BAG: topic of the right images.", show_default="picked by name")
-    ] = None,
-    stamp_tolerance: Annotated[
-        float, typer.Option(min=0.0, help="BAG: largest header stamp difference of a stereo pair (s).")
-    ] = 0.015,
+    left_topic: LeftTopicOption = None,
+    right_topic: RightTopicOption = None,
+    stamp_tolerance: StampToleranceOption = DEFAULT_STAMP_TOLERANCE_S,
     repair: Annotated[
         bool,
         typer.Option(

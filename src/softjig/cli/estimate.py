@@ -11,7 +11,16 @@ from rich.console import Console
 
 from softjig.cli.app import app, handle_errors, load_config, stderr_console, warn
 from softjig.cli.choices import DEFAULT_METHOD
-from softjig.cli.options import CalibrationOption, ConfigOption, MethodOption, PartDiameterOption
+from softjig.cli.options import (
+    DEFAULT_STAMP_TOLERANCE_S,
+    CalibrationOption,
+    ConfigOption,
+    LeftTopicOption,
+    MethodOption,
+    PartDiameterOption,
+    RightTopicOption,
+    StampToleranceOption,
+)
 from softjig.errors import InputError
 
 if TYPE_CHECKING:
@@ -131,15 +140,9 @@ def estimate(
         int | None, typer.Option(min=1, help="DATASET: processes.", show_default="all CPUs")
     ] = None,
     progress: Annotated[bool, typer.Option(help="DATASET: show a progress bar on stderr.")] = True,
-    left_topic: Annotated[
-        str | None, typer.Option(help="BAG: topic of the left images.", show_default="picked by name")
-    ] = None,
-    right_topic: Annotated[
-        str | None, typer.Option(help="BAG: topic of the right images.", show_default="picked by name")
-    ] = None,
-    stamp_tolerance: Annotated[
-        float, typer.Option(min=0.0, help="BAG: largest header stamp difference of a stereo pair (s).")
-    ] = 0.015,
+    left_topic: LeftTopicOption = None,
+    right_topic: RightTopicOption = None,
+    stamp_tolerance: StampToleranceOption = DEFAULT_STAMP_TOLERANCE_S,
 ) -> None:
     """Estimate the part's principal normal, tilt angles and push depth from a stereo pair or a dataset."""
     import json

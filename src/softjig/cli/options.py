@@ -23,11 +23,14 @@ __all__ = [
     "CalibrationOption",
     "ConfigOption",
     "FpsOption",
+    "LeftTopicOption",
     "MethodOption",
     "PartDiameterOption",
     "ReplayOption",
     "ReplayRateOption",
+    "RightTopicOption",
     "SourceOption",
+    "StampToleranceOption",
 ]
 
 #: Frames per second of cameras, and of a replay's frames that were recorded without a time.
@@ -94,4 +97,18 @@ ReplayRateOption = Annotated[
 FpsOption = Annotated[
     float,
     typer.Option(min=0.1, help="Camera frame rate; a replay's rate for frames without time_s (Hz)."),
+]
+
+#: A bag's stereo pairs: the largest header-stamp difference of a pair (s); the same as
+#: :data:`softjig.io.rosbag.DEFAULT_STAMP_TOLERANCE_S` (this module does not import the bag reader).
+DEFAULT_STAMP_TOLERANCE_S = 0.015
+
+LeftTopicOption = Annotated[
+    str | None, typer.Option(help="BAG: topic of the left images.", show_default="picked by name")
+]
+RightTopicOption = Annotated[
+    str | None, typer.Option(help="BAG: topic of the right images.", show_default="picked by name")
+]
+StampToleranceOption = Annotated[
+    float, typer.Option(min=0.0, help="BAG: largest header stamp difference of a stereo pair (s).")
 ]
