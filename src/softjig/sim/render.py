@@ -992,7 +992,7 @@ def _marker_optics(
     K, dist, T = camera.K, distortion_of(camera), camera.T_J_cam
     P = np.asarray(state.marker_xyz_mm, dtype=float)
     axis = np.asarray(state.marker_axis, dtype=float)
-    px = project_points(P, K, dist, T, layers)
+    px = _project(P, camera, layers)
     if margin_px is None:
         margin_px = 0.1 * max(camera.width_px, camera.height_px)
     near = np.all(
@@ -1023,6 +1023,23 @@ def _marker_optics(
         scale_px_per_mm=scale,
         oil_path_mm=oil_path,
     )
+
+
+def _project(points: np.ndarray, camera: CameraConfig, layers: FlatLayers) -> np.ndarray:
+    """``(N, 2)`` pixels of ``(N, 3)`` points in J through the layers: :func:`softjig.optics.project_points`'s
+    model (to ~1e-12 px), compiled (:func:`softjig.sim._kernels.project_refracted`)."""
+    z_if = np.asarray(layers.interfaces_z_mm, dtype=float)
+    T = np.ascontiguousarray(camera.T_J_cam, dtype=float)
+    if not T[2, 3] < z_if[0]:
+        raise ValueError(f"camera centre z = {T[2, 3]} mm must lie below the lowest interface {z_if[0]} mm")
+    dist = np.zeros(5)
+    given = distortion_of(camera)
+    dist[: len(given)] = given
+    n_reg = np.asarray(layers.refractive_indices, dtype=float)
+    px = _kernels.project_refracted(np.ascontiguousarray(points, dtype=float), T, camera.K, dist, z_if, n_reg)
+    if np.isnan(px).any():
+        raise ValueError("a marker is behind the camera or in its image plane")
+    return px
 
 
 def _cast_marker_patches(
