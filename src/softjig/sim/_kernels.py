@@ -276,42 +276,113 @@ def _add_product(dst: np.ndarray, a: np.ndarray, b: np.ndarray) -> None:
         dst[k] += a[k] * b[k]
 
 
-@numba.njit(cache=True, nogil=True)
-def paste_excess(
-    image: np.ndarray,
-    patches: np.ndarray,
-    origin: np.ndarray,
+@numba.njit(cache=True, nogil=True, inline="always")
+def _paste_row(
+    dst: np.ndarray,
+    src: np.ndarray,
     gain: np.ndarray,
     box_gain: np.ndarray,
+    by: int,
     box_x0: int,
-    box_y0: int,
+    ox: int,
+    j0: int,
+    j1: int,
 ) -> None:
-    """``image += patch * gain`` for each ``(P, P)`` patch at its top-left ``origin`` (``(x, y)`` px,
-    clipped to the image), in place.
-
-    Inside the box of ``box_gain`` (top-left pixel ``box_x0, box_y0``; an empty array for none) its values
-    replace ``gain``'s.
-    """
-    h, w = image.shape
-    n, p, _ = patches.shape
+    """``dst[ox + j] += src[j] * gain[ox + j]`` for ``j0 <= j < j1`` (one patch row onto one image row), with
+    ``box_gain[by]``'s values instead of ``gain``'s over the box's columns when ``by`` is one of its rows."""
     bh, bw = box_gain.shape
-    for m in range(n):
-        ox, oy = origin[m, 0], origin[m, 1]
-        j0, j1 = max(0, -ox), min(p, w - ox)
+    if 0 <= by < bh and bw > 0:
         b0 = min(max(box_x0 - ox, j0), j1)  # the patch's columns inside the box: [b0, b1)
         b1 = min(max(box_x0 + bw - ox, b0), j1)
-        for i in range(max(0, -oy), min(p, h - oy)):
-            y = oy + i
-            by = y - box_y0
-            src = patches[m, i]
-            dst = image[y]
-            if 0 <= by < bh and b0 < b1:
-                _add_product(dst[ox + j0 : ox + b0], src[j0:b0], gain[y, ox + j0 : ox + b0])
-                box_row = box_gain[by, ox + b0 - box_x0 : ox + b1 - box_x0]
-                _add_product(dst[ox + b0 : ox + b1], src[b0:b1], box_row)
-                _add_product(dst[ox + b1 : ox + j1], src[b1:j1], gain[y, ox + b1 : ox + j1])
-            else:
-                _add_product(dst[ox + j0 : ox + j1], src[j0:j1], gain[y, ox + j0 : ox + j1])
+        _add_product(dst[ox + j0 : ox + b0], src[j0:b0], gain[ox + j0 : ox + b0])
+        _add_product(dst[ox + b0 : ox + b1], src[b0:b1], box_gain[by, ox + b0 - box_x0 : ox + b1 - box_x0])
+        _add_product(dst[ox + b1 : ox + j1], src[b1:j1], gain[ox + b1 : ox + j1])
+    else:
+        _add_product(dst[ox + j0 : ox + j1], src[j0:j1], gain[ox + j0 : ox + j1])
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _sensor_row(
+    src: np.ndarray,
+    hi: np.ndarray,
+    lo: np.ndarray,
+    z: np.ndarray,
+    dst: np.ndarray,
+    tables: tuple[np.ndarray, np.ndarray],
+    noise: tuple[np.float32, np.float32, np.float32, np.float32],
+    half_even: bool,
+) -> None:
+    """One image row through the sensor into ``dst``: the deviates ``offset[hi] + slope[hi] lo``
+    (``tables``), then ``max(max(I, 0) + sqrt(max(I, 0) / full_well + read^2) z, 0)`` times the scale,
+    rounded half to even (``half_even``) or half up and saturated at ``top``; ``noise = (1 / full_well,
+    read^2, scale, top)``."""
+    offset, slope = tables
+    inv_full_well, read_var, scale, top = noise
+    for x in range(src.shape[0]):  # the gather, apart: the arithmetic below vectorises
+        k = hi[x]
+        z[x] = offset[k] + slope[k] * np.float32(lo[x])
+    if half_even:
+        for x in range(src.shape[0]):
+            v = max(src[x], _ZERO)
+            v = max(v + math.sqrt(v * inv_full_well + read_var) * z[x], _ZERO) * scale
+            dst[x] = min(np.rint(v), top)
+    else:
+        half = np.float32(0.5)
+        for x in range(src.shape[0]):
+            v = max(src[x], _ZERO)
+            v = max(v + math.sqrt(v * inv_full_well + read_var) * z[x], _ZERO)
+            dst[x] = min(v * scale + half, top)
+
+
+@numba.njit(cache=True, nogil=True)
+def compose_sensor(
+    base: np.ndarray,
+    gain: np.ndarray,
+    box: tuple[np.ndarray, np.ndarray, int, int],
+    patches: np.ndarray,
+    origin: np.ndarray,
+    order: np.ndarray,
+    deviates: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    noise: tuple[np.float32, np.float32, np.float32, np.float32],
+    band_rows: int,
+    out: np.ndarray,
+) -> None:
+    """A camera's image from its radiance (:mod:`softjig.sim.render`, steps 3 and 7), ``band_rows`` rows at a
+    time, into ``out`` (``uint8``: rounded half to even; ``uint16``: half up).
+
+    The radiance is ``base`` (inside ``box = (radiance, gain, x0, y0)``: its radiance) plus each ``(P, P)``
+    patch (top-left pixel ``origin``, ``(x, y)`` px, clipped to the image) times ``gain`` (inside the box:
+    its gain); ``order`` lists the patches by top row (a stable sort). Each band of rows is composed in a
+    buffer that stays in cache, then goes through the sensor (:func:`_sensor_row`, ``deviates = (hi, lo,
+    offset, slope)``, ``noise`` as there): the radiance image is never written whole.
+    """
+    h, w = base.shape
+    n, p = patches.shape[0], patches.shape[1]
+    box_radiance, box_gain, box_x0, box_y0 = box
+    hi, lo, offset, slope = deviates
+    bh, bw = box_radiance.shape
+    buf = np.empty((band_rows, w), dtype=np.float32)
+    z = np.empty(w, dtype=np.float32)
+    first = 0
+    for y0 in range(0, h, band_rows):
+        y1 = min(y0 + band_rows, h)
+        for y in range(y0, y1):
+            buf[y - y0] = base[y]
+            if 0 <= y - box_y0 < bh:
+                buf[y - y0, box_x0 : box_x0 + bw] = box_radiance[y - box_y0]
+        while first < n and origin[order[first], 1] + p <= y0:
+            first += 1
+        for k in range(first, n):
+            m = order[k]
+            ox, oy = origin[m, 0], origin[m, 1]
+            if oy >= y1:
+                break
+            j0, j1 = max(0, -ox), min(p, w - ox)
+            for i in range(max(0, y0 - oy), min(p, y1 - oy)):
+                y = oy + i
+                _paste_row(buf[y - y0], patches[m, i], gain[y], box_gain, y - box_y0, box_x0, ox, j0, j1)
+        for y in range(y0, y1):
+            _sensor_row(buf[y - y0], hi[y], lo[y], z, out[y], (offset, slope), noise, out.itemsize == 1)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -332,64 +403,6 @@ def blur_matrices(kernel: np.ndarray, size: int, g: np.ndarray, g_t: np.ndarray)
             for k in range(width):
                 row[k] = kernel[m, k]
                 g[m, j + k, j] = kernel[m, k]
-
-
-@numba.njit(cache=True, nogil=True)
-def sensor_uint8(
-    image: np.ndarray,
-    hi: np.ndarray,
-    lo: np.ndarray,
-    normal: np.ndarray,
-    inv_full_well: np.float32,
-    read_var: np.float32,
-    scale: np.float32,
-) -> np.ndarray:
-    """Shot and read noise, gain and rounding to ``uint8`` of a float32 radiance image ``I``.
-
-    ``z = normal[256 hi + lo]`` is each pixel's standard-normal deviate (two random bytes); the image is
-    ``round(max(max(I, 0) + sqrt(max(I, 0) / full_well + read^2) z, 0) * scale)``, rounding half to
-    even and saturating at 255.
-    """
-    h, w = image.shape
-    out = np.empty((h, w), dtype=np.uint8)
-    z = np.empty(w, dtype=np.float32)
-    top = np.float32(255.0)
-    for y in range(h):
-        src, a, b, dst = image[y], hi[y], lo[y], out[y]
-        for x in range(w):  # the gather, apart: the arithmetic below vectorises
-            z[x] = normal[(np.intp(a[x]) << 8) | np.intp(b[x])]
-        for x in range(w):
-            v = max(src[x], _ZERO)
-            v = max(v + math.sqrt(v * inv_full_well + read_var) * z[x], _ZERO) * scale
-            dst[x] = np.uint8(min(np.rint(v), top))
-    return out
-
-
-@numba.njit(cache=True, nogil=True)
-def sensor_uint16(
-    image: np.ndarray,
-    hi: np.ndarray,
-    lo: np.ndarray,
-    normal: np.ndarray,
-    inv_full_well: np.float32,
-    read_var: np.float32,
-    scale: np.float32,
-) -> np.ndarray:
-    """:func:`sensor_uint8` for ``uint16``: ``min(v * scale + 0.5, 65535)`` truncated."""
-    h, w = image.shape
-    out = np.empty((h, w), dtype=np.uint16)
-    z = np.empty(w, dtype=np.float32)
-    half = np.float32(0.5)
-    top = np.float32(65535.0)
-    for y in range(h):
-        src, a, b, dst = image[y], hi[y], lo[y], out[y]
-        for x in range(w):
-            z[x] = normal[(np.intp(a[x]) << 8) | np.intp(b[x])]
-        for x in range(w):
-            v = max(src[x], _ZERO)
-            v = max(v + math.sqrt(v * inv_full_well + read_var) * z[x], _ZERO)
-            dst[x] = np.uint16(min(v * scale + half, top))
-    return out
 
 
 _MAX_LANES = 8  # running maxima of log_envelope's first pass: one AVX2 register of float32
