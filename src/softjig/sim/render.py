@@ -587,8 +587,7 @@ class _CameraView:
     fiducials: tuple[_Fiducial, ...]
     quad_half_planes: tuple[np.ndarray, np.ndarray]  # of the fiducials' quiet zones (_quad_half_planes)
     speckle: _SpeckleGrid | None
-    falloff: np.ndarray | None  # (H, W) exposure times fall-off, None for a uniform exposure
-    exposure: np.float32
+    maps: tuple[np.ndarray, np.ndarray, np.ndarray]  # (H, W): fiducials' transmission and level, illumination
     base: np.ndarray
     gain: np.ndarray
 
@@ -603,54 +602,30 @@ class _CameraView:
         fiducials = _fiducial_composites(jig, corners_px, (h, w))
         k = _CAMERA_INDEX[side]
         exposure = np.float32(im.exposure[k])
-        falloff = None
         if im.illumination_falloff > 0:
             cu, cv = (float(c) for c in im.illumination_center)
             centre = (cu if k == 0 else -cu, cv)
-            falloff = _falloff_map(w, h, im.illumination_falloff, centre, float(exposure))
+            illumination = _falloff_map(w, h, im.illumination_falloff, centre, float(exposure))
+        else:
+            illumination = np.full((h, w), exposure, dtype=np.float32)
         speckle = None
-        factor = np.ones((h, w), dtype=np.float32)
+        texture = np.zeros((h, w), dtype=np.float32)
         if md.speckle_std > 0 and md.speckle_static:
             f, coarse_shape, sigma = _coarse_grid((h, w), speckle_correlation_px(jig, camera))
             seed = np.random.SeedSequence(md.speckle_seed, spawn_key=(0, k))
             speckle = _SpeckleGrid(
                 f, sigma, _coarse_texture(np.random.default_rng(seed), coarse_shape, sigma)
             )
-            factor = _upsample(speckle.texture, f, (h, w), md.speckle_std)
-            factor += np.float32(1.0)
-        base = factor * np.float32(im.background_level)
-        gain = factor
+            texture = _upsample(speckle.texture, f, (h, w), md.speckle_std)
+        maps = (*_fiducial_maps(fiducials, (h, w)), illumination)
         half_planes = _quad_half_planes([f.quad for f in fiducials])
-        _read_only(*half_planes)
-        view = cls(
-            camera, side, layers, corners_px, fiducials, half_planes, speckle, falloff, exposure, base, gain
-        )
-        view._finish(base, gain, 0, 0)
-        _read_only(corners_px, base, gain, *([] if falloff is None else [falloff]))
+        _read_only(*half_planes, *maps)
+        base, gain = _finish(texture, im, maps, 0, 0)
+        view = cls(camera, side, layers, corners_px, fiducials, half_planes, speckle, maps, base, gain)
+        _read_only(corners_px, base, gain)
         if speckle is not None:
             _read_only(speckle.texture)
         return view
-
-    def _finish(self, radiance: np.ndarray, gain: np.ndarray, y0: int, x0: int) -> None:
-        """Apply the fiducials, fall-off and exposure to a region of the bare membrane's radiance (times the
-        speckle) and to the gain of the markers' excess there, in place (top-left pixel ``y0, x0``)."""
-        h, w = radiance.shape
-        for fid in self.fiducials:
-            ya, yb, xa, xb = max(fid.y0, y0), min(fid.y1, y0 + h), max(fid.x0, x0), min(fid.x1, x0 + w)
-            if ya >= yb or xa >= xb:
-                continue
-            cover = fid.cover[ya - fid.y0 : yb - fid.y0, xa - fid.x0 : xb - fid.x0]
-            roi = radiance[ya - y0 : yb - y0, xa - x0 : xb - x0]
-            roi *= cover
-            roi += fid.level[ya - fid.y0 : yb - fid.y0, xa - fid.x0 : xb - fid.x0]
-            gain[ya - y0 : yb - y0, xa - x0 : xb - x0] *= cover
-        if self.falloff is not None:
-            region = self.falloff[y0 : y0 + h, x0 : x0 + w]
-            radiance *= region
-            gain *= region
-        elif self.exposure != 1.0:
-            radiance *= self.exposure
-            gain *= self.exposure
 
     def render(
         self,
@@ -700,11 +675,8 @@ class _CameraView:
             scale = optics.scale_px_per_mm[optics.near]
             corr_px = md.bead_diameter_mm * float(np.median(scale)) if len(scale) else 5.0
             shape = (self.camera.height_px, self.camera.width_px)
-            factor = _speckle(rng, shape, corr_px, md.speckle_std) + np.float32(1.0)
-            radiance = factor * np.float32(jig.imaging.background_level)
-            gain = factor
-            self._finish(radiance, gain, 0, 0)
-            return radiance, gain, None
+            texture = _speckle(rng, shape, corr_px, md.speckle_std)
+            return (*_finish(texture, jig.imaging, self.maps, 0, 0), None)
         if self.speckle is None or md.speckle_redraw_fraction <= 0:
             return self.base, self.gain, None
         displaced = np.abs(np.asarray(state.indentation_mm)) > md.speckle_redraw_displacement_mm
@@ -714,11 +686,34 @@ class _CameraView:
         redrawn = _redrawn_speckle(jig, self.speckle, optics, moved, rng, self.base.shape)
         if redrawn is None:
             return self.base, self.gain, None
-        factor, x0, y0 = redrawn
-        box_radiance = factor * np.float32(jig.imaging.background_level)
-        box_gain = factor
-        self._finish(box_radiance, box_gain, y0, x0)
+        texture, x0, y0 = redrawn
+        box_radiance, box_gain = _finish(texture, jig.imaging, self.maps, y0, x0)
         return self.base, self.gain, _Box(box_radiance, box_gain, x0, y0)
+
+
+def _finish(
+    texture: np.ndarray, im: ImagingConfig, maps: tuple[np.ndarray, np.ndarray, np.ndarray], y0: int, x0: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """The bare membrane's radiance and the markers' gain over the region of a bead speckle ``texture``
+    (top-left pixel ``y0, x0``; module docstring, steps 4-6): its speckle, the fiducials over it, the
+    fall-off and exposure (:func:`softjig.sim._kernels.finish_radiance`)."""
+    radiance = np.empty(texture.shape, dtype=np.float32)
+    gain = np.empty(texture.shape, dtype=np.float32)
+    _kernels.finish_radiance(texture, np.float32(im.background_level), maps, y0, x0, radiance, gain)
+    return radiance, gain
+
+
+def _fiducial_maps(fiducials: tuple[_Fiducial, ...], shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """The fiducials' transmission ``c`` (1 off them) and premultiplied level ``l`` (0 off them) over the
+    whole image: a radiance ``I`` under them is ``I c + l``. (The fiducials do not overlap, so one map
+    holds each pixel's only fiducial.)"""
+    transmission = np.ones(shape, dtype=np.float32)
+    level = np.zeros(shape, dtype=np.float32)
+    for fid in fiducials:
+        roi = (slice(fid.y0, fid.y1), slice(fid.x0, fid.x1))
+        transmission[roi] *= fid.cover
+        level[roi] = level[roi] * fid.cover + fid.level
+    return transmission, level
 
 
 @dataclass(frozen=True)
@@ -777,8 +772,8 @@ def _redrawn_speckle(
     rng: np.random.Generator,
     shape: tuple[int, int],
 ) -> tuple[np.ndarray, int, int] | None:
-    """The bead pack's speckle factor ``1 + s`` where the part re-packed beads in this frame: ``(factor,
-    x0, y0)``, ``factor`` float32 over the fine pixels from ``(y0, x0)`` that differ from the static
+    """The bead pack's speckle ``s`` where the part re-packed beads in this frame: ``(texture, x0, y0)``,
+    ``texture`` float32 over the fine pixels from ``(y0, x0)`` that differ from the static
     texture, or None if none do.
 
     The static texture is drawn from ``SeedSequence(medium.speckle_seed, spawn_key=(0, camera))``, so it
@@ -827,8 +822,7 @@ def _redrawn_speckle(
     fx1 = min(xb * f - (0 if xb == ws else f), shape[1])
     if fy0 >= fy1 or fx0 >= fx1:
         return None
-    factor = fine[fy0 - ya * f : fy1 - ya * f, fx0 - xa * f : fx1 - xa * f] + np.float32(1.0)
-    return factor, fx0, fy0
+    return fine[fy0 - ya * f : fy1 - ya * f, fx0 - xa * f : fx1 - xa * f], fx0, fy0
 
 
 def _marker_excess(
