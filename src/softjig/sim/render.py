@@ -699,6 +699,7 @@ def _finish(
     fall-off and exposure (:func:`softjig.sim._kernels.finish_radiance`)."""
     radiance = np.empty(texture.shape, dtype=np.float32)
     gain = np.empty(texture.shape, dtype=np.float32)
+    texture = np.ascontiguousarray(texture)  # a crop's rows: contiguous, the kernel's loop vectorises
     _kernels.finish_radiance(texture, np.float32(im.background_level), maps, y0, x0, radiance, gain)
     return radiance, gain
 
