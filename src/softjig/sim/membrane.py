@@ -85,6 +85,38 @@ class MembraneState:
     indentation_mm: np.ndarray
 
 
+@dataclass(frozen=True)
+class RestHeights:
+    """The rest surface at each marker and at its four neighbours half a marker radius away (the stencil of
+    :func:`deform`): the same in every frame of a jig, so computed once per jig
+    (:class:`softjig.sim.render.Renderer`).
+
+    Attributes
+    ----------
+    inner, outer : (5, N) float, read-only
+        Inner and outer rest heights in J (mm) at the markers, then at ``x + s``, ``x - s``, ``y + s``,
+        ``y - s`` (``s`` a quarter of ``markers.diameter_mm``).
+    """
+
+    inner: np.ndarray
+    outer: np.ndarray
+
+
+def _stencil(jig: JigConfig, marker_xy_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """The markers' ``x, y`` and their four neighbours (``(5, N)`` each), and the step ``s`` (mm)."""
+    x, y = marker_xy_mm[:, 0].astype(float), marker_xy_mm[:, 1].astype(float)
+    s = jig.markers.diameter_mm / 4.0
+    return np.stack([x, x + s, x - s, x, x]), np.stack([y, y, y, y + s, y - s]), s
+
+
+def rest_heights(jig: JigConfig, marker_xy_mm: np.ndarray) -> RestHeights:
+    """:class:`RestHeights` of the markers at ``marker_xy_mm`` ((N, 2), J, mm)."""
+    xs, ys, _ = _stencil(jig, marker_xy_mm)
+    inner, outer = rest_inner_height_mm(jig, xs, ys), rest_outer_height_mm(jig, xs, ys)
+    inner.flags.writeable = outer.flags.writeable = False
+    return RestHeights(inner, outer)
+
+
 class _Surface:
     """The deformed inner face for one part pose, evaluated anywhere (see the module docstring)."""
 
@@ -117,14 +149,13 @@ class _Surface:
         out = _kernels.log_envelope(qx, qy, cx, cy, log_depth, inverse_decay)
         return np.exp(out.astype(float)).reshape(x.shape)
 
-    def height_mm(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Inner-face height and contact flag at each ``(x, y)``."""
-        rest = rest_inner_height_mm(self.jig, x, y)
+    def height_mm(self, x: np.ndarray, y: np.ndarray, rest: RestHeights) -> tuple[np.ndarray, np.ndarray]:
+        """Inner-face height and contact flag at each ``(x, y)``, whose rest heights are ``rest``'s."""
         if len(self.contact_depth) == 0:
-            return rest, np.zeros(x.shape, dtype=bool)
+            return rest.inner, np.zeros(x.shape, dtype=bool)
         assert self.part is not None and self.T is not None
         face_z = bottom_plane_height_mm(self.T, x, y)
-        penetration = rest_outer_height_mm(self.jig, x, y) - face_z
+        penetration = rest.outer - face_z
         envelope = self.envelope_mm(x, y)
         contact = (
             under_bottom_face(self.part, self.T, x, y)
@@ -132,7 +163,7 @@ class _Surface:
             & (penetration >= envelope - _CONTACT_TOLERANCE_MM)
         )
         inner_on_face = face_z - self.jig.membrane.thickness_mm / self.T[2, 2]
-        return np.where(contact, inner_on_face, rest - envelope), contact
+        return np.where(contact, inner_on_face, rest.inner - envelope), contact
 
 
 def _distance_inside_face_mm(part: Part, T_J_part: np.ndarray, xyz: np.ndarray) -> np.ndarray:
@@ -150,6 +181,7 @@ def deform(
     ripple_mm: float = 0.0,
     edge_conformity_mm: float = 0.0,
     rng: np.random.Generator | int | None = None,
+    rest: RestHeights | None = None,
 ) -> MembraneState:
     """Marker positions, axes and contact for a part pressed into the jig (or none: the rest state).
 
@@ -163,21 +195,25 @@ def deform(
     edge_conformity_mm : how far markers in contact at the face's very edge stay short of it (mm),
         decaying with the distance from the edge over ``membrane.decay_length_mm``.
     rng : seed or generator for the ripple.
+    rest : the rest surface at ``marker_xy_mm``'s stencil (:func:`rest_heights`), if computed already
+        (it is the same for every frame of a jig); computed here otherwise.
 
     Returns
     -------
     MembraneState
     """
     rng = np.random.default_rng(rng)
-    x, y = marker_xy_mm[:, 0].astype(float), marker_xy_mm[:, 1].astype(float)
+    xs, ys, s = _stencil(jig, marker_xy_mm)
+    x, y = xs[0], ys[0]
+    if rest is None:
+        rest = rest_heights(jig, marker_xy_mm)
+    elif rest.inner.shape != xs.shape:
+        raise ValueError(f"rest heights of {rest.inner.shape[1]} markers given for {len(x)} markers")
     surface = _Surface(jig, part, T_J_part)
     # The hemisphere sits on a patch of the membrane as wide as itself: its axis is the patch's mean
     # normal, from central differences half a marker radius either side. The marker and its four
     # neighbours are evaluated in one call (each point on its own: the same numbers as five calls).
-    s = jig.markers.diameter_mm / 4.0
-    heights, contacts = surface.height_mm(
-        np.stack([x, x + s, x - s, x, x]), np.stack([y, y, y, y + s, y - s])
-    )
+    heights, contacts = surface.height_mm(xs, ys, rest)
     z, contact = heights[0], contacts[0]
     zx = (heights[1] - heights[2]) / (2 * s)
     zy = (heights[3] - heights[4]) / (2 * s)
@@ -191,7 +227,7 @@ def deform(
             z[contact] -= edge_conformity_mm * np.exp(-edge / jig.membrane.decay_length_mm)
         if ripple_mm > 0:
             z[contact] += rng.normal(0.0, ripple_mm, int(contact.sum()))
-    indentation = rest_inner_height_mm(jig, x, y) - z
+    indentation = rest.inner[0] - z
     return MembraneState(
         marker_xyz_mm=np.stack([x, y, z], axis=1),
         marker_axis=axis,

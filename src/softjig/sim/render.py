@@ -143,7 +143,7 @@ from softjig.rig import AIR_REFRACTIVE_INDEX, distortion_of, flat_layers
 from softjig.sensing.fiducials import fiducial_corners_J
 from softjig.sim import _kernels
 from softjig.sim.asbuilt import AsBuiltJig
-from softjig.sim.membrane import MembraneState, deform
+from softjig.sim.membrane import MembraneState, deform, rest_heights
 from softjig.sim.parts import PartPose
 
 __all__ = [
@@ -274,8 +274,9 @@ class Renderer:
     """The simulator of one as-built jig: built once, then renders any number of its stereo pairs.
 
     Building it computes what every frame of the jig shares (module docstring, "Per-jig work is done
-    once"): the markers' brightness factors and, per camera, the fiducials' corners and composite, the
-    static bead speckle, the illumination fall-off and the bare membrane's radiance. It holds only
+    once"): the markers' brightness factors and the membrane's rest heights at them, and, per camera, the
+    fiducials' corners and composite, the static bead speckle, the illumination fall-off and the bare
+    membrane's radiance. It holds only
     read-only arrays: one renderer may serve several threads.
 
     Parameters
@@ -293,6 +294,7 @@ class Renderer:
         jig = as_built.jig
         self.as_built = as_built
         self._brightness = marker_brightness(jig.imaging, len(as_built.marker_xy_mm))
+        self._rest = rest_heights(jig, as_built.marker_xy_mm)
         self._views = {
             side: _CameraView.build(jig, camera, side)
             for side, camera in (("left", jig.cameras.left), ("right", jig.cameras.right))
@@ -353,6 +355,7 @@ class Renderer:
             ripple_mm=jig.tolerances.membrane_ripple_mm,
             edge_conformity_mm=jig.tolerances.edge_conformity_mm,
             rng=rng,
+            rest=self._rest,
         )
         timer.lap("deform")
         with self._scratch_lock:
