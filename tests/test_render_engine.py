@@ -21,7 +21,8 @@ import softjig.sim.membrane as membrane
 import softjig.sim.render as render
 from render_golden import CASES, SEED, small_jig
 from softjig.config import CylinderPart, default_jig
-from softjig.rig import flat_layers
+from softjig.optics import project_points
+from softjig.rig import distortion_of, flat_layers
 from softjig.sim import _kernels
 from softjig.sim.asbuilt import draw_as_built
 from softjig.sim.membrane import deform
@@ -120,6 +121,53 @@ def test_sensor_kernel_matches_opencv_oracle(bit_depth):
     assert got.dtype == want.dtype
     diff = np.abs(got.astype(np.int64) - want.astype(np.int64))
     assert diff.max() <= 1 and np.mean(diff > 0) < 1e-3
+
+
+def test_projection_kernel_matches_optics():
+    """The compiled projection of the markers is :func:`softjig.optics.project_points`'s model."""
+    jig = default_jig()
+    layers = flat_layers(jig)
+    rng = np.random.default_rng(2)
+    xy = rng.uniform(-70, 70, (2000, 2))
+    points = np.column_stack([xy, rng.uniform(-8, 40, 2000)])
+    distorted = replace(jig.cameras.left, distortion=(-0.12, 0.03, 0.001, -0.002, 0.004))
+    for camera in (jig.cameras.left, jig.cameras.right, distorted):
+        want = project_points(points, camera.K, distortion_of(camera), camera.T_J_cam, layers)
+        got = render._project(points, camera, layers)
+        np.testing.assert_allclose(got, want, rtol=0, atol=TRUTH_PX_TOLERANCE)
+
+
+def test_compose_kernel_matches_numpy_paste_then_sensor():
+    """One pass band by band (patches, a box of its own radiance and gain) = the image composed whole in
+    NumPy, then the sensor."""
+    rng = np.random.default_rng(8)
+    h, w, p = 150, 200, 23
+    base, gain = (rng.uniform(0.02, 0.6, (h, w)).astype(np.float32) for _ in range(2))
+    patches = rng.uniform(0.0, 0.4, (40, p, p)).astype(np.float32)
+    origin = np.column_stack([rng.integers(-p // 2, w - p // 2, 40), rng.integers(-p // 2, h - p // 2, 40)])
+    box = render._Box(*(rng.uniform(0.02, 0.6, (61, 77)).astype(np.float32) for _ in range(2)), 90, 33)
+    im = default_jig().imaging
+    got = render._compose(base, gain, box, patches, origin, im, np.random.default_rng(1), 1.05)
+    image, g = base.copy(), gain.copy()
+    image[33:94, 90:167], g[33:94, 90:167] = box.radiance, box.gain
+    for patch, (x, y) in zip(patches, origin, strict=True):
+        ys, xs = slice(max(y, 0), min(y + p, h)), slice(max(x, 0), min(x + p, w))
+        image[ys, xs] += patch[ys.start - y : ys.stop - y, xs.start - x : xs.stop - x] * g[ys, xs]
+    want = render._sensor(image, im, np.random.default_rng(1), 1.05)
+    diff = np.abs(got.astype(int) - want.astype(int))
+    assert diff.max() <= 1 and np.mean(diff > 0) < 1e-3  # overlapping patches: sums in another order
+
+
+def test_rest_heights_held_once_give_the_same_membrane():
+    jig = default_jig()
+    as_built = draw_as_built(jig, rng=0)
+    rest = membrane.rest_heights(jig, as_built.marker_xy_mm)
+    a = deform(jig, as_built.marker_xy_mm, PART, POSE.T_J_part(jig), ripple_mm=0.05, rng=3, rest=rest)
+    b = deform(jig, as_built.marker_xy_mm, PART, POSE.T_J_part(jig), ripple_mm=0.05, rng=3)
+    for field in ("marker_xyz_mm", "marker_axis", "in_contact", "indentation_mm"):
+        np.testing.assert_array_equal(getattr(a, field), getattr(b, field))
+    with pytest.raises(ValueError, match="rest heights of"):
+        deform(jig, as_built.marker_xy_mm[:-1], PART, POSE.T_J_part(jig), rest=rest)
 
 
 def test_membrane_envelope_kernel_matches_numpy():
