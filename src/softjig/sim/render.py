@@ -101,12 +101,14 @@ in the config.
 
 Per-jig work is done once
 -------------------------
-Everything that depends on the jig and not on the frame (each camera's static speckle texture, the
-fiducials' composite and which pixels they cover, the fall-off map, and so the radiance of the bare
-membrane, ``((b (1 + s)) c + f) e F``, with ``c`` and ``f`` the fiducials' transmission and premultiplied
-level) is computed once by :class:`Renderer`, built from the as-built jig; a frame then only casts its
-markers, adds their blurred excess times ``(1 + s) c e F`` into a copy of that radiance, redraws the speckle
-where the part moved beads, and adds the sensor noise. This is the same image model as the steps above, in
+Everything that depends on the jig and not on the frame (the membrane's rest heights at the markers, each
+camera's static speckle texture, the fiducials' composite and which pixels they cover, the fall-off map,
+and so the radiance of the bare membrane, ``((b (1 + s)) c + f) e F``, with ``c`` and ``f`` the fiducials'
+transmission and premultiplied level) is computed once by :class:`Renderer`, built from the as-built jig; a
+frame then only projects and casts its markers, redraws the speckle where the part moved beads (the box
+around them gets its own radiance and gain), and composes each image band by band in one pass: the bare
+radiance, plus the markers' blurred excess times ``(1 + s) c e F``, then the sensor noise and rounding
+(the float radiance image is never written whole). This is the same image model as the steps above, in
 another order of the same float32 products: the images differ from the step-by-step order only by float
 rounding (a grey level here and there). A :class:`Renderer`'s per-jig arrays are read-only and each pair
 being rendered at once gets its own scratch buffers, so threads may share it. :func:`render_pair` and
