@@ -8,6 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from oracles.layered_rays import numpy_layered_directions
 from softjig.optics import (
     FlatLayers,
     backproject_pixels,
@@ -459,26 +460,66 @@ def test_point_sets_project_exactly_as_one_call_per_set():
     converged still moves by an ulp: each set stops when its own points converged), whatever else is in
     the solve: points in the air, on an interface, on the axis, and an empty set."""
     rng = np.random.default_rng(3)
-    sets = [
-        (random_points(rng, 400), K, DIST, T_LEFT),
-        (np.array([[0.0, 0.0, 18.0]]), K, None, T_RIGHT),
-        (np.array([[-15.0, 0.0, 10.0], [3.0, 1.0, 0.0], [2.0, -4.0, -50.0]]), K, DIST, T_LEFT),
-        (np.zeros((0, 3)), K, None, T_RIGHT),
-        (random_points(rng, 7).reshape(7, 1, 3), K, None, pose((20.0, 5.0, -140.0), (0.02, -0.03, 0.01))),
+    cameras = [
+        (K, DIST, T_LEFT),
+        (K, None, T_RIGHT),
+        (K, None, pose((20.0, 5.0, -140.0), (0.02, -0.03, 0.01))),
     ]
-    together = project_point_sets(sets, LAYERS)
-    for (points, *camera), pixels in zip(sets, together, strict=True):
-        alone = project_points(points, *camera, LAYERS)
+    sets = [
+        (random_points(rng, 400), 0),
+        (np.array([[0.0, 0.0, 18.0]]), 1),
+        (np.array([[-15.0, 0.0, 10.0], [3.0, 1.0, 0.0], [2.0, -4.0, -50.0]]), 0),
+        (np.zeros((0, 3)), 1),
+        (random_points(rng, 7).reshape(7, 1, 3), 2),
+    ]
+    together = project_point_sets(sets, cameras, LAYERS)
+    for (points, camera), pixels in zip(sets, together, strict=True):
+        alone = project_points(points, *cameras[camera], LAYERS)
         assert pixels.shape == alone.shape == (*np.shape(points)[:-1], 2)
         assert np.array_equal(pixels, alone)
     # two points converging before the 400 of the other set (solved to the end, they would move by an ulp)
     rng = np.random.default_rng(3)
-    few, many = (random_points(rng, 2), K, None, T_LEFT), (random_points(rng, 400), K, None, T_RIGHT)
-    assert np.array_equal(project_point_sets([few, many], LAYERS)[0], project_points(*few, LAYERS))
+    few, many = (random_points(rng, 2), 0), (random_points(rng, 400), 1)
+    left_right = [(K, None, T_LEFT), (K, None, T_RIGHT)]
+    assert np.array_equal(
+        project_point_sets([few, many], left_right, LAYERS)[0], project_points(few[0], *left_right[0], LAYERS)
+    )
     with pytest.raises(ValueError, match="behind the camera"):
-        project_point_sets([sets[0], ([[-15.0, 0.0, -200.0]], K, None, T_LEFT)], LAYERS)
+        project_point_sets([sets[0], ([[-15.0, 0.0, -200.0]], 0)], cameras, LAYERS)
     with pytest.raises(ValueError, match="region 0"):
-        project_point_sets([sets[1], ([[0.0, 0.0, 10.0]], K, None, pose((0.0, 0.0, -2.0)))], LAYERS)
+        project_point_sets([sets[1]], [*cameras, (K, None, pose((0.0, 0.0, -2.0)))], LAYERS)
+
+
+@pytest.mark.parametrize(
+    "layers",
+    [
+        LAYERS,
+        FlatLayers((0.0,), (1.0, 1.51)),
+        FlatLayers((-8.0, -5.0, 0.0), (1.0003, 1.49, 1.575, 1.33)),
+        FlatLayers((-5.0, 0.0), (1.0, 1.0, 1.0)),
+    ],
+)
+def test_the_compiled_ray_solve_is_the_numpy_one_to_the_bit(layers):
+    """The kernel does the NumPy iteration's operations in its order (the oracle): same directions, bit
+    for bit, for sets of any size, points on the axis, on an interface and anywhere above it."""
+    from softjig._optics_kernels import layered_directions
+    from softjig.optics import _NEWTON_MAX_ITER
+
+    rng = np.random.default_rng(5)
+    z_if, n_reg = np.asarray(layers.interfaces_z_mm), np.asarray(layers.refractive_indices)
+    tolerance = 4 * np.finfo(float).eps
+    for _ in range(10):
+        sizes = rng.integers(1, 300, int(rng.integers(1, 6)))
+        centres = np.column_stack([rng.uniform(-30, 30, (len(sizes), 2)), rng.uniform(-200, -20, len(sizes))])
+        centre = np.repeat(centres, sizes, axis=0)
+        points = np.column_stack([rng.uniform(-90, 90, (len(centre), 2)), rng.uniform(0.0, 40, len(centre))])
+        points[:5, :2] = centre[:5, :2]
+        points[5:8, 2] = 0.0
+        sets = np.repeat(np.arange(len(sizes)), sizes)
+        rel, cz, pz = points - centre, centre[:, 2].copy(), points[:, 2].copy()
+        out = np.empty((len(points), 3))
+        layered_directions(cz, rel, pz, z_if, n_reg, sets, len(sizes), _NEWTON_MAX_ITER, tolerance, out)
+        assert np.array_equal(out, numpy_layered_directions(cz, rel, pz, z_if, n_reg, sets))
 
 
 def test_jacobian_stencil_gives_the_projection_jacobian():

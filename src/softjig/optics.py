@@ -402,32 +402,25 @@ def _directions_of_sets(
 ) -> list[FloatArray]:
     """:func:`refracted_ray_directions` of each set of ``(M_s, 3)`` points from its camera centre
     (checked), solved together: each set's result is the one a call of its own gives."""
-    rel = [p - c for c, p in zip(centers, points, strict=True)]
-    out = []
-    for r in rel:
-        dist = np.linalg.norm(r, axis=1)
-        if np.any(dist == 0):
-            raise ValueError("refracted_ray_directions: a point coincides with the camera centre")
-        out.append(r / dist[:, None])  # straight line (region-0 points)
-    z0 = layers.interfaces_z_mm[0]
-    through = [p[:, 2] > z0 for p in points]
-    sizes = [int(t.sum()) for t in through]
-    if sum(sizes) == 0:
-        return out
-    solved = _solve_layered_directions(
-        np.repeat([c[2] for c in centers], sizes),
-        np.concatenate([r[t] for r, t in zip(rel, through, strict=True)]),
-        np.concatenate([p[t, 2] for p, t in zip(points, through, strict=True)]),
-        np.asarray(layers.interfaces_z_mm),
-        np.asarray(layers.refractive_indices),
-        np.repeat(np.arange(len(sizes)), sizes),
-    )
-    start = 0
-    for o, t, size in zip(out, through, sizes, strict=True):
-        if size:
-            o[t] = solved[start : start + size]
-        start += size
-    return out
+    sizes = [len(p) for p in points]
+    p = np.concatenate(points)
+    c = np.repeat(np.asarray(centers, dtype=float).reshape(-1, 3), sizes, axis=0)
+    rel = p - c
+    dist = np.linalg.norm(rel, axis=1)
+    if np.any(dist == 0):
+        raise ValueError("refracted_ray_directions: a point coincides with the camera centre")
+    out = rel / dist[:, None]  # straight line (region-0 points)
+    through = p[:, 2] > layers.interfaces_z_mm[0]
+    if through.any():
+        out[through] = _solve_layered_directions(
+            c[through, 2],
+            rel[through],
+            p[through, 2],
+            np.asarray(layers.interfaces_z_mm),
+            np.asarray(layers.refractive_indices),
+            np.repeat(np.arange(len(sizes)), sizes)[through],
+        )
+    return np.split(out, np.cumsum(sizes)[:-1])
 
 
 def _solve_layered_directions(
@@ -436,52 +429,33 @@ def _solve_layered_directions(
     """Unit initial directions of points above the first interface (refracted_ray_directions), from
     cameras at heights ``cz`` (per point), ``rel`` the points less their camera's centre.
 
-    The points of a set (``sets``: a set index per point) are iterated until all of them
-    converged, then frozen: a set's directions do not depend on the other sets solved with it (an
-    iterate that converged still moves by an ulp at the next step).
+    The ray invariant solves ``sum_i h_i kappa / sqrt(n_i^2 - kappa^2) = rho`` (``h_i`` the height
+    travelled in region ``i``, ``rho`` the horizontal distance), rewritten in ``t = tan(theta_m)`` of the
+    lowest-index region crossed, where it is increasing and concave on ``[0, inf)``: Newton's method from
+    ``t = 0`` climbs monotonically to the root (the first step is the paraxial solution) and is iterated
+    to machine precision. The points of a set (``sets``: a set index per point) are iterated until all
+    of them converged, then frozen: a set's directions do not depend on the other sets solved with it
+    (an iterate that converged still moves by an ulp at the next step). Compiled
+    (:func:`softjig._optics_kernels.layered_directions`): the NumPy loop's cost per operation was most
+    of an estimator's set-up, which solves about 1500 points.
     """
-    # vertical distance travelled in each region, shape (R, M) (regions first: fast reductions)
-    lo = np.concatenate([cz[None, :], np.broadcast_to(z_if[:, None], (len(z_if), len(cz)))])
-    hi = np.concatenate([z_if, [np.inf]])
-    h = np.clip(np.minimum(pz[None, :], hi[:, None]) - lo, 0.0, None)
-    crossed = h > 0
-    n_min = np.min(np.where(crossed, n_reg[:, None], np.inf), axis=0)  # (M,)
-    a = n_reg[:, None] ** 2  # (R, 1)
-    b = np.where(crossed, a - n_min[None, :] ** 2, 0.0)  # (R, M), >= 0 where used
-    w = h * n_min[None, :]  # (R, M)
-    wa = w * a
-    rho = np.hypot(rel[:, 0], rel[:, 1])
+    from softjig._optics_kernels import layered_directions  # Numba is loaded on first use
 
-    # g(t) = sum_i w_i t / sqrt(a_i + b_i t^2) - rho,  g'(t) = sum_i w_i a_i / (a_i + b_i t^2)^1.5
-    # Increasing and concave in t >= 0, g(0) = -rho <= 0: Newton from t = 0 climbs monotonically.
-    t = np.zeros_like(rho)
-    tol = 4.0 * np.finfo(float).eps
-    n_sets = int(sets[-1]) + 1
-    active = np.ones(n_sets, dtype=bool)
-    for _ in range(_NEWTON_MAX_ITER):
-        inv_sq = 1.0 / np.sqrt(a + b * (t * t))
-        g = t * np.einsum("ij,ij->j", w, inv_sq) - rho
-        dg = np.einsum("ij,ij->j", wa, inv_sq * inv_sq * inv_sq)
-        step = g / dg
-        t_new = np.maximum(t - step, 0.0)
-        unsettled = ~(np.abs(t_new - t) <= tol * t_new)
-        if n_sets == 1:
-            t = t_new
-            if not unsettled.any():
-                break
-            continue
-        moving = active[sets]
-        t = np.where(moving, t_new, t)
-        active &= np.bincount(sets, weights=unsettled & moving, minlength=n_sets) > 0
-        if not active.any():
-            break
-    # tan(theta_0) in region 0 from the invariant
-    a0 = n_reg[0] ** 2
-    tan0 = n_min * t / np.sqrt(a0 + (a0 - n_min**2) * t * t)
-    scale = np.divide(tan0, rho, out=np.zeros_like(rho), where=rho > 0)
-    d = np.column_stack([rel[:, 0] * scale, rel[:, 1] * scale, np.ones_like(rho)])
-    d /= np.linalg.norm(d, axis=1)[:, None]
-    return d
+    out = np.empty((len(pz), 3))
+    tolerance = 4.0 * np.finfo(float).eps
+    layered_directions(
+        np.ascontiguousarray(cz, dtype=float),
+        np.ascontiguousarray(rel, dtype=float),
+        np.ascontiguousarray(pz, dtype=float),
+        z_if,
+        n_reg,
+        sets,
+        int(sets.max()) + 1,
+        _NEWTON_MAX_ITER,
+        tolerance,
+        out,
+    )
+    return out
 
 
 # --------------------------------------------------------------------------------------------------
@@ -622,21 +596,25 @@ def project_points(
         invalid inputs (see :func:`refracted_ray_directions`).
     """
     if layers is not None:
-        return project_point_sets([(points_J, K, dist, T_J_cam)], layers)[0]
+        return project_point_sets([(points_J, 0)], [(K, dist, T_J_cam)], layers)[0]
     T = _check_pose(T_J_cam)
     p, lead = _as_vectors(points_J, 3, "points_J")
     return _pixels(p, p - T[:3, 3], _check_K(K), _check_dist(dist), T).reshape(*lead, 2)
 
 
 def project_point_sets(
-    point_sets: Sequence[tuple[ArrayLike, ArrayLike, ArrayLike | None, ArrayLike]], layers: FlatLayers
+    point_sets: Sequence[tuple[ArrayLike, int]],
+    cameras: Sequence[tuple[ArrayLike, ArrayLike | None, ArrayLike]],
+    layers: FlatLayers,
 ) -> list[FloatArray]:
-    """:func:`project_points` of several sets of points, each into its own camera, through the same
+    """:func:`project_points` of several sets of points, each into one of the cameras, through the same
     layers: the pixels one call per set gives, in one solve of the refracted rays.
 
     Parameters
     ----------
-    point_sets : ``(points_J, K, dist, T_J_cam)`` per set, as :func:`project_points` takes them.
+    point_sets : ``(points_J, camera)`` per set: ``(..., 3)`` points in J (mm) and the index of their
+        camera in ``cameras``.
+    cameras : ``(K, dist, T_J_cam)`` per camera, as :func:`project_points` takes them.
     layers : FlatLayers
         The refracting interfaces.
 
@@ -651,14 +629,14 @@ def project_point_sets(
         As :func:`project_points`.
     """
     checked = []
-    for points_J, K, dist, T_J_cam in point_sets:
+    for K, dist, T_J_cam in cameras:
         T = _check_pose(T_J_cam)
-        checked.append((_check_K(K), _check_dist(dist), T, *_as_vectors(points_J, 3, "points_J")))
-    centers = [_check_center(T[:3, 3], layers) for _, _, T, _, _ in checked]
-    directions = _directions_of_sets(centers, [p for *_, p, _ in checked], layers)
+        checked.append((_check_K(K), _check_dist(dist), T, _check_center(T[:3, 3], layers)))
+    sets = [(*_as_vectors(points_J, 3, "points_J"), checked[camera]) for points_J, camera in point_sets]
+    directions = _directions_of_sets([cam[3] for *_, cam in sets], [p for p, _, _ in sets], layers)
     return [
         _pixels(p, dirs_J, Km, d, T).reshape(*lead, 2)
-        for (Km, d, T, p, lead), dirs_J in zip(checked, directions, strict=True)
+        for (p, lead, (Km, d, T, _)), dirs_J in zip(sets, directions, strict=True)
     ]
 
 
