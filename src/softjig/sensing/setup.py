@@ -79,10 +79,11 @@ def sensing_setup(jig: JigConfig, layers: FlatLayers | None = None) -> SensingSe
     xy = marker_layout_xy(jig)
     z_rest = rest_inner_height_mm(jig, xy[:, 0], xy[:, 1])
     points = np.concatenate([np.column_stack([xy, z_rest]), np.column_stack([xy, np.zeros(len(xy))])])
+    left_pose = left.T_J_cam
     # one solve of the refracted rays for every projection below (each set as if projected alone)
     stencil, pl, pr, u_left, u_right = project_point_sets(
         [(jacobian_stencil(apex), 0), (apex, 0), (apex, 1), (points, 0), (points, 1)],
-        [(cam.K, cam.distortion, cam.T_J_cam) for cam in (left, right)],
+        [(cam.K, cam.distortion, pose) for cam, pose in ((left, left_pose), (right, right.T_J_cam))],
         layers,
     )
     # px per mm at the apex (mean singular value of the projection's Jacobian in the marker's plane)
@@ -109,7 +110,7 @@ def sensing_setup(jig: JigConfig, layers: FlatLayers | None = None) -> SensingSe
     disparity = u_left[:, 0] - u_right[:, 0]
     margin = jig.sensing.disparity_margin_px
     # The rest apex as the pinhole triangulation sees it: the reference of the push depth.
-    apex_J = transform_points(left.T_J_cam, pinhole_triangulation(pl, pr, jig))
+    apex_J = transform_points(left_pose, pinhole_triangulation(pl, pr, jig))
     return SensingSetup(
         sigma_px=float(sigma),
         threshold=jig.sensing.detection_threshold,
@@ -181,7 +182,7 @@ class JigModel:
             layers=layers,
             setup=sensing_setup(used, layers),
             frame=frame_constants(used),
-            triangulation=kernel_constants(used),
+            triangulation=kernel_constants(used, layers),
             rest_shape=rest_shape_reference(used),
         )
 
