@@ -23,6 +23,7 @@ pixels) are accepted and results keep the leading shape.
 from __future__ import annotations
 
 import itertools
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -174,12 +175,17 @@ def _check_pose(T_J_cam: ArrayLike) -> FloatArray:
     T = np.asarray(T_J_cam, dtype=float)
     if T.shape != (4, 4):
         raise ValueError(f"T_J_cam must be a 4x4 homogeneous matrix, got shape {T.shape}")
-    if not np.isfinite(T).all():
+    rows = T.tolist()  # 16 numbers: Python floats check them faster than NumPy's small-array calls
+    if not all(math.isfinite(v) for row in rows for v in row):
         raise ValueError("T_J_cam must be finite")
-    if not _close(T[3], (0.0, 0.0, 0.0, 1.0), POSE_ROW_TOLERANCE):
+    if not all(_near(v, w, POSE_ROW_TOLERANCE) for v, w in zip(rows[3], (0.0, 0.0, 0.0, 1.0), strict=True)):
         raise ValueError(f"T_J_cam's last row must be (0, 0, 0, 1), got {T[3]}")
-    R = T[:3, :3]
-    if not _close(R.T @ R, np.eye(3), ROTATION_TOLERANCE) or _det3(R) <= 0:
+    R = [row[:3] for row in rows[:3]]
+    gram = [[sum(R[k][i] * R[k][j] for k in range(3)) for j in range(3)] for i in range(3)]  # R^T R
+    orthonormal = all(
+        _near(gram[i][j], float(i == j), ROTATION_TOLERANCE) for i in range(3) for j in range(3)
+    )
+    if not orthonormal or _det3(R) <= 0:
         raise ValueError("T_J_cam's rotation block must be a proper rotation (orthonormal, det +1)")
     return T
 
@@ -192,20 +198,22 @@ def _check_K(K: ArrayLike) -> FloatArray:
         raise ValueError("K must be finite")
     if not (Km[0, 0] > 0 and Km[1, 1] > 0):
         raise ValueError(f"K's focal lengths must be positive, got fx={Km[0, 0]}, fy={Km[1, 1]}")
-    if Km[1, 0] != 0 or not _close(Km[2], (0.0, 0.0, 1.0), _ALLCLOSE_ATOL):
+    last = Km[2].tolist()
+    if Km[1, 0] != 0 or not all(
+        _near(v, w, _ALLCLOSE_ATOL) for v, w in zip(last, (0.0, 0.0, 1.0), strict=True)
+    ):
         raise ValueError(f"K must be upper triangular with last row (0, 0, 1), got\n{Km}")
     return Km
 
 
-def _close(a: FloatArray, b: ArrayLike, atol: float) -> bool:
-    """``np.allclose(a, b, atol=atol)`` for finite arrays, without its overhead (it costs more than the
-    projection of one point: an estimator's set-up validates its cameras a few times)."""
-    return bool((np.abs(a - b) <= atol + _ALLCLOSE_RTOL * np.abs(b)).all())
+def _near(a: float, b: float, atol: float) -> bool:
+    """``np.allclose``'s test (``|a - b| <= atol + rtol |b|``, its default ``rtol``) of two numbers."""
+    return abs(a - b) <= atol + _ALLCLOSE_RTOL * abs(b)
 
 
-def _det3(R: FloatArray) -> float:
+def _det3(R: list[list[float]]) -> float:
     """The determinant of a 3x3 matrix (only its sign is used), by the rule of Sarrus."""
-    (a, b, c), (d, e, f), (g, h, i) = R.tolist()
+    (a, b, c), (d, e, f), (g, h, i) = R
     return a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
 
 
@@ -406,28 +414,38 @@ def _directions_of_sets(
     p = np.concatenate(points)
     c = np.repeat(np.asarray(centers, dtype=float).reshape(-1, 3), sizes, axis=0)
     rel = p - c
-    dist = np.linalg.norm(rel, axis=1)
-    if np.any(dist == 0):
-        raise ValueError("refracted_ray_directions: a point coincides with the camera centre")
-    out = rel / dist[:, None]  # straight line (region-0 points)
-    through = p[:, 2] > layers.interfaces_z_mm[0]
-    if through.any():
-        out[through] = _solve_layered_directions(
-            c[through, 2],
-            rel[through],
-            p[through, 2],
-            np.asarray(layers.interfaces_z_mm),
-            np.asarray(layers.refractive_indices),
-            np.repeat(np.arange(len(sizes)), sizes)[through],
+    through = p[:, 2] > layers.interfaces_z_mm[0]  # the others are in region 0: straight lines
+    out = np.empty_like(rel)
+    if not through.all():
+        straight = rel[~through]
+        dist = np.linalg.norm(straight, axis=1)
+        if np.any(dist == 0):
+            raise ValueError("refracted_ray_directions: a point coincides with the camera centre")
+        out[~through] = straight / dist[:, None]
+    sets = np.repeat(np.arange(len(sizes)), sizes)
+    z_if, n_reg = np.asarray(layers.interfaces_z_mm), np.asarray(layers.refractive_indices)
+    if through.all() and len(p):
+        _solve_layered_directions(c[:, 2], rel, p[:, 2], z_if, n_reg, sets, out)
+    elif through.any():
+        solved = _solve_layered_directions(
+            c[through, 2], rel[through], p[through, 2], z_if, n_reg, sets[through]
         )
+        out[through] = solved
     return np.split(out, np.cumsum(sizes)[:-1])
 
 
 def _solve_layered_directions(
-    cz: FloatArray, rel: FloatArray, pz: FloatArray, z_if: FloatArray, n_reg: FloatArray, sets: NDArray
+    cz: FloatArray,
+    rel: FloatArray,
+    pz: FloatArray,
+    z_if: FloatArray,
+    n_reg: FloatArray,
+    sets: NDArray,
+    out: FloatArray | None = None,
 ) -> FloatArray:
     """Unit initial directions of points above the first interface (refracted_ray_directions), from
-    cameras at heights ``cz`` (per point), ``rel`` the points less their camera's centre.
+    cameras at heights ``cz`` (per point), ``rel`` the points less their camera's centre (into ``out``,
+    ``(M, 3)``, when given).
 
     The ray invariant solves ``sum_i h_i kappa / sqrt(n_i^2 - kappa^2) = rho`` (``h_i`` the height
     travelled in region ``i``, ``rho`` the horizontal distance), rewritten in ``t = tan(theta_m)`` of the
@@ -441,7 +459,7 @@ def _solve_layered_directions(
     """
     from softjig._optics_kernels import layered_directions  # Numba is loaded on first use
 
-    out = np.empty((len(pz), 3))
+    out = np.empty((len(pz), 3)) if out is None else out
     tolerance = 4.0 * np.finfo(float).eps
     layered_directions(
         np.ascontiguousarray(cz, dtype=float),
