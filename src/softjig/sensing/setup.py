@@ -71,7 +71,8 @@ class SensingSetup:
 
 def sensing_setup(jig: JigConfig, layers: FlatLayers | None = None) -> SensingSetup:
     """Derive the detection scale, disparity window and push-depth reference from the nominal (rectified)
-    jig (it projects every marker through the layers: an estimator derives it once)."""
+    jig (it projects every marker into both cameras through the layers, in one solve of the refracted
+    rays: an estimator derives it once)."""
     left, right = jig.cameras.left, jig.cameras.right
     layers = layers if layers is not None else flat_layers(jig)
     apex = np.array([[0.0, 0.0, jig.membrane.dome_height_mm]])
@@ -165,7 +166,7 @@ class JigModel:
 
     @classmethod
     def build(cls, jig: JigConfig) -> JigModel:
-        """Derive it (more than a frame's work, and the rectification's maps for a raw pair).
+        """Derive it (about a frame's work, and the rectification's maps for a raw pair).
 
         Raises
         ------
