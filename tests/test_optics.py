@@ -8,7 +8,6 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from oracles.layered_rays import numpy_layered_directions
 from softjig.optics import (
     FlatLayers,
     backproject_pixels,
@@ -488,38 +487,6 @@ def test_point_sets_project_exactly_as_one_call_per_set():
         project_point_sets([sets[0], ([[-15.0, 0.0, -200.0]], 0)], cameras, LAYERS)
     with pytest.raises(ValueError, match="region 0"):
         project_point_sets([sets[1]], [*cameras, (K, None, pose((0.0, 0.0, -2.0)))], LAYERS)
-
-
-@pytest.mark.parametrize(
-    "layers",
-    [
-        LAYERS,
-        FlatLayers((0.0,), (1.0, 1.51)),
-        FlatLayers((-8.0, -5.0, 0.0), (1.0003, 1.49, 1.575, 1.33)),
-        FlatLayers((-5.0, 0.0), (1.0, 1.0, 1.0)),
-    ],
-)
-def test_the_compiled_ray_solve_is_the_numpy_one_to_the_bit(layers):
-    """The kernel does the NumPy iteration's operations in its order (the oracle): same directions, bit
-    for bit, for sets of any size, points on the axis, on an interface and anywhere above it."""
-    from softjig._optics_kernels import layered_directions
-    from softjig.optics import _NEWTON_MAX_ITER
-
-    rng = np.random.default_rng(5)
-    z_if, n_reg = np.asarray(layers.interfaces_z_mm), np.asarray(layers.refractive_indices)
-    tolerance = 4 * np.finfo(float).eps
-    for _ in range(10):
-        sizes = rng.integers(1, 300, int(rng.integers(1, 6)))
-        centres = np.column_stack([rng.uniform(-30, 30, (len(sizes), 2)), rng.uniform(-200, -20, len(sizes))])
-        centre = np.repeat(centres, sizes, axis=0)
-        points = np.column_stack([rng.uniform(-90, 90, (len(centre), 2)), rng.uniform(0.0, 40, len(centre))])
-        points[:5, :2] = centre[:5, :2]
-        points[5:8, 2] = 0.0
-        sets = np.repeat(np.arange(len(sizes)), sizes)
-        rel, cz, pz = points - centre, centre[:, 2].copy(), points[:, 2].copy()
-        out = np.empty((len(points), 3))
-        layered_directions(cz, rel, pz, z_if, n_reg, sets, len(sizes), _NEWTON_MAX_ITER, tolerance, out)
-        assert np.array_equal(out, numpy_layered_directions(cz, rel, pz, z_if, n_reg, sets))
 
 
 def test_jacobian_stencil_gives_the_projection_jacobian():

@@ -28,7 +28,6 @@ KERNELS = [
     "sensing/_identities_kernels.py",
     "sensing/_robust_kernels.py",
     "_geometry_kernels.py",
-    "_optics_kernels.py",
     "sensing/_contact_kernels.py",
     "sensing/_selfcheck_kernels.py",
 ]

@@ -425,7 +425,7 @@ def _directions_of_sets(
     sets = np.repeat(np.arange(len(sizes)), sizes)
     z_if, n_reg = np.asarray(layers.interfaces_z_mm), np.asarray(layers.refractive_indices)
     if through.all() and len(p):
-        _solve_layered_directions(c[:, 2], rel, p[:, 2], z_if, n_reg, sets, out)
+        out = _solve_layered_directions(c[:, 2], rel, p[:, 2], z_if, n_reg, sets)
     elif through.any():
         solved = _solve_layered_directions(
             c[through, 2], rel[through], p[through, 2], z_if, n_reg, sets[through]
@@ -435,45 +435,59 @@ def _directions_of_sets(
 
 
 def _solve_layered_directions(
-    cz: FloatArray,
-    rel: FloatArray,
-    pz: FloatArray,
-    z_if: FloatArray,
-    n_reg: FloatArray,
-    sets: NDArray,
-    out: FloatArray | None = None,
+    cz: FloatArray, rel: FloatArray, pz: FloatArray, z_if: FloatArray, n_reg: FloatArray, sets: NDArray
 ) -> FloatArray:
     """Unit initial directions of points above the first interface (refracted_ray_directions), from
-    cameras at heights ``cz`` (per point), ``rel`` the points less their camera's centre (into ``out``,
-    ``(M, 3)``, when given).
+    cameras at heights ``cz`` (per point), ``rel`` the points less their camera's centre.
 
-    The ray invariant solves ``sum_i h_i kappa / sqrt(n_i^2 - kappa^2) = rho`` (``h_i`` the height
-    travelled in region ``i``, ``rho`` the horizontal distance), rewritten in ``t = tan(theta_m)`` of the
-    lowest-index region crossed, where it is increasing and concave on ``[0, inf)``: Newton's method from
-    ``t = 0`` climbs monotonically to the root (the first step is the paraxial solution) and is iterated
-    to machine precision. The points of a set (``sets``: a set index per point) are iterated until all
-    of them converged, then frozen: a set's directions do not depend on the other sets solved with it
-    (an iterate that converged still moves by an ulp at the next step). Compiled
-    (:func:`softjig._optics_kernels.layered_directions`): the NumPy loop's cost per operation was most
-    of an estimator's set-up, which solves about 1500 points.
+    Newton in ``t = tan`` of the ray in the lowest-index region crossed, from ``t = 0`` (see
+    :func:`refracted_ray_directions`), one NumPy operation over all points at a time. The points of a
+    set (``sets``: a set index per point) are iterated until all of them converged, then frozen: a
+    set's directions do not depend on the other sets solved with it (an iterate that converged still
+    moves by an ulp at the next step).
     """
-    from softjig._optics_kernels import layered_directions  # Numba is loaded on first use
+    # vertical distance travelled in each region, shape (R, M) (regions first: fast reductions)
+    lo = np.concatenate([cz[None, :], np.broadcast_to(z_if[:, None], (len(z_if), len(cz)))])
+    hi = np.concatenate([z_if, [np.inf]])
+    h = np.clip(np.minimum(pz[None, :], hi[:, None]) - lo, 0.0, None)
+    crossed = h > 0
+    n_min = np.min(np.where(crossed, n_reg[:, None], np.inf), axis=0)  # (M,)
+    a = n_reg[:, None] ** 2  # (R, 1)
+    b = np.where(crossed, a - n_min[None, :] ** 2, 0.0)  # (R, M), >= 0 where used
+    w = h * n_min[None, :]  # (R, M)
+    wa = w * a
+    rho = np.hypot(rel[:, 0], rel[:, 1])
 
-    out = np.empty((len(pz), 3)) if out is None else out
-    tolerance = 4.0 * np.finfo(float).eps
-    layered_directions(
-        np.ascontiguousarray(cz, dtype=float),
-        np.ascontiguousarray(rel, dtype=float),
-        np.ascontiguousarray(pz, dtype=float),
-        z_if,
-        n_reg,
-        sets,
-        int(sets.max()) + 1,
-        _NEWTON_MAX_ITER,
-        tolerance,
-        out,
-    )
-    return out
+    # g(t) = sum_i w_i t / sqrt(a_i + b_i t^2) - rho,  g'(t) = sum_i w_i a_i / (a_i + b_i t^2)^1.5
+    # Increasing and concave in t >= 0, g(0) = -rho <= 0: Newton from t = 0 climbs monotonically.
+    t = np.zeros_like(rho)
+    tol = 4.0 * np.finfo(float).eps
+    n_sets = int(sets[-1]) + 1
+    active = np.ones(n_sets, dtype=bool)
+    for _ in range(_NEWTON_MAX_ITER):
+        inv_sq = 1.0 / np.sqrt(a + b * (t * t))
+        g = t * np.einsum("ij,ij->j", w, inv_sq) - rho
+        dg = np.einsum("ij,ij->j", wa, inv_sq * inv_sq * inv_sq)
+        step = g / dg
+        t_new = np.maximum(t - step, 0.0)
+        unsettled = ~(np.abs(t_new - t) <= tol * t_new)
+        if n_sets == 1:
+            t = t_new
+            if not unsettled.any():
+                break
+            continue
+        moving = active[sets]
+        t = np.where(moving, t_new, t)
+        active &= np.bincount(sets, weights=unsettled & moving, minlength=n_sets) > 0
+        if not active.any():
+            break
+    # tan(theta_0) in region 0 from the invariant
+    a0 = n_reg[0] ** 2
+    tan0 = n_min * t / np.sqrt(a0 + (a0 - n_min**2) * t * t)
+    scale = np.divide(tan0, rho, out=np.zeros_like(rho), where=rho > 0)
+    d = np.column_stack([rel[:, 0] * scale, rel[:, 1] * scale, np.ones_like(rho)])
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    return d
 
 
 # --------------------------------------------------------------------------------------------------
