@@ -466,8 +466,8 @@ def _solve_layered_directions(
     active = np.ones(n_sets, dtype=bool)
     for _ in range(_NEWTON_MAX_ITER):
         inv_sq = 1.0 / np.sqrt(a + b * (t * t))
-        g = t * np.einsum("ij,ij->j", w, inv_sq) - rho
-        dg = np.einsum("ij,ij->j", wa, inv_sq * inv_sq * inv_sq)
+        g = t * _sum_over_regions(w * inv_sq) - rho
+        dg = _sum_over_regions(wa * (inv_sq * inv_sq * inv_sq))
         step = g / dg
         t_new = np.maximum(t - step, 0.0)
         unsettled = ~(np.abs(t_new - t) <= tol * t_new)
@@ -488,6 +488,16 @@ def _solve_layered_directions(
     d = np.column_stack([rel[:, 0] * scale, rel[:, 1] * scale, np.ones_like(rho)])
     d /= np.linalg.norm(d, axis=1)[:, None]
     return d
+
+
+def _sum_over_regions(terms: FloatArray) -> FloatArray:
+    """``(R, M) -> (M,)``: each point's terms added region by region, in order, whatever ``M`` (``einsum``
+    and ``sum`` add three terms in another order for one point than for many: a point's ray would
+    depend on the points solved with it)."""
+    total = terms[0].copy()
+    for row in terms[1:]:
+        total += row
+    return total
 
 
 # --------------------------------------------------------------------------------------------------
