@@ -390,23 +390,32 @@ def finish_radiance(
     texture: np.ndarray,
     background: np.float32,
     maps: tuple[np.ndarray, np.ndarray, np.ndarray],
-    y0: int,
-    x0: int,
+    fiducials: bool,
+    origin: tuple[int, int],
     radiance: np.ndarray,
     gain: np.ndarray,
 ) -> None:
-    """The bare membrane's radiance and the markers' gain over a region (top-left pixel ``y0, x0``) from
-    its bead speckle ``texture`` ``s`` (:mod:`softjig.sim.render`, steps 4-6), in one pass: with the
-    fiducials' transmission ``c`` and level ``l`` and the illumination ``F`` (``maps``, whole-image),
-    ``radiance = ((1 + s) b c + l) F`` and ``gain = (1 + s) c F``, in that order of float32 operations."""
+    """The bare membrane's radiance and the markers' gain over a region (top-left pixel ``origin = (y0,
+    x0)``) from its bead speckle ``texture`` ``s`` (:mod:`softjig.sim.render`, steps 4-6), in one pass: with
+    the fiducials' transmission ``c`` and level ``l`` and the illumination ``F`` (``maps``, whole-image),
+    ``radiance = ((1 + s) b c + l) F`` and ``gain = (1 + s) c F``, in that order of float32 operations.
+    Without ``fiducials`` (none over the region: ``c = 1``, ``l = 0``, which leave every value as it is)
+    the first two maps are not read."""
     transmission, level, illumination = maps
+    y0, x0 = origin
     for i in range(texture.shape[0]):
-        src, rad, gn = texture[i], radiance[i], gain[i]
-        c, lv, f = transmission[y0 + i, x0:], level[y0 + i, x0:], illumination[y0 + i, x0:]
-        for j in range(texture.shape[1]):
-            factor = src[j] + _ONE
-            rad[j] = (factor * background * c[j] + lv[j]) * f[j]
-            gn[j] = factor * c[j] * f[j]
+        src, rad, gn, f = texture[i], radiance[i], gain[i], illumination[y0 + i, x0:]
+        if fiducials:
+            c, lv = transmission[y0 + i, x0:], level[y0 + i, x0:]
+            for j in range(texture.shape[1]):
+                factor = src[j] + _ONE
+                rad[j] = (factor * background * c[j] + lv[j]) * f[j]
+                gn[j] = factor * c[j] * f[j]
+        else:
+            for j in range(texture.shape[1]):
+                factor = src[j] + _ONE
+                rad[j] = factor * background * f[j]
+                gn[j] = factor * f[j]
 
 
 @numba.njit(cache=True, nogil=True)
