@@ -24,6 +24,7 @@ Run: ``python benchmarks/bench_frame.py --src /tmp/old/src src [--rounds 5] [--d
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import statistics
@@ -72,10 +73,8 @@ def _estimate_pass(estimator, pairs, spent: dict[str, float]) -> dict[str, float
     for left, right in pairs:
         spent.clear()
         t0 = time.process_time()
-        try:
+        with contextlib.suppress(SoftjigError):
             estimator.estimate(left, right)
-        except SoftjigError:
-            pass
         total = time.process_time() - t0
         per_stage["estimate"].append(total)
         for stage in STAGES[1:]:
@@ -100,10 +99,8 @@ def _bag_pass(bag: Path, estimator, *, estimate: bool) -> tuple[float, float]:
                 break
             left, right = frame.load_left(), frame.load_right()
             if not frame.reference and estimate:
-                try:
+                with contextlib.suppress(SoftjigError):
                     estimator.estimate(left, right)
-                except SoftjigError:
-                    pass
             cpu.append((frame.reference, time.process_time() - t0))
     # a reference frame's read is a read all the same: it counts towards the loaded frames' mean
     total = sum(c for _, c in cpu[1:])
@@ -158,7 +155,8 @@ def worker(data: Path, bag: Path) -> None:
     dataset_to_bag(dataset, bag, estimate=False, start_unix_s=1.7e9)
     reference = dataset_reference(dataset, jig)
     with BagReader(bag) as reader:
-        pairs = [(f.load_left(), f.load_right()) for f in reader.pairs(reader.choose_topics()) if not f.reference]
+        frames = reader.pairs(reader.choose_topics())
+        pairs = [(f.load_left(), f.load_right()) for f in frames if not f.reference]
     spent: dict[str, float] = {}
     estimator = Estimator(jig, reference=reference, method="refractive")
     timed = Estimator(jig, reference=reference, method="refractive", model=estimator.model)
@@ -230,8 +228,8 @@ def _differences(a, b, path="") -> list[tuple[str, float | str]]:
         return out
     if isinstance(a, list) and isinstance(b, list) and len(a) == len(b):
         out = []
-        for i, (x, y) in enumerate(zip(a, b, strict=True)):
-            out += [(p.replace(f"{path}[{i}]", f"{path}[]"), d) for p, d in _differences(x, y, f"{path}[{i}]")]
+        for x, y in zip(a, b, strict=True):
+            out += _differences(x, y, f"{path}[]")
         return out
     if a == b:
         return []
@@ -243,7 +241,8 @@ def _differences(a, b, path="") -> list[tuple[str, float | str]]:
 
 def _compare(results: list[list]) -> None:
     base = results[0]
-    names = [f"bench frame {i}" for i in range(len(base) - 2)] + ["default pair refractive", "default pair paper"]
+    names = [f"bench frame {i}" for i in range(len(base) - 2)]
+    names += ["default pair refractive", "default pair paper"]
     for other_index, other in enumerate(results[1:], start=1):
         worst: dict[str, float | str] = {}
         differing = 0
@@ -251,8 +250,10 @@ def _compare(results: list[list]) -> None:
             diffs = _differences(a, b)
             differing += bool(diffs)
             for key, d in diffs:
-                if isinstance(d, str) or key not in worst or (not isinstance(worst[key], str) and d > worst[key]):
-                    worst[key] = d if not isinstance(d, str) else f"{name}: {d}"
+                if isinstance(d, str):
+                    worst[key] = f"{name}: {d}"
+                elif not isinstance(worst.get(key), str) and d > worst.get(key, -1.0):
+                    worst[key] = d
         print(f"results, tree 0 vs tree {other_index}: {len(base) - differing} of {len(base)} identical")
         for key, d in sorted(worst.items()):
             print(f"  {key}: {d if isinstance(d, str) else f'max |difference| {d:.3g}'}")
