@@ -12,7 +12,9 @@ The stereo pair is one simulated default frame (``softjig simulate --scenario si
 into a temporary folder. Each source gets one untimed warm-up run of every command first, which fills
 the caches a first run builds once per machine (Numba's compiled kernels, the sub-pixel tables). Then, per
 source, the estimate's Numba share in one process (medians of a few runs): ``import numba``, the first
-kernel's load from the cache (which initialises Numba's CPU target), the other kernels' loads.
+kernel's load from the cache (which initialises Numba's CPU target), the other kernels' loads, the whole
+command in the process, and its ``finalisation``: the time from the end of its work and exit handlers until
+the process has ended (the interpreter's teardown, which ``softjig.cli.main`` skips).
 """
 
 from __future__ import annotations
@@ -30,32 +32,36 @@ from pathlib import Path
 BARE = [sys.executable, "-c", "import numpy, cv2, scipy.linalg"]
 SOFTJIG = [sys.executable, "-c", "from softjig.cli import main; main()"]
 # The estimate in one process with Numba's share timed: its import, then every compiled kernel loaded from
-# the cache (the first load also initialises Numba's CPU target). Prints one JSON line on stderr.
+# the cache (the first load also initialises Numba's CPU target). The figures are written by the first
+# atexit handler registered, so the last one run: when the command's work and every exit handler are done;
+# what the process spends after it (until its parent sees it end) is the interpreter's finalisation.
+# Prints one JSON line on stderr.
 BREAKDOWN = """
-import json, sys, time
-t0 = time.perf_counter()
+import atexit, json, sys, time
+t0 = time.monotonic()
 import numba
 import numba.core.caching as caching
-t1 = time.perf_counter()
+t1 = time.monotonic()
 loads = []
 original = caching.Cache.load_overload
 def load_overload(self, sig, target_context):
-    start = time.perf_counter()
+    start = time.monotonic()
     try:
         return original(self, sig, target_context)
     finally:
-        loads.append(time.perf_counter() - start)
+        loads.append(time.monotonic() - start)
 caching.Cache.load_overload = load_overload
+def report():
+    figures = {"numba import": t1 - t0, "first kernel (target init)": loads[0] if loads else 0.0}
+    figures.update({"other kernel loads": sum(loads[1:]), "kernels": len(loads)})
+    figures["in-process total"] = time.monotonic() - t0
+    figures["work_end"] = time.monotonic()
+    sys.stderr.write(json.dumps(figures) + "\\n")
+    sys.stderr.flush()
+atexit.register(report)
 from softjig.cli import main
 sys.argv = ["softjig", *sys.argv[1:]]
-try:
-    main()
-except SystemExit:
-    pass
-figures = {"numba import": t1 - t0, "first kernel (target init)": loads[0] if loads else 0.0}
-figures.update({"other kernel loads": sum(loads[1:]), "kernels": len(loads)})
-figures["in-process total"] = time.perf_counter() - t0
-sys.stderr.write(json.dumps(figures))
+main()
 """
 
 
@@ -76,14 +82,22 @@ def _run(argv: list[str], env: dict[str, str]) -> float:
 
 
 def _breakdown(argv: list[str], env: dict[str, str], runs: int) -> dict[str, float]:
-    """Medians over ``runs`` of the :data:`BREAKDOWN` figures for ``softjig`` arguments ``argv``."""
+    """Medians over ``runs`` of the :data:`BREAKDOWN` figures for ``softjig`` arguments ``argv``, with
+    ``finalisation``: from the end of the last exit handler until the process ended (its pipes closed and
+    it was reaped; the interpreter's teardown of modules and objects, and the kernel's of the process)."""
     rows = []
     for _ in range(runs):
         argv_breakdown = [sys.executable, "-c", BREAKDOWN, *argv]
-        done = subprocess.run(
-            argv_breakdown, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, check=True
+        child = subprocess.Popen(
+            argv_breakdown, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True
         )
-        rows.append(json.loads(done.stderr.strip().splitlines()[-1]))
+        stderr = child.communicate()[1]
+        ended = time.monotonic()
+        if child.returncode != 0:
+            raise SystemExit(f"breakdown: exit {child.returncode}\n{stderr}")
+        row = json.loads(stderr.strip().splitlines()[-1])
+        row["finalisation"] = ended - row.pop("work_end")
+        rows.append(row)
     return {key: statistics.median(row[key] for row in rows) for key in rows[0]}
 
 
