@@ -104,3 +104,23 @@ def test_the_console_script_skips_the_teardown():
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert done.returncode == 0 and done.stdout.startswith("softjig ")
     assert "teardown ran" not in done.stderr
+
+
+def test_a_pair_estimate_imports_only_what_it_uses(small_dataset):
+    """Start-up (issue 14): ``--json`` prints no table (no rich), writes no TOML (no tomli_w) and applies
+    no calibration file (no softjig.calibration); each was imported by every estimate before."""
+    code = (
+        "import atexit, sys\n"
+        "atexit.register(lambda: print('MODULES', ' '.join(sorted(sys.modules)), file=sys.stderr))\n"
+        "from softjig.cli import main\n"
+        f"sys.argv = ['softjig', 'estimate', *{_pair(small_dataset)!r}, '--part-diameter', '50', '--json']\n"
+        "main()\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert "normal" in json.loads(done.stdout)
+    modules = done.stderr.split("MODULES ", 1)[1].split()
+    unused = [
+        m for m in modules if m.split(".")[0] in ("rich", "tomli_w") or m.startswith("softjig.calibration")
+    ]
+    assert unused == []
