@@ -46,9 +46,13 @@ from softjig.sensing._contact_kernels import (
 #: deepest tenth's depth.
 SEED_DEPTH_SHARES = (0.5, 0.75, 0.25)
 #: A marker out of the contact lying this many inlier thresholds below the plane, inside the contact's
-#: hull, is a hole: no face pressed into the membrane leaves one (:func:`holes`). So is one just outside
-#: the contact where the plane would press into the membrane (:func:`holes_beside`).
+#: hull, is a hole: no face pressed into the membrane leaves one (:func:`holes`).
 HOLE_THRESHOLDS = 2.0
+#: A marker just outside the contact, pushed in deeper than the contact beside it, is a hole beside it
+#: when it lies this many inlier thresholds below the plane (:func:`holes_beside`): 1.5 thresholds are
+#: 3.75 sigmas of a marker's height (one-sided, 1e-4 by noise alone), and noise must also make it
+#: deeper than every contact marker beside it.
+BESIDE_HOLE_THRESHOLDS = 1.5
 #: A marker's neighbours lie within this many marker pitches (a square grid's 8 nearest).
 NEIGHBOUR_RADIUS_PITCHES = 1.5
 #: The steepest plausible contact plane (deg): no part pressed into a soft jig stands steeper.
@@ -293,7 +297,7 @@ def holes_beside(
     pitch_mm: float,
 ) -> np.ndarray:
     """Markers just outside the contact (within 1.5 pitches of it) that lie more than
-    :data:`HOLE_THRESHOLDS` inlier thresholds below ``plane`` where the plane would press into the
+    :data:`BESIDE_HOLE_THRESHOLDS` inlier thresholds below ``plane`` where the plane would press into the
     membrane (its :func:`face_depth_mm` beyond ``threshold_mm``), and are pushed in deeper than every
     contact marker within 1.5 pitches of them, as booleans.
 
@@ -307,6 +311,14 @@ def holes_beside(
     (seed 0: frames 1-5 of its 50 designs and its 14 silent failures, the four ways), such a wall fitted
     beside a small or off-centre contact, 10-30 deg off, passed every check of the contact's own markers
     in 14 estimates; 7 had a hole beside, none of the other 887 estimates reported "ok" did.
+
+    The depth below the plane is :data:`BESIDE_HOLE_THRESHOLDS` inlier thresholds (3.75 sigmas of a
+    marker's height), not the :data:`HOLE_THRESHOLDS` of a hole inside the hull: beside the contact,
+    the marker must also be deeper than the contact next to it, which the membrane dragged down beside a
+    face never is. At 2 thresholds, a wall strip meeting a small face in a V at the dent's deepest markers
+    (zoo seed 0, design 42, frame 4, size-free) left the face's five deepest markers 2.6-4.8 sigmas
+    below the wall's plane and was reported "ok", 16.6 deg off; at 1.5, one more estimate of 400 was
+    suspect on the zoo (seed 0, 25 designs x 4 frames), 1.3 deg off.
     """
     height = (points_J - plane.centroid_mm) @ plane.normal
     return _holes_beside(points_J, dent, contact, plane, height, threshold_mm, pitch_mm)
@@ -315,7 +327,7 @@ def holes_beside(
 def _holes_beside(points_J, dent, contact, plane, height, threshold_mm, pitch_mm) -> np.ndarray:
     """:func:`holes_beside` with the markers' heights above the plane (mm) already computed."""
     out = np.zeros(len(points_J), dtype=bool)
-    below = height < -HOLE_THRESHOLDS * threshold_mm
+    below = height < -BESIDE_HOLE_THRESHOLDS * threshold_mm
     if not below.any() or not contact.any():
         return out
     depth = np.nan_to_num(dent.depth_mm, nan=-np.inf)
@@ -362,8 +374,9 @@ def _violations(
     below = (height < -HOLE_THRESHOLDS * threshold_mm) & ~contact
     xy = np.ascontiguousarray(points_J[:, :2], dtype=float)
     count = kernels.violations(xy, contact, above, below, NEIGHBOUR_RADIUS_PITCHES * pitch_mm)
-    # A hole beside the contact is 5 depth-noise sigmas below a plane that would press there, where the
-    # membrane can only be above it: noise does not explain one, and none is tolerated.
+    # A hole beside the contact is 3.75 sigmas below a plane that would press there, and deeper than the
+    # contact beside it, where the membrane can only be above it: noise does not explain one, and none is
+    # tolerated.
     beside = (
         0
         if dent is None
