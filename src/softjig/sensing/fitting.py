@@ -23,6 +23,7 @@ from softjig.errors import EstimationError, InputError
 from softjig.geometry import PlaneFit, fit_plane_svd, normal_from_tilt_angles, tilt_angles
 from softjig.jig_shape import rest_inner_height_mm
 from softjig.sensing.contact import (
+    BESIDE_HOLE_THRESHOLDS,
     ContactRegion,
     Indentation,
     ambiguous_selection,
@@ -426,8 +427,15 @@ class ContactPlaneFitter:
             edge_face_depth_mm=plane_depth[outside],
         )
         threshold = ordered.threshold_mm
+        # The contact chosen is checked with the tighter holes beside it (the choice kept the looser ones).
         violations = contact_violations(
-            points_J, used, plane, threshold_mm=threshold, pitch_mm=self._pitch, dent=dent
+            points_J,
+            used,
+            plane,
+            threshold_mm=threshold,
+            pitch_mm=self._pitch,
+            dent=dent,
+            beside_thresholds=BESIDE_HOLE_THRESHOLDS,
         )
         estimate = self._estimate(
             observation,
