@@ -820,11 +820,22 @@ class ContactPlaneFitter:
         self, uncertainty: NormalUncertainty, plane: PlaneFit, observation: Observation
     ) -> NormalUncertainty:
         """With the config's camera poses (not measured) and no calibration, the stereo head's rotation
-        error (its tolerance per axis, ``tolerances.camera_rotation_deg``) tilts the normal by as much,
-        about x and y."""
+        error (its tolerance per axis, ``tolerances.camera_rotation_deg``) tilts the normal about x and y
+        by that much times the oil's index (an angle floor of ``sqrt(2) n_oil`` tolerances).
+
+        Why the index: the cameras see the markers at their apparent depth (compressed by about
+        ``1 / n_oil`` in the oil, paraxially), and a rotated head rotates that apparent scene; the
+        refracted triangulation maps apparent depth back to true depth with slope ``n_oil`` in the oil,
+        so a slope error ``delta`` of the apparent surface is ``n_oil delta`` of the true one. On the zoo
+        (seed 0, 25 designs x 4 frames, the 24 estimates with >= 20 markers in contact and no fiducials
+        found) the error was 1.3-1.8 times the head's drawn tilt (the indices were 1.45-1.56), and the
+        floor without the index covered 33 % of them at 1 sigma (73 % where the fiducials gave the
+        frame).
+        """
         if observation.frame.source == "fiducials" or self._calibration is not None:
             return uncertainty
-        head_rad = np.radians(self._jig.tolerances.camera_rotation_deg)
+        jig = self._jig
+        head_rad = np.radians(jig.tolerances.camera_rotation_deg) * jig.medium.oil_refractive_index
         return with_angle_floor(uncertainty, plane.normal, math.sqrt(2.0) * head_rad)
 
     def _estimate(
