@@ -426,17 +426,7 @@ class ContactPlaneFitter:
             part_diameter_mm=part_diameter_mm,
             edge_face_depth_mm=plane_depth[outside],
         )
-        threshold = ordered.threshold_mm
-        # The contact chosen is checked with the tighter holes beside it (the choice kept the looser ones).
-        violations = contact_violations(
-            points_J,
-            used,
-            plane,
-            threshold_mm=threshold,
-            pitch_mm=self._pitch,
-            dent=dent,
-            beside_thresholds=BESIDE_HOLE_THRESHOLDS,
-        )
+        violations = self._violations_of_chosen(points_J, used, plane, ordered.threshold_mm, dent)
         estimate = self._estimate(
             observation,
             points_J,
@@ -464,6 +454,23 @@ class ContactPlaneFitter:
             dent,
             contact,
             uncertainty,
+        )
+
+    def _violations_of_chosen(
+        self, points_J: np.ndarray, used: np.ndarray, plane: PlaneFit, threshold_mm: float, dent: Indentation
+    ) -> int:
+        """The markers that contradict the contact chosen
+        (:func:`~softjig.sensing.contact.contact_violations`), with the holes beside it at
+        :data:`~softjig.sensing.contact.BESIDE_HOLE_THRESHOLDS` (the choice between contacts kept the
+        deeper ones)."""
+        return contact_violations(
+            points_J,
+            used,
+            plane,
+            threshold_mm=threshold_mm,
+            pitch_mm=self._pitch,
+            dent=dent,
+            beside_thresholds=BESIDE_HOLE_THRESHOLDS,
         )
 
     def _indentation(self, points_J: np.ndarray, ids: np.ndarray) -> Indentation:
