@@ -837,7 +837,8 @@ class ContactPlaneFitter:
         (seed 0, 25 designs x 4 frames, the 24 estimates with >= 20 markers in contact and no fiducials
         found) the error was 1.3-1.8 times the head's drawn tilt (the indices were 1.45-1.56), and the
         floor without the index covered 33 % of them at 1 sigma (73 % where the fiducials gave the
-        frame).
+        frame); with it, 64 % of the 228 such estimates of the full zoo (50 designs x 20 frames, with the
+        part's size and the reference frame).
         """
         if observation.frame.source == "fiducials" or self._calibration is not None:
             return uncertainty
