@@ -55,7 +55,8 @@ def live(
         ),
     ] = None,
     overwrite: Annotated[
-        bool, typer.Option(help="Replace an existing --record dataset or --mcap file.")
+        bool,
+        typer.Option(help="Replace an --mcap file, or a simulated --record dataset (not a recording)."),
     ] = False,
     max_frames: Annotated[
         int | None, typer.Option(min=1, help="Stop after this many captured pairs.", show_default="no limit")

@@ -312,7 +312,8 @@ class Recorder:
     jig : the nominal jig, written as ``rig.toml``.
     queue_frames : pairs waiting to be written at most.
     default_part : the ``part`` entry of frames that do not name one (cameras, given a part diameter).
-    overwrite : replace an existing dataset in ``path``.
+    overwrite : replace a dataset softjig simulated in ``path`` (never a recording:
+        :class:`~softjig.io.dataset.DatasetWriter`).
     """
 
     def __init__(
