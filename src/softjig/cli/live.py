@@ -163,7 +163,7 @@ def live(
 
     # Before the cameras open (loop.run opens them): the first pair is estimated as fast as the hundredth.
     first_pair = first_loaded_pair(cameras.dataset) if replay is not None else None
-    typer.echo(f"warmed up in {warm_up(settings, first_pair):.2f} s", err=True)
+    typer.echo(str(warm_up(loop, first_pair)), err=True)
     previous = signal.signal(signal.SIGTERM, on_sigterm)
     try:
         summary = loop.run()

@@ -36,7 +36,7 @@ import statistics
 import threading
 import time
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
@@ -595,13 +595,21 @@ class LiveLoop:
                 )
             return self._estimator
 
-    def use_reference(self, reference: ReferenceMarkers) -> None:
+    def use_reference(
+        self, reference: ReferenceMarkers, *, warm: Callable[[Any], object] | None = None
+    ) -> None:
         """Estimate against ``reference`` from the next pair on (thread-safe: the estimator is replaced
-        whole, its jig's model shared; a pair being estimated keeps the one it started with)."""
-        estimator = self.estimator()
+        whole, its jig's model shared; a pair being estimated keeps the one it started with).
+
+        ``warm`` is called with the new estimator before it replaces the one in use (a warm-up,
+        :func:`softjig.live.serve.warm_estimator`), so the first pair against it costs what later ones do.
+        """
+        replacement = self.estimator().with_reference(reference)
+        if warm is not None:
+            warm(replacement)
         with self._estimator_lock:
             self._reference = reference
-            self._estimator = estimator.with_reference(reference)
+            self._estimator = replacement
 
     @property
     def reference_source(self) -> str:
