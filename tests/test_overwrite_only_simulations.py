@@ -19,6 +19,7 @@ from softjig.config import default_jig
 from softjig.errors import InputError
 from softjig.io.cameras import ReplaySource
 from softjig.io.dataset import AS_BUILT_NAME, Dataset, DatasetWriter, is_simulation
+from softjig.io.rosbag import is_simulated_bag
 from softjig.live.loop import LiveLoop, LiveSettings, Recorder
 
 runner = CliRunner()
@@ -126,3 +127,55 @@ def test_a_simulation_whose_as_built_is_a_link_is_not_ours(small_dataset, tmp_pa
     assert not is_simulation(target)
     result = runner.invoke(app, [*SIMULATE, "--out", str(target), "--overwrite"])
     assert result.exit_code == 2 and "never a recording" in result.output
+
+
+# ------------------------------------------------------------------------------------------ bags
+
+
+def _to_bag(source: Path, bag: Path, *extra: str):
+    return runner.invoke(app, ["convert", str(source), str(bag), "--no-estimate", "--no-progress", *extra])
+
+
+def test_a_simulations_bag_is_replaced_by_overwrite(small_dataset, tmp_path):
+    bag = tmp_path / "bag"
+    assert _to_bag(small_dataset, bag).exit_code == 0
+    assert is_simulated_bag(bag)
+    assert _to_bag(small_dataset, bag, "--overwrite").exit_code == 0
+
+
+def test_overwrite_never_replaces_a_recorded_bag(small_dataset, tmp_path):
+    bag = tmp_path / "live_bag"
+    args = [
+        "live",
+        "--replay",
+        str(small_dataset),
+        "--rate",
+        "fast",
+        "--max-frames",
+        "2",
+        "--record-bag",
+        str(bag),
+    ]
+    assert runner.invoke(app, args).exit_code == 0
+    assert not is_simulated_bag(bag)
+    before = _digest(bag)
+    result = _to_bag(small_dataset, bag, "--overwrite")
+    assert result.exit_code == 2 and "never a recording" in result.output and str(bag) in result.output
+    again = runner.invoke(app, [*args, "--overwrite"])
+    assert again.exit_code == 2 and "never a recording" in again.output
+    assert _digest(bag) == before
+
+
+def test_overwrite_never_replaces_a_bag_of_a_recording_nor_one_softjig_did_not_write(small_dataset, tmp_path):
+    from test_rosbag import _images, _write_rosbags_folder
+
+    rec = _recording(tmp_path, small_dataset)
+    of_recording = tmp_path / "rec_bag"
+    assert _to_bag(rec, of_recording).exit_code == 0
+    foreign = tmp_path / "ros2_bag"
+    _write_rosbags_folder(foreign, _images(2))
+    for bag in (of_recording, foreign):
+        before = _digest(bag)
+        result = _to_bag(small_dataset, bag, "--overwrite")
+        assert result.exit_code == 2 and "never a recording" in result.output, result.output
+        assert _digest(bag) == before
