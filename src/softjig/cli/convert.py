@@ -61,7 +61,7 @@ def convert(
         ),
     ] = False,
     overwrite: Annotated[
-        bool, typer.Option(help="Replace a bag, or a simulated dataset (never a recording), in OUT.")
+        bool, typer.Option(help="Replace a simulation's bag or dataset in OUT (never a recording).")
     ] = False,
     progress: Annotated[bool, typer.Option(help="Show a progress bar on stderr.")] = True,
 ) -> None:

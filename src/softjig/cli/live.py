@@ -56,7 +56,9 @@ def live(
     ] = None,
     overwrite: Annotated[
         bool,
-        typer.Option(help="Replace an --mcap file, or a simulated --record dataset (not a recording)."),
+        typer.Option(
+            help="Replace an --mcap file, or a simulation in --record/--record-bag (never a recording)."
+        ),
     ] = False,
     max_frames: Annotated[
         int | None, typer.Option(min=1, help="Stop after this many captured pairs.", show_default="no limit")
