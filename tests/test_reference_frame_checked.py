@@ -116,3 +116,20 @@ def test_serve_refuses_it_before_serving(dataset, tmp_path):
     assert proc.returncode == 2, proc.stderr
     assert "frame 0" in message and "is loaded" in message and "--no-reference" in message
     assert "serving on" not in message
+
+
+def test_estimate_bag_refuses_it_alike(dataset, tmp_path):
+    root = _marked(dataset, tmp_path, _loaded)
+    bag = tmp_path / "bag"
+    convert = ["convert", str(root), str(bag), "--no-estimate", "--no-progress"]
+    assert runner.invoke(app, convert).exit_code == 0
+    out = tmp_path / "rows.jsonl"
+    result = runner.invoke(app, ["estimate", str(bag), "--out", str(out), "--workers", "1", "--no-progress"])
+    assert result.exit_code == 2, result.output
+    message = " ".join(result.output.split())
+    assert "the bag's pair 0 (marked reference)" in message and "is loaded" in message
+    assert "--no-reference" in message and not out.exists()
+    again = runner.invoke(
+        app, ["estimate", str(bag), "--no-reference", "--out", str(out), "--workers", "1", "--no-progress"]
+    )
+    assert again.exit_code == 0, again.output

@@ -20,6 +20,7 @@ would be compared with markers they are not.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -39,6 +40,7 @@ __all__ = [
     "REST_SHAPE",
     "check_same_rig",
     "dataset_reference",
+    "recorded_reference",
     "reference_from_pair",
     "reference_source",
 ]
@@ -172,19 +174,35 @@ def dataset_reference(
     """
     check_same_rig(dataset.jig, jig, f"the reference frame of {dataset.root}")
     for frame in dataset:
-        if not frame.reference:
-            continue
-        where = f"frame {frame.index} of {dataset.root} (marked reference)"
-        try:
-            left, right = frame.load_left(), frame.load_right()
-            return reference_from_pair(left, right, jig, estimator=estimator, where=where)
-        except InputError as exc:
-            message = (
-                str(exc).rstrip(".") if str(exc).startswith(where) else f"{where}: {str(exc).rstrip('.')}"
-            )
-            raise InputError(
-                f"{message}. The indentations would be measured against a wrong reference: fix or unmark "
-                'that frame ("reference": true in frames.jsonl), or estimate against the nominal rest shape '
-                "with --no-reference"
-            ) from None
+        if frame.reference:
+            where = f"frame {frame.index} of {dataset.root} (marked reference)"
+            return recorded_reference(frame.load_left, frame.load_right, jig, where, estimator=estimator)
     return None
+
+
+def recorded_reference(
+    load_left: Callable[[], np.ndarray],
+    load_right: Callable[[], np.ndarray],
+    jig: JigConfig,
+    where: str,
+    *,
+    estimator: Estimator | None = None,
+) -> ReferenceMarkers:
+    """The reference markers of a frame a recorder marked ``reference`` (a dataset's, a bag's), loaded
+    and checked as :func:`reference_from_pair` checks a pair given by hand.
+
+    Raises
+    ------
+    InputError
+        The frame is unreadable, not of the rig's markers, or loaded: ``where`` names it, and the message
+        offers ``--no-reference``.
+    """
+    try:
+        return reference_from_pair(load_left(), load_right(), jig, estimator=estimator, where=where)
+    except InputError as exc:
+        text = str(exc).rstrip(".")
+        message = text if text.startswith(where) else f"{where}: {text}"
+        raise InputError(
+            f"{message}. The indentations would be measured against a wrong reference: fix or unmark that "
+            'frame ("reference": true), or estimate against the nominal rest shape with --no-reference'
+        ) from None
