@@ -151,3 +151,23 @@ def test_the_report_says_what_the_zoo_frames_are(tmp_path):
         "3 random parts and poses per seed, the same for every design"
     )
     assert _simulate_command(spec, 0).startswith("softjig simulate --scenario paper-sweep --config best/")
+
+
+def test_the_docs_zoo_example_is_a_valid_study():
+    import re
+    import tomllib
+    from pathlib import Path
+
+    text = (Path(__file__).parents[1] / "docs" / "studies.md").read_text(encoding="utf-8")
+    (block,) = [b for b in re.findall(r"```toml\n(.*?)```", text, re.S) if "zoo = { count = 20 }" in b]
+    commented = "\n".join(
+        line.strip().removeprefix("# ") for line in block.splitlines() if line.strip().startswith("#")
+    )
+    narrowed = "[frames]\n" + " ".join(commented.splitlines()[1:])  # the optional form, uncommented
+    for frames in (tomllib.loads(block)["frames"], tomllib.loads(narrowed)["frames"]):
+        spec = parse_study({"study": {"name": "docs", "seeds": [0]}, "frames": frames})
+        assert len(spec.frame_specs(0)) == 21
+    assert (
+        spec.frames.zoo.canonical()
+        == parse_study({"study": {"name": "d"}, "frames": {"zoo": {"count": 20}}}).frames.zoo.canonical()
+    )  # the defaults the docs show are the zoo's
