@@ -121,3 +121,18 @@ def test_plane_fit_of_a_thin_strip_is_the_svd(width_mm):
     assert_allclose(fit.singular_values[:2], s[:2], rtol=1e-6)
     assert_allclose(fit.normal, expected, atol=1e-6)
     assert fit.rms_residual_mm == pytest.approx(s[2] / np.sqrt(len(pts)), rel=1e-6)
+
+
+def test_importing_geometry_does_not_load_numba():
+    """Poses and tilt angles are used everywhere (the config, the CLI): the compiled plane fit and hull
+    test are loaded when first called, not when geometry is imported."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, softjig.geometry as g, numpy as np\n"
+        "assert 'numba' not in sys.modules, 'numba loaded on import'\n"
+        "g.fit_plane_svd(np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0.1]]))\n"
+        "assert 'numba' in sys.modules\n"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True)

@@ -13,12 +13,15 @@ from softjig.optics import (
     backproject_pixels,
     camera_center_J,
     distort_normalized,
+    jacobian_stencil,
     point_on_ray_at_z,
+    project_point_sets,
     project_points,
     projection_jacobian,
     rays_in_top_region,
     refract_directions,
     refracted_ray_directions,
+    stencil_jacobian,
     trace_rays_through_layers,
     undistort_normalized,
 )
@@ -449,6 +452,52 @@ def test_projection_jacobian_linearises_projection():
     np.testing.assert_allclose(np.einsum("nij,nj->ni", jac, step), duv, atol=1e-5)
     with pytest.raises(ValueError, match="step_mm"):
         projection_jacobian(pts, K, DIST, T_LEFT, LAYERS, step_mm=0.0)
+
+
+def test_point_sets_project_exactly_as_one_call_per_set():
+    """Sets solved together give each set's pixels bit for bit as a call of its own (an iterate that
+    converged still moves by an ulp: each set stops when its own points converged), whatever else is in
+    the solve: points in the air, on an interface, on the axis, and an empty set."""
+    rng = np.random.default_rng(3)
+    cameras = [
+        (K, DIST, T_LEFT),
+        (K, None, T_RIGHT),
+        (K, None, pose((20.0, 5.0, -140.0), (0.02, -0.03, 0.01))),
+    ]
+    sets = [
+        (random_points(rng, 400), 0),
+        (np.array([[0.0, 0.0, 18.0]]), 1),
+        (np.array([[-15.0, 0.0, 10.0], [3.0, 1.0, 0.0], [2.0, -4.0, -50.0]]), 0),
+        (np.zeros((0, 3)), 1),
+        (random_points(rng, 7).reshape(7, 1, 3), 2),
+    ]
+    together = project_point_sets(sets, cameras, LAYERS)
+    for (points, camera), pixels in zip(sets, together, strict=True):
+        alone = project_points(points, *cameras[camera], LAYERS)
+        assert pixels.shape == alone.shape == (*np.shape(points)[:-1], 2)
+        assert np.array_equal(pixels, alone)
+    # two points converging before the 400 of the other set (solved to the end, they would move by an ulp)
+    rng = np.random.default_rng(3)
+    few, many = (random_points(rng, 2), 0), (random_points(rng, 400), 1)
+    left_right = [(K, None, T_LEFT), (K, None, T_RIGHT)]
+    assert np.array_equal(
+        project_point_sets([few, many], left_right, LAYERS)[0], project_points(few[0], *left_right[0], LAYERS)
+    )
+    with pytest.raises(ValueError, match="behind the camera"):
+        project_point_sets([sets[0], ([[-15.0, 0.0, -200.0]], 0)], cameras, LAYERS)
+    with pytest.raises(ValueError, match="region 0"):
+        project_point_sets([sets[1]], [*cameras, (K, None, pose((0.0, 0.0, -2.0)))], LAYERS)
+
+
+def test_jacobian_stencil_gives_the_projection_jacobian():
+    rng = np.random.default_rng(4)
+    pts = random_points(rng, 20)
+    stencil = jacobian_stencil(pts, 2e-3)
+    assert stencil.shape == (120, 3)
+    jac = stencil_jacobian(project_points(stencil, K, DIST, T_LEFT, LAYERS), 2e-3)
+    assert np.array_equal(jac, projection_jacobian(pts, K, DIST, T_LEFT, LAYERS, step_mm=2e-3))
+    with pytest.raises(ValueError, match="step_mm"):
+        jacobian_stencil(pts, -1.0)
 
 
 # ---------------------------------------------------------------------------------------------

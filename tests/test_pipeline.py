@@ -187,6 +187,33 @@ def test_sensing_setup_from_geometry():
     assert 140 < setup.min_disparity_px < setup.max_disparity_px < 200
 
 
+@pytest.mark.agreement
+@pytest.mark.parametrize(
+    "jig",
+    [
+        DEFAULT,
+        DEFAULT.replace(
+            plate=replace(DEFAULT.plate, thickness_mm=8.0),
+            membrane=replace(DEFAULT.membrane, dome_height_mm=12.0),
+            markers=replace(DEFAULT.markers, pitch_mm=5.0),
+        ),
+    ],
+    ids=["default", "thick plate, low dome, 5 mm pitch"],
+)
+def test_sensing_setup_projects_as_one_call_per_set(jig):
+    """The set-up's five sets of points solved together give, bit for bit, what one projection call per
+    set gives (the oracle): same detection scale, disparity window and push-depth zero."""
+    from oracles.sensing_setup import setup_projections
+
+    setup = sensing_setup(jig)
+    px_per_mm, smallest, largest, apex_z = setup_projections(jig)
+    margin = jig.sensing.disparity_margin_px
+    assert setup.marker.radius_px == 0.5 * jig.markers.diameter_mm * px_per_mm
+    assert setup.min_disparity_px == max(smallest - margin, 1.0)
+    assert setup.max_disparity_px == largest + margin
+    assert setup.rest_apex_z_mm == apex_z
+
+
 @pytest.mark.parametrize(
     ("make", "message"),
     [
@@ -264,5 +291,3 @@ def test_a_moved_fiducial_is_not_trusted(default_pair):
     est = estimate_pair(pair.left, pair.right, wrong, part_diameter_mm=50).estimate
     assert est.frame_source == "config"
     assert any("reprojecting" in w for w in est.warnings)
-
-

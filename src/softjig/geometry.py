@@ -12,7 +12,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from softjig._geometry_kernels import inside_hull, plane_fit
 from softjig.errors import InputError
 
 #: Points whose second singular value is below this ratio of the first lie on a line or a point, to
@@ -21,9 +20,6 @@ DEGENERATE_PLANE_RATIO = 1e-9
 
 #: Below this angle (rad) a rotation vector's matrix is taken from the Taylor series of Rodrigues' formula.
 ROTVEC_TAYLOR_BELOW_RAD = 1e-4
-
-# The hull test, for the compiled kernels of softjig.sensing.contact that call it by this name.
-_inside_hull_kernel = inside_hull
 
 # ------------------------------------------------------------------------------------------ poses
 
@@ -164,6 +160,8 @@ def fit_plane_svd(points_mm: np.ndarray, *, min_points: int = 3) -> PlaneFit:
     need = max(3, min_points)
     if len(pts) < need:
         raise InputError(f"plane fit needs at least {need} points, got {len(pts)}")
+    from softjig._geometry_kernels import plane_fit  # Numba is loaded on first use, not with the poses
+
     centroid, s, normal, rms = plane_fit(np.ascontiguousarray(pts), np.ones(len(pts), dtype=bool))
     if s[0] == 0 or s[1] <= DEGENERATE_PLANE_RATIO * s[0]:
         raise InputError(f"the {len(pts)} points lie on a line or a point and do not define a plane")
@@ -192,4 +190,6 @@ def inside_convex_hull_xy(hull_of_xy: np.ndarray, xy: np.ndarray, tolerance_mm: 
     """
     members = np.ascontiguousarray(hull_of_xy, dtype=float).reshape(-1, 2)
     query = np.ascontiguousarray(xy, dtype=float).reshape(-1, 2)
+    from softjig._geometry_kernels import inside_hull  # Numba is loaded on first use
+
     return inside_hull(members, query, float(tolerance_mm))

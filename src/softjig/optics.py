@@ -23,6 +23,8 @@ pixels) are accepted and results keep the leading shape.
 from __future__ import annotations
 
 import itertools
+import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import cv2
@@ -34,15 +36,18 @@ __all__ = [
     "backproject_pixels",
     "camera_center_J",
     "distort_normalized",
+    "jacobian_stencil",
     "layer_constants",
     "pixels_to_normalized",
     "point_on_ray_at_z",
+    "project_point_sets",
     "project_points",
     "projection_jacobian",
     "rays_in_top_region",
     "rays_in_top_region_normalized",
     "refract_directions",
     "refracted_ray_directions",
+    "stencil_jacobian",
     "trace_rays_through_layers",
     "undistort_normalized",
 ]
@@ -58,6 +63,8 @@ ROTATION_TOLERANCE = 1e-6
 #: OpenCV's iterative undistortion: at most this many iterations, stopping below this change
 #: (normalised coordinates).
 _CV_UNDISTORT_ITERATIONS, _CV_UNDISTORT_EPS = 50, 1e-12
+#: ``np.allclose``'s default tolerances, which the pose and intrinsics checks keep.
+_ALLCLOSE_RTOL, _ALLCLOSE_ATOL = 1e-5, 1e-8
 
 
 # --------------------------------------------------------------------------------------------------
@@ -168,12 +175,17 @@ def _check_pose(T_J_cam: ArrayLike) -> FloatArray:
     T = np.asarray(T_J_cam, dtype=float)
     if T.shape != (4, 4):
         raise ValueError(f"T_J_cam must be a 4x4 homogeneous matrix, got shape {T.shape}")
-    if not np.all(np.isfinite(T)):
+    rows = T.tolist()  # 16 numbers: Python floats check them faster than NumPy's small-array calls
+    if not all(math.isfinite(v) for row in rows for v in row):
         raise ValueError("T_J_cam must be finite")
-    if not np.allclose(T[3], (0.0, 0.0, 0.0, 1.0), atol=POSE_ROW_TOLERANCE):
+    if not all(_near(v, w, POSE_ROW_TOLERANCE) for v, w in zip(rows[3], (0.0, 0.0, 0.0, 1.0), strict=True)):
         raise ValueError(f"T_J_cam's last row must be (0, 0, 0, 1), got {T[3]}")
-    R = T[:3, :3]
-    if not np.allclose(R.T @ R, np.eye(3), atol=ROTATION_TOLERANCE) or np.linalg.det(R) <= 0:
+    R = [row[:3] for row in rows[:3]]
+    gram = [[sum(R[k][i] * R[k][j] for k in range(3)) for j in range(3)] for i in range(3)]  # R^T R
+    orthonormal = all(
+        _near(gram[i][j], float(i == j), ROTATION_TOLERANCE) for i in range(3) for j in range(3)
+    )
+    if not orthonormal or _det3(R) <= 0:
         raise ValueError("T_J_cam's rotation block must be a proper rotation (orthonormal, det +1)")
     return T
 
@@ -182,13 +194,27 @@ def _check_K(K: ArrayLike) -> FloatArray:
     Km = np.asarray(K, dtype=float)
     if Km.shape != (3, 3):
         raise ValueError(f"K must be a 3x3 intrinsic matrix, got shape {Km.shape}")
-    if not np.all(np.isfinite(Km)):
+    if not np.isfinite(Km).all():
         raise ValueError("K must be finite")
     if not (Km[0, 0] > 0 and Km[1, 1] > 0):
         raise ValueError(f"K's focal lengths must be positive, got fx={Km[0, 0]}, fy={Km[1, 1]}")
-    if Km[1, 0] != 0 or not np.allclose(Km[2], (0.0, 0.0, 1.0)):
+    last = Km[2].tolist()
+    if Km[1, 0] != 0 or not all(
+        _near(v, w, _ALLCLOSE_ATOL) for v, w in zip(last, (0.0, 0.0, 1.0), strict=True)
+    ):
         raise ValueError(f"K must be upper triangular with last row (0, 0, 1), got\n{Km}")
     return Km
+
+
+def _near(a: float, b: float, atol: float) -> bool:
+    """``np.allclose``'s test (``|a - b| <= atol + rtol |b|``, its default ``rtol``) of two numbers."""
+    return abs(a - b) <= atol + _ALLCLOSE_RTOL * abs(b)
+
+
+def _det3(R: list[list[float]]) -> float:
+    """The determinant of a 3x3 matrix (only its sign is used), by the rule of Sarrus."""
+    (a, b, c), (d, e, f), (g, h, i) = R
+    return a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
 
 
 def _check_dist(dist: ArrayLike | None) -> FloatArray:
@@ -361,36 +387,69 @@ def refracted_ray_directions(
     ValueError
         If the camera is not below all interfaces or a point coincides with the camera centre.
     """
-    c = np.asarray(camera_center_J, dtype=float).reshape(-1)
-    if c.shape != (3,) or not np.all(np.isfinite(c)):
-        raise ValueError(f"camera_center_J must be a finite 3-vector, got {camera_center_J!r}")
     p, lead = _as_vectors(points_J, 3, "points_J")
-    z_if = np.asarray(layers.interfaces_z_mm)
-    n_reg = np.asarray(layers.refractive_indices)
-    if not c[2] < z_if[0]:
+    return _directions_of_sets([_check_center(camera_center_J, layers)], [p], layers)[0].reshape(*lead, 3)
+
+
+def _check_center(camera_center_J: ArrayLike, layers: FlatLayers) -> FloatArray:
+    """A camera centre as a finite 3-vector in region 0 (ValueError otherwise)."""
+    c = np.asarray(camera_center_J, dtype=float).reshape(-1)
+    if c.shape != (3,) or not np.isfinite(c).all():
+        raise ValueError(f"camera_center_J must be a finite 3-vector, got {camera_center_J!r}")
+    z0 = layers.interfaces_z_mm[0]
+    if not c[2] < z0:
         raise ValueError(
             f"camera centre z = {c[2]} mm must lie in region 0, strictly below the lowest "
-            f"interface z = {z_if[0]} mm"
+            f"interface z = {z0} mm"
         )
+    return c
+
+
+def _directions_of_sets(
+    centers: list[FloatArray], points: list[FloatArray], layers: FlatLayers
+) -> list[FloatArray]:
+    """:func:`refracted_ray_directions` of each set of ``(M_s, 3)`` points from its camera centre
+    (checked), solved together: each set's result is the one a call of its own gives."""
+    sizes = [len(p) for p in points]
+    p = np.concatenate(points)
+    c = np.repeat(np.asarray(centers, dtype=float).reshape(-1, 3), sizes, axis=0)
     rel = p - c
-    dist = np.linalg.norm(rel, axis=1)
-    if np.any(dist == 0):
-        raise ValueError("refracted_ray_directions: a point coincides with the camera centre")
-    out = rel / dist[:, None]  # straight line (region-0 points)
-    through = p[:, 2] > z_if[0]
-    if np.any(through):
-        out[through] = _solve_layered_directions(c, rel[through], p[through, 2], z_if, n_reg)
-    return out.reshape(*lead, 3)
+    through = p[:, 2] > layers.interfaces_z_mm[0]  # the others are in region 0: straight lines
+    out = np.empty_like(rel)
+    if not through.all():
+        straight = rel[~through]
+        dist = np.linalg.norm(straight, axis=1)
+        if np.any(dist == 0):
+            raise ValueError("refracted_ray_directions: a point coincides with the camera centre")
+        out[~through] = straight / dist[:, None]
+    sets = np.repeat(np.arange(len(sizes)), sizes)
+    z_if, n_reg = np.asarray(layers.interfaces_z_mm), np.asarray(layers.refractive_indices)
+    if through.all() and len(p):
+        out = _solve_layered_directions(c[:, 2], rel, p[:, 2], z_if, n_reg, sets)
+    elif through.any():
+        solved = _solve_layered_directions(
+            c[through, 2], rel[through], p[through, 2], z_if, n_reg, sets[through]
+        )
+        out[through] = solved
+    return np.split(out, np.cumsum(sizes)[:-1])
 
 
 def _solve_layered_directions(
-    c: FloatArray, rel: FloatArray, pz: FloatArray, z_if: FloatArray, n_reg: FloatArray
+    cz: FloatArray, rel: FloatArray, pz: FloatArray, z_if: FloatArray, n_reg: FloatArray, sets: NDArray
 ) -> FloatArray:
-    """Unit initial directions of points above the first interface (refracted_ray_directions)."""
+    """Unit initial directions of points above the first interface (refracted_ray_directions), from
+    cameras at heights ``cz`` (per point), ``rel`` the points less their camera's centre.
+
+    Newton in ``t = tan`` of the ray in the lowest-index region crossed, from ``t = 0`` (see
+    :func:`refracted_ray_directions`), one NumPy operation over all points at a time. The points of a
+    set (``sets``: a set index per point) are iterated until all of them converged, then frozen: a
+    set's directions do not depend on the other sets solved with it (an iterate that converged still
+    moves by an ulp at the next step).
+    """
     # vertical distance travelled in each region, shape (R, M) (regions first: fast reductions)
-    lo = np.concatenate([[c[2]], z_if])
+    lo = np.concatenate([cz[None, :], np.broadcast_to(z_if[:, None], (len(z_if), len(cz)))])
     hi = np.concatenate([z_if, [np.inf]])
-    h = np.clip(np.minimum(pz[None, :], hi[:, None]) - lo[:, None], 0.0, None)
+    h = np.clip(np.minimum(pz[None, :], hi[:, None]) - lo, 0.0, None)
     crossed = h > 0
     n_min = np.min(np.where(crossed, n_reg[:, None], np.inf), axis=0)  # (M,)
     a = n_reg[:, None] ** 2  # (R, 1)
@@ -403,15 +462,24 @@ def _solve_layered_directions(
     # Increasing and concave in t >= 0, g(0) = -rho <= 0: Newton from t = 0 climbs monotonically.
     t = np.zeros_like(rho)
     tol = 4.0 * np.finfo(float).eps
+    n_sets = int(sets[-1]) + 1
+    active = np.ones(n_sets, dtype=bool)
     for _ in range(_NEWTON_MAX_ITER):
         inv_sq = 1.0 / np.sqrt(a + b * (t * t))
-        g = t * np.einsum("ij,ij->j", w, inv_sq) - rho
-        dg = np.einsum("ij,ij->j", wa, inv_sq * inv_sq * inv_sq)
+        g = t * _sum_over_regions(w * inv_sq) - rho
+        dg = _sum_over_regions(wa * (inv_sq * inv_sq * inv_sq))
         step = g / dg
         t_new = np.maximum(t - step, 0.0)
-        converged = np.all(np.abs(t_new - t) <= tol * t_new)
-        t = t_new
-        if converged:
+        unsettled = ~(np.abs(t_new - t) <= tol * t_new)
+        if n_sets == 1:
+            t = t_new
+            if not unsettled.any():
+                break
+            continue
+        moving = active[sets]
+        t = np.where(moving, t_new, t)
+        active &= np.bincount(sets, weights=unsettled & moving, minlength=n_sets) > 0
+        if not active.any():
             break
     # tan(theta_0) in region 0 from the invariant
     a0 = n_reg[0] ** 2
@@ -420,6 +488,16 @@ def _solve_layered_directions(
     d = np.column_stack([rel[:, 0] * scale, rel[:, 1] * scale, np.ones_like(rho)])
     d /= np.linalg.norm(d, axis=1)[:, None]
     return d
+
+
+def _sum_over_regions(terms: FloatArray) -> FloatArray:
+    """``(R, M) -> (M,)``: each point's terms added region by region, in order, whatever ``M`` (``einsum``
+    and ``sum`` add three terms in another order for one point than for many: a point's ray would
+    depend on the points solved with it)."""
+    total = terms[0].copy()
+    for row in terms[1:]:
+        total += row
+    return total
 
 
 # --------------------------------------------------------------------------------------------------
@@ -559,11 +637,53 @@ def project_points(
         If a point is behind the camera (its ray leaves the camera with ``z_cam <= 0``), or on
         invalid inputs (see :func:`refracted_ray_directions`).
     """
+    if layers is not None:
+        return project_point_sets([(points_J, 0)], [(K, dist, T_J_cam)], layers)[0]
     T = _check_pose(T_J_cam)
-    Km = _check_K(K)
-    d = _check_dist(dist)
     p, lead = _as_vectors(points_J, 3, "points_J")
-    dirs_J = p - T[:3, 3] if layers is None else refracted_ray_directions(T[:3, 3], p, layers)
+    return _pixels(p, p - T[:3, 3], _check_K(K), _check_dist(dist), T).reshape(*lead, 2)
+
+
+def project_point_sets(
+    point_sets: Sequence[tuple[ArrayLike, int]],
+    cameras: Sequence[tuple[ArrayLike, ArrayLike | None, ArrayLike]],
+    layers: FlatLayers,
+) -> list[FloatArray]:
+    """:func:`project_points` of several sets of points, each into one of the cameras, through the same
+    layers: the pixels one call per set gives, in one solve of the refracted rays.
+
+    Parameters
+    ----------
+    point_sets : ``(points_J, camera)`` per set: ``(..., 3)`` points in J (mm) and the index of their
+        camera in ``cameras``.
+    cameras : ``(K, dist, T_J_cam)`` per camera, as :func:`project_points` takes them.
+    layers : FlatLayers
+        The refracting interfaces.
+
+    Returns
+    -------
+    list of ndarray
+        Each set's pixels, shape ``(..., 2)``.
+
+    Raises
+    ------
+    ValueError
+        As :func:`project_points`.
+    """
+    checked = []
+    for K, dist, T_J_cam in cameras:
+        T = _check_pose(T_J_cam)
+        checked.append((_check_K(K), _check_dist(dist), T, _check_center(T[:3, 3], layers)))
+    sets = [(*_as_vectors(points_J, 3, "points_J"), checked[camera]) for points_J, camera in point_sets]
+    directions = _directions_of_sets([cam[3] for *_, cam in sets], [p for p, _, _ in sets], layers)
+    return [
+        _pixels(p, dirs_J, Km, d, T).reshape(*lead, 2)
+        for (p, lead, (Km, d, T, _)), dirs_J in zip(sets, directions, strict=True)
+    ]
+
+
+def _pixels(p: FloatArray, dirs_J: FloatArray, Km: FloatArray, d: FloatArray, T: FloatArray) -> FloatArray:
+    """(M, 2) pixels of the rays leaving a camera at pose ``T`` along ``dirs_J`` towards points ``p``."""
     dirs_cam = dirs_J @ T[:3, :3]  # R^T d for each row
     zc = dirs_cam[:, 2]
     if np.any(zc <= 1e-12):
@@ -576,7 +696,7 @@ def project_points(
     qd = _distort(q, d) if np.any(d) else q
     u = Km[0, 0] * qd[:, 0] + Km[0, 1] * qd[:, 1] + Km[0, 2]
     v = Km[1, 1] * qd[:, 1] + Km[1, 2]
-    return np.column_stack([u, v]).reshape(*lead, 2)
+    return np.column_stack([u, v])
 
 
 def trace_rays_through_layers(
@@ -848,11 +968,25 @@ def projection_jacobian(
     ndarray, shape (..., 2, 3)
         ``J[..., r, c] = d pixel_r / d point_c``, pixels per mm.
     """
+    _, lead = _as_vectors(points_J, 3, "points_J")
+    stencil = jacobian_stencil(points_J, step_mm)
+    return stencil_jacobian(project_points(stencil, K, dist, T_J_cam, layers), step_mm).reshape(*lead, 2, 3)
+
+
+def jacobian_stencil(points_J: ArrayLike, step_mm: float = 1e-3) -> FloatArray:
+    """The ``(6 M, 3)`` points whose projections give :func:`projection_jacobian` at ``M`` points (each
+    point moved by ``+step_mm``, then ``-step_mm``, along x, y and z): for a caller that projects them
+    with other points (:func:`project_point_sets`) and then calls :func:`stencil_jacobian`."""
     if not (np.isfinite(step_mm) and step_mm > 0):
         raise ValueError(f"step_mm must be a positive number, got {step_mm}")
-    p, lead = _as_vectors(points_J, 3, "points_J")
+    p, _ = _as_vectors(points_J, 3, "points_J")
     offsets = np.concatenate([np.eye(3), -np.eye(3)]) * step_mm  # (6, 3)
-    pts = (p[:, None, :] + offsets[None, :, :]).reshape(-1, 3)
-    uv = project_points(pts, K, dist, T_J_cam, layers).reshape(-1, 6, 2)
+    return (p[:, None, :] + offsets[None, :, :]).reshape(-1, 3)
+
+
+def stencil_jacobian(pixels: ArrayLike, step_mm: float = 1e-3) -> FloatArray:
+    """``(M, 2, 3)`` central differences of the ``(6 M, 2)`` pixels of a :func:`jacobian_stencil` with
+    the same step: ``J[m, r, c] = d pixel_r / d point_c`` (px per mm)."""
+    uv = np.asarray(pixels, dtype=float).reshape(-1, 6, 2)
     jac = (uv[:, :3, :] - uv[:, 3:, :]) / (2.0 * step_mm)  # (M, 3 [coord], 2 [pixel])
-    return np.swapaxes(jac, 1, 2).reshape(*lead, 2, 3)
+    return np.swapaxes(jac, 1, 2)

@@ -8,7 +8,7 @@ on each pair: detect, frame, match, triangulate, contact and plane. A method is 
 (:data:`COMPOSITIONS`): ``"paper"`` triangulates as through air and fits the crop under the part's base,
 ``"refractive"`` triangulates through the layers and fits the contact found from the indentation.
 
-Build one per jig and reuse it for every frame (building it costs more than estimating a frame). Nothing
+Build one per jig and reuse it for every frame (building it costs about as much as estimating one). Nothing
 is cached on the side: two estimators of one jig share nothing, and an estimator's only state that
 changes is where its frame finder last found the fiducials (which only saves time).
 """

@@ -36,7 +36,7 @@ sees it, so zero push reads zero, and stays compressed by the same factor.
 The work is done by an :class:`~softjig.sensing.estimator.Estimator`, built once from the jig and the
 method (:mod:`softjig.sensing.estimator`; its stages in :mod:`softjig.sensing.stages`, the plane fits in
 :mod:`softjig.sensing.fitting`, the result types in :mod:`softjig.sensing.results`). The functions here
-are the one-shot forms: each builds an estimator (more work than a frame), so a loop over frames builds one
+are the one-shot forms: each builds an estimator (about a frame's work), so a loop over frames builds one
 :class:`~softjig.sensing.estimator.Estimator` and calls its ``estimate`` instead.
 """
 
@@ -85,7 +85,7 @@ def estimate_pair(
 
     A one-shot :class:`~softjig.sensing.estimator.Estimator` (``Estimator(jig, method=method,
     reference=reference, calibration=calibration).estimate(left, right, ...)``): see there for the
-    parameters, results and errors. Building it costs more than a frame: a loop over
+    parameters, results and errors. Building it costs about as much as a frame: a loop over
     frames builds one estimator and calls ``estimate`` for each.
     """
     estimator = Estimator(jig, method=method, reference=reference, calibration=calibration)

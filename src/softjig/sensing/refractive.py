@@ -23,7 +23,7 @@ import numpy as np
 
 from softjig.config import CameraConfig, JigConfig
 from softjig.errors import InputError
-from softjig.optics import layer_constants, pixels_to_normalized
+from softjig.optics import FlatLayers, layer_constants, pixels_to_normalized
 from softjig.rig import flat_layers
 from softjig.sensing._refractive_kernels import PARALLEL_SIN2, triangulate
 from softjig.sensing.jigframe import JigFrame
@@ -132,8 +132,9 @@ class KernelConstants:
     ratio: np.ndarray
 
 
-def kernel_constants(jig: JigConfig) -> KernelConstants:
-    """The kernel's constants of this jig (an estimator builds them once)."""
+def kernel_constants(jig: JigConfig, layers: FlatLayers | None = None) -> KernelConstants:
+    """The kernel's constants of this jig (an estimator builds them once; ``layers``: its
+    :func:`~softjig.rig.flat_layers`, made here when not given)."""
     cams = jig.cameras.left, jig.cameras.right
     distorted = tuple(cam if np.any(cam.distortion) else None for cam in cams)
     intrinsics = np.array(
@@ -143,7 +144,7 @@ def kernel_constants(jig: JigConfig) -> KernelConstants:
         ]
     )
     intrinsics.flags.writeable = False
-    z_if, ratio, _, _ = layer_constants(flat_layers(jig))
+    z_if, ratio, _, _ = layer_constants(layers if layers is not None else flat_layers(jig))
     return KernelConstants(intrinsics, distorted, z_if, ratio)
 
 

@@ -15,7 +15,7 @@ import numpy as np
 from softjig.config import JigConfig
 from softjig.geometry import transform_points
 from softjig.jig_shape import marker_layout_xy, rest_inner_height_mm
-from softjig.optics import FlatLayers, project_points, projection_jacobian
+from softjig.optics import FlatLayers, jacobian_stencil, project_point_sets, stencil_jacobian
 from softjig.rig import flat_layers
 from softjig.sensing.contact import indentation
 from softjig.sensing.detect import DEFAULT_CANDIDATES, DEFAULT_REFINE, log_sigma_px
@@ -71,12 +71,24 @@ class SensingSetup:
 
 def sensing_setup(jig: JigConfig, layers: FlatLayers | None = None) -> SensingSetup:
     """Derive the detection scale, disparity window and push-depth reference from the nominal (rectified)
-    jig (it projects every marker through the layers: an estimator derives it once)."""
+    jig (it projects every marker into both cameras through the layers, in one solve of the refracted
+    rays: an estimator derives it once)."""
     left, right = jig.cameras.left, jig.cameras.right
     layers = layers if layers is not None else flat_layers(jig)
     apex = np.array([[0.0, 0.0, jig.membrane.dome_height_mm]])
+    # Disparities of markers anywhere between the rest membrane and the plate.
+    xy = marker_layout_xy(jig)
+    z_rest = rest_inner_height_mm(jig, xy[:, 0], xy[:, 1])
+    points = np.concatenate([np.column_stack([xy, z_rest]), np.column_stack([xy, np.zeros(len(xy))])])
+    left_pose = left.T_J_cam
+    # one solve of the refracted rays for every projection below (each set as if projected alone)
+    stencil, pl, pr, u_left, u_right = project_point_sets(
+        [(jacobian_stencil(apex), 0), (apex, 0), (apex, 1), (points, 0), (points, 1)],
+        [(cam.K, cam.distortion, pose) for cam, pose in ((left, left_pose), (right, right.T_J_cam))],
+        layers,
+    )
     # px per mm at the apex (mean singular value of the projection's Jacobian in the marker's plane)
-    jac = projection_jacobian(apex, left.K, left.distortion, left.T_J_cam, layers)[0][:, :2]
+    jac = stencil_jacobian(stencil)[0][:, :2]
     px_per_mm = float(np.mean(np.linalg.svd(jac, compute_uv=False)))
     blur_mm = jig.medium.blur_coefficient * jig.membrane.dome_height_mm**1.5
     if jig.sensing.log_sigma_px is not None:
@@ -96,18 +108,10 @@ def sensing_setup(jig: JigConfig, layers: FlatLayers | None = None) -> SensingSe
         bit_depth=jig.imaging.bit_depth,
         half_width_px=max(2, round(WINDOW_RADII * radius_px)),
     )
-    # Disparities of markers anywhere between the rest membrane and the plate.
-    xy = marker_layout_xy(jig)
-    z_rest = rest_inner_height_mm(jig, xy[:, 0], xy[:, 1])
-    points = np.concatenate([np.column_stack([xy, z_rest]), np.column_stack([xy, np.zeros(len(xy))])])
-    u_left = project_points(points, left.K, left.distortion, left.T_J_cam, layers)
-    u_right = project_points(points, right.K, right.distortion, right.T_J_cam, layers)
     disparity = u_left[:, 0] - u_right[:, 0]
     margin = jig.sensing.disparity_margin_px
     # The rest apex as the pinhole triangulation sees it: the reference of the push depth.
-    pl = project_points(apex, left.K, left.distortion, left.T_J_cam, layers)
-    pr = project_points(apex, right.K, right.distortion, right.T_J_cam, layers)
-    apex_J = transform_points(left.T_J_cam, pinhole_triangulation(pl, pr, jig))
+    apex_J = transform_points(left_pose, pinhole_triangulation(pl, pr, jig))
     return SensingSetup(
         sigma_px=float(sigma),
         threshold=jig.sensing.detection_threshold,
@@ -162,7 +166,7 @@ class JigModel:
 
     @classmethod
     def build(cls, jig: JigConfig) -> JigModel:
-        """Derive it (more than a frame's work, and the rectification's maps for a raw pair).
+        """Derive it (about a frame's work, and the rectification's maps for a raw pair).
 
         Raises
         ------
@@ -179,7 +183,7 @@ class JigModel:
             layers=layers,
             setup=sensing_setup(used, layers),
             frame=frame_constants(used),
-            triangulation=kernel_constants(used),
+            triangulation=kernel_constants(used, layers),
             rest_shape=rest_shape_reference(used),
         )
 
