@@ -474,6 +474,11 @@ def _note(design_id: int, rows: list[dict[str, Any]], paths: Sequence[str], meth
 def _simulate_command(spec: StudySpec, design_id: int) -> str:
     """The command that renders a design's study frames again (its first seed), from ``DIR``."""
     f = spec.frames
+    if f.zoo is not None:  # random frames only the study draws: the rig on the paper sweep
+        return (
+            f"softjig simulate --scenario paper-sweep --config best/{best_rig_name(design_id)} "
+            f"--seed {spec.seeds[0]}"
+        )
     if f.poses:  # the first pose (softjig simulate renders one explicit pose at a time)
         p = f.poses[0]
         return (
@@ -499,6 +504,8 @@ def _make_fronts(designs: pa.Table, points: DesignPoints, costs: Sequence[str]) 
 
 def _frames_note(spec: StudySpec) -> str:
     """What :func:`_simulate_command` renders again."""
+    if spec.frames.zoo is not None:
+        return "the paper sweep on it (its study's random zoo frames are drawn by softjig study itself)"
     if spec.frames.poses:
         return "its study's first pose (the others: their own --part-diameter, --alpha, --theta)"
     return "its study frames"
@@ -506,6 +513,14 @@ def _frames_note(spec: StudySpec) -> str:
 
 def _frames_text(f: Any) -> str:
     """What the study's frames are, in words."""
+    if f.zoo is not None:
+        r = f.zoo.ranges()
+        return (
+            f"{f.zoo.count} random parts and poses per seed, the same for every design "
+            f"({', '.join(r.part_kinds)} {r.part_size_mm[0]:g}-{r.part_size_mm[1]:g} mm across, tilted "
+            f"{r.tilt_deg[0]:g}-{r.tilt_deg[1]:g} deg towards any azimuth, up to {r.max_offset_mm:g} mm "
+            f"off-centre, pushed {r.push_mm[0]:g}-{r.push_mm[1]:g} mm)"
+        )
     if f.poses:
         return (
             f"{len(f.poses)} explicit poses of parts of diameter "
