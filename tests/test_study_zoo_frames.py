@@ -171,3 +171,26 @@ def test_the_docs_zoo_example_is_a_valid_study():
         spec.frames.zoo.canonical()
         == parse_study({"study": {"name": "d"}, "frames": {"zoo": {"count": 20}}}).frames.zoo.canonical()
     )  # the defaults the docs show are the zoo's
+
+
+def test_zoo_frames_are_grouped_in_bands_for_the_per_cell_rmse(tmp_path):
+    """Every zoo frame has its own diameter and tilt: a cell per frame would say nothing, so the cells of
+    designs.parquet are 20 mm x 5 deg bands named by their centre; a sweep's cells stay its poses."""
+    from softjig.study.results import _cells, frame_cells
+
+    zoo = _study(ZOO, tmp_path).spec
+    d = np.array([32.8213, 47.1, 41.0, 88.0])
+    a = np.array([8.84052, 6.2, 14.9, 0.3])
+    err = np.array([0.3, 0.4, 1.0, 0.2])
+    cd, ca = frame_cells(zoo, d, a)
+    assert cd.tolist() == [30.0, 50.0, 50.0, 90.0] and ca.tolist() == [7.5, 7.5, 12.5, 2.5]
+    cells, worst, worst_rmse = _cells(cd, ca, err)
+    assert [(c["diameter_mm"], c["alpha_deg"], c["n"]) for c in cells] == [
+        (30.0, 7.5, 1),
+        (50.0, 7.5, 1),
+        (50.0, 12.5, 1),
+        (90.0, 2.5, 1),
+    ]
+    assert worst == "D50 a12.5" and worst_rmse == pytest.approx(1.0)
+    sweep = _study(ZOO.replace("zoo = { count = 3 }", "diameters_mm = [40]\nalphas_deg = [5]"), tmp_path).spec
+    assert [x.tolist() for x in frame_cells(sweep, d, a)] == [d.tolist(), a.tolist()]
