@@ -2,9 +2,10 @@
 
 Run: ``python benchmarks/bench_startup.py [--runs 9] [--src PATH ...]``. Each command runs as a fresh
 process ``--runs`` times, interleaved (bare, then help and estimate of each source, bare, ...), so that a
-busy machine slows every command and source alike; the script prints each one's median wall time and
-the ratios to the bare ``python -c "import numpy, cv2, scipy.linalg"``. The goals (issue 14): ``--help``
-within 2x and a single-pair estimate within 3x of the bare imports.
+busy machine slows every command and source alike; the script prints each one's median wall time (and
+CPU time: user + system, steadier on a shared machine) and the ratios to the bare
+``python -c "import numpy, cv2, scipy.linalg"``. The goals (issue 14): ``--help`` within 2x and a
+single-pair estimate within 3x of the bare imports (wall time).
 
 ``--src`` runs the commands with ``PYTHONPATH`` set to each given source folder in turn (for example
 ``--src src /work/main/src`` to set this tree beside another); by default, the softjig importable here.
@@ -12,7 +13,9 @@ The stereo pair is one simulated default frame (``softjig simulate --scenario si
 into a temporary folder. Each source gets one untimed warm-up run of every command first, which fills
 the caches a first run builds once per machine (Numba's compiled kernels, the sub-pixel tables). Then, per
 source, the estimate's Numba share in one process (medians of a few runs): ``import numba``, the first
-kernel's load from the cache (which initialises Numba's CPU target), the other kernels' loads.
+kernel's load from the cache (which initialises Numba's CPU target), the other kernels' loads, the whole
+command in the process, and its ``finalisation``: the time from the end of its work and exit handlers until
+the process has ended (the interpreter's teardown, which ``softjig.cli.main`` skips).
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import statistics
 import subprocess
 import sys
@@ -30,32 +34,36 @@ from pathlib import Path
 BARE = [sys.executable, "-c", "import numpy, cv2, scipy.linalg"]
 SOFTJIG = [sys.executable, "-c", "from softjig.cli import main; main()"]
 # The estimate in one process with Numba's share timed: its import, then every compiled kernel loaded from
-# the cache (the first load also initialises Numba's CPU target). Prints one JSON line on stderr.
+# the cache (the first load also initialises Numba's CPU target). The figures are written by the first
+# atexit handler registered, so the last one run: when the command's work and every exit handler are done;
+# what the process spends after it (until its parent sees it end) is the interpreter's finalisation.
+# Prints one JSON line on stderr.
 BREAKDOWN = """
-import json, sys, time
-t0 = time.perf_counter()
+import atexit, json, sys, time
+t0 = time.monotonic()
 import numba
 import numba.core.caching as caching
-t1 = time.perf_counter()
+t1 = time.monotonic()
 loads = []
 original = caching.Cache.load_overload
 def load_overload(self, sig, target_context):
-    start = time.perf_counter()
+    start = time.monotonic()
     try:
         return original(self, sig, target_context)
     finally:
-        loads.append(time.perf_counter() - start)
+        loads.append(time.monotonic() - start)
 caching.Cache.load_overload = load_overload
+def report():
+    figures = {"numba import": t1 - t0, "first kernel (target init)": loads[0] if loads else 0.0}
+    figures.update({"other kernel loads": sum(loads[1:]), "kernels": len(loads)})
+    figures["in-process total"] = time.monotonic() - t0
+    figures["work_end"] = time.monotonic()
+    sys.stderr.write(json.dumps(figures) + "\\n")
+    sys.stderr.flush()
+atexit.register(report)
 from softjig.cli import main
 sys.argv = ["softjig", *sys.argv[1:]]
-try:
-    main()
-except SystemExit:
-    pass
-figures = {"numba import": t1 - t0, "first kernel (target init)": loads[0] if loads else 0.0}
-figures.update({"other kernel loads": sum(loads[1:]), "kernels": len(loads)})
-figures["in-process total"] = time.perf_counter() - t0
-sys.stderr.write(json.dumps(figures))
+main()
 """
 
 
@@ -66,24 +74,43 @@ def _env(src: str | None) -> dict[str, str]:
     return env
 
 
-def _run(argv: list[str], env: dict[str, str]) -> float:
+def _run(argv: list[str], env: dict[str, str]) -> tuple[float, float]:
+    """The wall time and the CPU time (user + system, s) of one run of ``argv``."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     start = time.perf_counter()
     done = subprocess.run(argv, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     seconds = time.perf_counter() - start
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if done.returncode != 0:
         raise SystemExit(f"{' '.join(argv[3:]) or argv}: exit {done.returncode}\n{done.stderr}")
-    return seconds
+    return seconds, after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime
+
+
+def _line(name: str, runs: list[tuple[float, float]], bare: tuple[float, float] | None = None) -> str:
+    """``name``: median wall time, its range, median CPU time, and both as multiples of ``bare``'s."""
+    wall, cpu = (statistics.median(column) for column in zip(*runs, strict=True))
+    walls = [run[0] for run in runs]
+    text = f"  {name:16s} {wall:6.3f} s  (range {max(walls) - min(walls):5.3f})  cpu {cpu:6.3f} s"
+    return text if bare is None else text + f"  {wall / bare[0]:4.1f}x bare ({cpu / bare[1]:.1f}x cpu)"
 
 
 def _breakdown(argv: list[str], env: dict[str, str], runs: int) -> dict[str, float]:
-    """Medians over ``runs`` of the :data:`BREAKDOWN` figures for ``softjig`` arguments ``argv``."""
+    """Medians over ``runs`` of the :data:`BREAKDOWN` figures for ``softjig`` arguments ``argv``, with
+    ``finalisation``: from the end of the last exit handler until the process ended (its pipes closed and
+    it was reaped; the interpreter's teardown of modules and objects, and the kernel's of the process)."""
     rows = []
     for _ in range(runs):
         argv_breakdown = [sys.executable, "-c", BREAKDOWN, *argv]
-        done = subprocess.run(
-            argv_breakdown, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, check=True
+        child = subprocess.Popen(
+            argv_breakdown, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True
         )
-        rows.append(json.loads(done.stderr.strip().splitlines()[-1]))
+        stderr = child.communicate()[1]
+        ended = time.monotonic()
+        if child.returncode != 0:
+            raise SystemExit(f"breakdown: exit {child.returncode}\n{stderr}")
+        row = json.loads(stderr.strip().splitlines()[-1])
+        row["finalisation"] = ended - row.pop("work_end")
+        rows.append(row)
     return {key: statistics.median(row[key] for row in rows) for key in rows[0]}
 
 
@@ -111,24 +138,24 @@ def main() -> None:
         for env in envs.values():  # warm-up: caches filled once per machine
             for argv in commands.values():
                 _run(argv, env)
-        bare: list[float] = []
+        bare: list[tuple[float, float]] = []
         times = {(src, name): [] for src in envs for name in commands}
         for _ in range(args.runs):  # interleaved: a busy machine slows every command and source alike
             bare.append(_run(BARE, _env(None)))
             for src, env in envs.items():
                 for name, argv in commands.items():
                     times[src, name].append(_run(argv, env))
-        bare_s = statistics.median(bare)
-        print(f"\n  bare imports      {bare_s:6.3f} s  (range {max(bare) - min(bare):5.3f})")
+        bare_s = tuple(statistics.median(column) for column in zip(*bare, strict=True))
+        print(f"  load average {' '.join(f'{x:.1f}' for x in os.getloadavg())}")
+        print("\n" + _line("bare imports", bare))
         for src in envs:
-            medians = {name: statistics.median(times[src, name]) for name in commands}
+            medians = {name: statistics.median(run[0] for run in times[src, name]) for name in commands}
             print(f"\nsoftjig from {src}")
-            for name, value in medians.items():
-                spread = max(times[src, name]) - min(times[src, name])
-                print(f"  {name:16s} {value:6.3f} s  (range {spread:5.3f})  {value / bare_s:4.1f}x bare")
+            for name in commands:
+                print(_line(name, times[src, name], bare_s))
             print(
-                f"  goals: --help {medians['softjig --help'] / bare_s:.1f}x (<= 2x), "
-                f"estimate {medians['single estimate'] / bare_s:.1f}x (<= 3x)"
+                f"  goals: --help {medians['softjig --help'] / bare_s[0]:.1f}x (<= 2x), "
+                f"estimate {medians['single estimate'] / bare_s[0]:.1f}x (<= 3x)"
             )
             parts = _breakdown(estimate[3:], envs[src], max(3, args.runs // 3))
             kernels = int(parts.pop("kernels"))

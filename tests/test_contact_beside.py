@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from softjig.geometry import fit_plane_svd, normal_from_tilt_angles
-from softjig.sensing.contact import Indentation, contact_violations, holes_beside
+from softjig.sensing.contact import BESIDE_HOLE_THRESHOLDS, Indentation, contact_violations, holes_beside
 
 PITCH = 8.0
 REST_Z = 30.0  # a flat unloaded membrane
@@ -56,9 +56,20 @@ def test_a_shallow_strip_beside_a_deeper_face_has_holes_beside():
     assert strip.sum() >= 6
     plane = fit_plane_svd(points[strip])
     beside = holes_beside(points, dent, strip, plane, threshold_mm=THRESHOLD, pitch_mm=PITCH)
-    assert beside.any() and (beside & on_face).sum() == beside.sum()  # the holes are the face's markers
+    # The holes are the face's markers and the membrane dragged down right beside the face: all pushed
+    # in deeper than any marker of the strip.
+    assert (beside & on_face).any()
+    assert dent.depth_mm[beside].min() > dent.depth_mm[strip].max()
     without = contact_violations(points, strip, plane, threshold_mm=THRESHOLD, pitch_mm=PITCH)
-    with_dent = contact_violations(points, strip, plane, threshold_mm=THRESHOLD, pitch_mm=PITCH, dent=dent)
+    with_dent = contact_violations(
+        points,
+        strip,
+        plane,
+        threshold_mm=THRESHOLD,
+        pitch_mm=PITCH,
+        dent=dent,
+        beside_thresholds=BESIDE_HOLE_THRESHOLDS,
+    )
     assert with_dent == without + int(beside.sum())
 
 

@@ -107,8 +107,9 @@ def test_strip_of_wall_on_a_zoo_design_is_suspect():
 
 def test_without_the_fiducials_sigma_carries_the_stereo_heads_rotation_tolerance(default_with_reference):
     """With the cameras' poses from the config (fiducials out of view, as on narrow-field zoo designs), a
-    stereo head rotated by its tolerance tilts the normal by as much: sigma^2 grows by 2 tol^2 (x and y),
-    and not when the fiducials measure the head, or when a calibration absorbs its offset."""
+    stereo head rotated by its tolerance tilts the normal by the oil's index times as much (the apparent
+    depth's slope, scaled back to true depth): sigma^2 grows by 2 (n_oil tol)^2 (x and y), and not when
+    the fiducials measure the head, or when a calibration absorbs its offset."""
     from dataclasses import replace
 
     jig, as_built, _ = default_with_reference
@@ -122,5 +123,8 @@ def test_without_the_fiducials_sigma_carries_the_stereo_heads_rotation_tolerance
         )
         return estimate_pair(pair.left, pair.right, rig, part_diameter_mm=50.0).estimate.tilt_sigma_deg
 
-    assert sigma("config", 0.5) ** 2 - sigma("config", 0.0) ** 2 == pytest.approx(2 * 0.5**2, rel=1e-6)
+    n_oil = jig.medium.oil_refractive_index
+    assert sigma("config", 0.5) ** 2 - sigma("config", 0.0) ** 2 == pytest.approx(
+        2 * (n_oil * 0.5) ** 2, rel=1e-6
+    )
     assert sigma("fiducials", 0.5) == sigma("fiducials", 0.0)

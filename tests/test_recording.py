@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -122,13 +123,24 @@ def test_record_overwrite_never_deletes_a_folder_of_calibration_photos(sweep, tm
     assert {p: p.read_bytes() for p in photos.rglob("*") if p.is_file()} == before
 
 
-def test_record_overwrite_replaces_an_old_recording_only_when_the_new_one_is_complete(sweep, tmp_path):
+def test_record_overwrite_replaces_an_old_simulation_only_when_the_new_recording_is_complete(sweep, tmp_path):
+    shutil.copytree(sweep.root, tmp_path / "rec")  # a simulation: it may be replaced
+    recorder = Recorder(tmp_path / "rec", sweep.jig, overwrite=True)
+    assert Dataset.open(tmp_path / "rec").has_as_built  # while recording, the old simulation is whole
+    LiveLoop(
+        ReplaySource(sweep, rate="fast"), LiveSettings(jig=sweep.jig, max_frames=2), recorder=recorder
+    ).run()
+    rec = Dataset.open(tmp_path / "rec")
+    assert len(rec) == 2 and not rec.has_as_built
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["rec"]
+
+
+def test_record_overwrite_never_replaces_a_recording(sweep, tmp_path):
     old = Recorder(tmp_path / "rec", sweep.jig)
     LiveLoop(ReplaySource(sweep, rate="fast"), LiveSettings(jig=sweep.jig, max_frames=2), recorder=old).run()
-    recorder = Recorder(tmp_path / "rec", sweep.jig, overwrite=True)
-    assert len(Dataset.open(tmp_path / "rec")) == 2  # while recording, the old recording is whole
-    LiveLoop(ReplaySource(sweep, rate="fast"), LiveSettings(jig=sweep.jig), recorder=recorder).run()
-    assert len(Dataset.open(tmp_path / "rec")) == 5
+    with pytest.raises(InputError, match=r"holds a recording.*never a recording"):
+        Recorder(tmp_path / "rec", sweep.jig, overwrite=True)
+    assert len(Dataset.open(tmp_path / "rec")) == 2
     assert sorted(p.name for p in tmp_path.iterdir()) == ["rec"]
 
 
@@ -159,12 +171,7 @@ def test_a_camera_that_cannot_be_opened_leaves_an_old_recording_in_place(sweep, 
         def close(self):
             pass
 
-    Recorder(tmp_path / "rec", sweep.jig).close()
-    LiveLoop(
-        ReplaySource(sweep, rate="fast"),
-        LiveSettings(jig=sweep.jig),
-        recorder=Recorder(tmp_path / "rec", sweep.jig, overwrite=True),
-    ).run()
+    shutil.copytree(sweep.root, tmp_path / "rec")  # an old simulation, which an overwrite may replace
     loop = LiveLoop(
         _Unplugged(),
         LiveSettings(jig=sweep.jig),
@@ -172,5 +179,5 @@ def test_a_camera_that_cannot_be_opened_leaves_an_old_recording_in_place(sweep, 
     )
     with pytest.raises(CameraError, match="unplugged"):
         loop.run()
-    assert len(Dataset.open(tmp_path / "rec")) == 5
+    assert len(Dataset.open(tmp_path / "rec")) == 5 and Dataset.open(tmp_path / "rec").has_as_built
     assert sorted(p.name for p in tmp_path.iterdir()) == ["rec"]  # and the next --overwrite may go ahead

@@ -78,13 +78,15 @@ def _write_mcap_ros2(
     skew_ns=2_000_000,
     period_ns=33_333_333,
     extra_topic=True,
+    **writer_options,
 ):
     """A single .mcap written by mcap-ros2-support (no rosbags involved); log times differ from the
-    header stamps, so pairing must use the stamps."""
+    header stamps, so pairing must use the stamps. ``writer_options``: its writer's chunk size and
+    compression."""
     from mcap_ros2.writer import Writer
 
     with open(path, "wb") as fh:
-        writer = Writer(fh)
+        writer = Writer(fh, **writer_options)
         image = writer.register_msgdef("sensor_msgs/msg/Image", IMAGE_DEF)
         string = writer.register_msgdef("std_msgs/msg/String", STRING_DEF)
         for i, (a, b) in enumerate(pairs):
@@ -168,6 +170,23 @@ def test_pairs_from_an_mcap_written_by_mcap_ros2_support(tmp_path):
         assert pair.stamp_left_ns == T0_NS + i * 33_333_333  # the header stamp, not the log time
         assert pair.stamp_right_ns - pair.stamp_left_ns == 2_000_000
         assert pair.index == i and pair.meta == {} and not pair.reference
+
+
+@pytest.mark.parametrize("compression", ["ZSTD", "LZ4", "NONE"])
+def test_pairs_from_small_chunks_of_every_compression(tmp_path, compression):
+    """The reader's own chunk parser (messages as views of the decompressed chunk): zstd, lz4 and
+    uncompressed chunks of a few messages each, pairs split across chunks, the same images back."""
+    from mcap.writer import CompressionType
+
+    pairs = _images(7, shape=(40, 56), seed=3)
+    bag = tmp_path / f"{compression.lower()}.mcap"
+    _write_mcap_ros2(bag, pairs, chunk_size=5000, compression=CompressionType[compression])
+    with BagReader(bag) as reader:
+        got = list(reader.pairs(reader.choose_topics(), tolerance_s=0.005))
+    assert len(got) == len(pairs)
+    for (a, b), pair in zip(pairs, got, strict=True):
+        np.testing.assert_array_equal(pair.left, a)
+        np.testing.assert_array_equal(pair.right, b)
 
 
 @pytest.mark.parametrize(("fmt", "storage"), [("png", "mcap"), ("jpg", "mcap"), ("png", "sqlite3")])

@@ -343,12 +343,15 @@ def test_sigterm_stops_it_cleanly_and_sends_the_pump_to_its_safe_state(service):
 # ------------------------------------------------------------------------------------- in process
 
 
-def test_warm_up_without_a_pair_renders_one_of_the_jig():
+def test_warm_up_without_a_pair_renders_one_of_the_jig(creep):
     """The cameras' path (--source): a pair of the nominal jig is rendered and estimated."""
-    from softjig.live.loop import LiveSettings
+    from softjig.io.cameras import ReplaySource
+    from softjig.live.loop import LiveLoop, LiveSettings
     from softjig.live.serve import warm_up
 
-    assert warm_up(LiveSettings(jig=default_jig(), method="refractive")) > 0
+    loop = LiveLoop(ReplaySource(creep), LiveSettings(jig=default_jig(), method="refractive"))
+    done = warm_up(loop)
+    assert done.seconds > 0 and done.estimated and done.against == "rest shape"
 
 
 def test_handle_answers_anything_without_raising(creep):

@@ -21,7 +21,6 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-import tomli_w
 from pydantic import ConfigDict, TypeAdapter, ValidationError
 
 from softjig.errors import ConfigError, InputError
@@ -1165,6 +1164,8 @@ def exact_jig(jig: JigConfig | None = None) -> JigConfig:
 
 def dumps_jig(jig: JigConfig) -> str:
     """The TOML text of a jig."""
+    import tomli_w  # only writing needs it: not imported by every command (start-up, issue 14)
+
     return tomli_w.dumps(jig_to_dict(jig))
 
 

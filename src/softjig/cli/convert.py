@@ -60,7 +60,9 @@ def convert(
             "new bag folder OUT, as `ros2 bag reindex` would; BAG is left as it is.",
         ),
     ] = False,
-    overwrite: Annotated[bool, typer.Option(help="Replace an existing bag or dataset in OUT.")] = False,
+    overwrite: Annotated[
+        bool, typer.Option(help="Replace a simulation's bag or dataset in OUT (never a recording).")
+    ] = False,
     progress: Annotated[bool, typer.Option(help="Show a progress bar on stderr.")] = True,
 ) -> None:
     """Convert a dataset to a ROS 2 bag folder (what `ros2 bag play` plays), or a bag back to a dataset."""

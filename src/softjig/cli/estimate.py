@@ -7,7 +7,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
 import typer
-from rich.console import Console
 
 from softjig.cli.app import app, handle_errors, load_config, stderr_console, warn
 from softjig.cli.choices import DEFAULT_METHOD
@@ -68,6 +67,8 @@ def _print_estimate_table(estimate: dict) -> None:
     ]
     for name, value in rows:
         table.add_row(name, value)
+    from rich.console import Console
+
     console = Console()
     console.print(table)
     for message in estimate["warnings"]:
@@ -147,9 +148,11 @@ def estimate(
     """Estimate the part's principal normal, tilt angles and push depth from a stereo pair or a dataset."""
     import json
 
-    from softjig.calibration.tilt import load_tilt_calibration
+    cal = None
+    if calibration is not None:
+        from softjig.calibration.tilt import load_tilt_calibration
 
-    cal = load_tilt_calibration(calibration, method=method.value) if calibration else None
+        cal = load_tilt_calibration(calibration, method=method.value)
     method_name = method.value
     if len(inputs) == 1:
         pair_only = {
@@ -288,6 +291,7 @@ def _estimate_dataset(
     an estimate exits 3, after writing every frame's error to ``out``."""
     import warnings
 
+    from rich.console import Console
     from rich.progress import Progress
 
     from softjig.errors import EstimationError

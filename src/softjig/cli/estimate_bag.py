@@ -123,7 +123,7 @@ def estimate_bag(
 def _lead_pairs(pairs: Iterator[BagPair], jig, *, use_reference: bool) -> tuple[list[BagPair], Any]:
     """Read the pairs up to the first loaded one; the reference frame from the first reference pair among
     them when ``use_reference`` (else ``None``)."""
-    from softjig.sensing.pipeline import reference_from_pair
+    from softjig.io.reference import recorded_reference
 
     lead = []
     reference = None
@@ -132,7 +132,8 @@ def _lead_pairs(pairs: Iterator[BagPair], jig, *, use_reference: bool) -> tuple[
         if not pair.reference:
             break
         if reference is None and use_reference:
-            reference = reference_from_pair(pair.left, pair.right, jig)
+            where = f"the bag's pair {pair.index} (marked reference)"
+            reference = recorded_reference(lambda p=pair: p.left, lambda p=pair: p.right, jig, where)
     return lead, reference
 
 

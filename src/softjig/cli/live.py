@@ -55,7 +55,10 @@ def live(
         ),
     ] = None,
     overwrite: Annotated[
-        bool, typer.Option(help="Replace an existing --record dataset or --mcap file.")
+        bool,
+        typer.Option(
+            help="Replace an --mcap file, or a simulation in --record/--record-bag (never a recording)."
+        ),
     ] = False,
     max_frames: Annotated[
         int | None, typer.Option(min=1, help="Stop after this many captured pairs.", show_default="no limit")
@@ -162,7 +165,7 @@ def live(
 
     # Before the cameras open (loop.run opens them): the first pair is estimated as fast as the hundredth.
     first_pair = first_loaded_pair(cameras.dataset) if replay is not None else None
-    typer.echo(f"warmed up in {warm_up(settings, first_pair):.2f} s", err=True)
+    typer.echo(str(warm_up(loop, first_pair)), err=True)
     previous = signal.signal(signal.SIGTERM, on_sigterm)
     try:
         summary = loop.run()

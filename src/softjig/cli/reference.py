@@ -107,7 +107,7 @@ def choose_reference(
     if from_dataset is not None:
         from softjig.io.dataset import Dataset
 
-        reference = dataset_reference(Dataset.open(from_dataset), jig, check=True)
+        reference = dataset_reference(Dataset.open(from_dataset), jig)
         if reference is None:
             raise InputError(
                 f"--reference-from {from_dataset}: the dataset has no frame marked reference (an unloaded "

@@ -95,7 +95,6 @@ def serve(
         PumpAdapter,
         ServeSettings,
         first_loaded_pair,
-        warm_up,
     )
 
     method = Method(method).value
@@ -153,7 +152,7 @@ def serve(
     previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
         if warm:  # before the cameras open: no warm-up at the robot's expense
-            typer.echo(f"warmed up in {warm_up(live, first_pair):.2f} s", err=True)
+            typer.echo(str(service.warm_up(first_pair)), err=True)
         service.start()
         typer.echo(f"serving on {service.endpoint}", err=True)
         service.serve_forever()

@@ -65,7 +65,9 @@ def simulate(
         int | None, typer.Option(min=1, help="Rendering processes.", show_default="all CPUs")
     ] = None,
     color: Annotated[bool, typer.Option(help="Render colour (RGB) images instead of gray.")] = False,
-    overwrite: Annotated[bool, typer.Option(help="Replace an existing dataset in --out.")] = False,
+    overwrite: Annotated[
+        bool, typer.Option(help="Replace a dataset softjig simulated in --out (never a recording).")
+    ] = False,
     progress: Annotated[bool, typer.Option(help="Show a progress bar on stderr.")] = True,
 ) -> None:
     """Render a simulated dataset: the paper's sweep, the cube experiment, a single frame or a jig zoo.

@@ -29,7 +29,7 @@ from typing import Any
 
 from softjig.config import JigConfig
 from softjig.errors import EstimationError, InputError
-from softjig.io.dataset import Dataset, DatasetWriter, Frame
+from softjig.io.dataset import Dataset, DatasetWriter, Frame, is_simulation
 from softjig.io.rosbag import DEFAULT_STAMP_TOLERANCE_S, BagReader, BagWriter
 
 __all__ = ["ConvertSummary", "bag_to_dataset", "dataset_to_bag", "frame_stamps_ns"]
@@ -135,7 +135,7 @@ def dataset_to_bag(
     estimator = Estimator(jig, method=method, reference=reference) if estimate else None
     n_estimated = n_failed = n_frames = 0
     notes: list[str] = []
-    with BagWriter(out, jig, overwrite=overwrite) as writer:
+    with BagWriter(out, jig, overwrite=overwrite, simulated=is_simulation(dataset.root)) as writer:
         for position, frame in enumerate(dataset.iter_frames()):
             left, right = frame.load_left(), frame.load_right()
             sl, sr = frame_stamps_ns(frame, position, start)

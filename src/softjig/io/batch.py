@@ -215,8 +215,8 @@ def _warms_up(frame: Frame, settings: BatchSettings) -> bool:
 
 
 def dataset_reference(dataset: Dataset, jig: JigConfig) -> ReferenceMarkers | None:
-    """The reference markers from the dataset's first unloaded reference frame, if it has one
-    (:func:`softjig.io.reference.dataset_reference`: a dataset of another rig is refused)."""
+    """The reference markers from the dataset's first frame marked reference, if it has one, checked to be
+    of this rig and unloaded (:func:`softjig.io.reference.dataset_reference`)."""
     from softjig.io.reference import dataset_reference as reference_of
 
     return reference_of(dataset, jig)

@@ -24,6 +24,9 @@ its files exist, so a recorder killed at any moment leaves every completed frame
 middle of the append can leave a truncated last line; :meth:`Dataset.open` skips it with a warning, as it
 does any line that is not JSON. Two frames with one index are refused.
 
+**Overwriting** (``--overwrite``) replaces only a dataset softjig simulated, recognised by its as-built
+files (:func:`is_simulation`), never a recording, and atomically (:class:`DatasetWriter`).
+
 **Paths stay inside.** ``left``, ``right`` and ``truth.markers`` are relative to the folder: an absolute
 path or one climbing out with ``..`` is refused when the dataset is opened, and a path leading out through
 a symbolic link when its file is read.
@@ -79,6 +82,7 @@ __all__ = [
     "FrameTruth",
     "encode_png",
     "is_dataset_member",
+    "is_simulation",
     "load_image",
 ]
 
@@ -180,6 +184,24 @@ def is_dataset_member(path: str | os.PathLike[str]) -> bool:
     if path.name in (RIG_NAME, FRAMES_NAME, AS_BUILT_NAME, AS_BUILT_MARKERS_NAME) and is_dataset(path.parent):
         return True
     return path.parent.name in _SUBDIRS and is_dataset(path.parent.parent)
+
+
+def is_simulation(path: str | os.PathLike[str]) -> bool:
+    """Whether the dataset folder ``path`` is one softjig simulated: it holds the as-built jig its images
+    were rendered from (``as_built.toml`` and ``as_built_markers.npz``, regular files).
+
+    That pair is the dataset's provenance: softjig writes it for simulations only (``simulate``, ``demo``,
+    every version since the first), never for a recording (``live --record``, ``convert`` from a bag, which
+    carry a replay's truth over but not its as-built jig), and a user's own dataset has no reason to hold
+    it. A simulation can be rendered again from its seed; a recording cannot, so only a simulation may be
+    replaced by an overwrite (:class:`DatasetWriter`). Per-frame ``truth`` is no such sign: a recording of
+    a replayed simulation carries it.
+    """
+    root = Path(path)
+    return all(
+        (root / name).is_file() and not (root / name).is_symlink()
+        for name in (AS_BUILT_NAME, AS_BUILT_MARKERS_NAME)
+    )
 
 
 def _same_file(a: Path, b: Path) -> bool:
@@ -824,9 +846,11 @@ class DatasetWriter:
     as_built : for simulations, the as-built jig the images come from (``as_built.toml`` and
         ``as_built_markers.npz``, for analysis only).
     overwrite : replace an existing dataset in ``path``. Without it a non-empty folder is refused. Even
-        with it, only a dataset softjig wrote is replaced: a folder without both ``rig.toml`` and
-        ``frames.jsonl``, or holding anything softjig does not write there (a calibration photo, a note:
-        see :data:`WRITTEN_BESIDE`), is refused, so a mistyped path never deletes unrelated files. The
+        with it, only a dataset softjig *simulated* is replaced (:func:`is_simulation`: it holds its
+        as-built jig): a recording (``live --record``, ``convert``, a user's own dataset) is never replaced,
+        since it cannot be made again; a folder without both ``rig.toml`` and ``frames.jsonl``, or holding
+        anything softjig does not write there (a calibration photo, a note: see :data:`WRITTEN_BESIDE`), is
+        refused too, so a mistyped path never deletes unrelated files. The
         replacement is atomic: the new dataset is written beside the old one (``path`` +
         :data:`STAGING_SUFFIX`) and swapped in by :meth:`close`; until then, and if the writer is killed,
         the old dataset stays whole (the new frames written so far stay readable in the staging folder).
@@ -884,6 +908,13 @@ class DatasetWriter:
                 raise InputError(
                     f"{final} already holds a dataset: choose another output folder or "
                     "overwrite it (--overwrite, or overwrite=True)"
+                )
+            if not is_simulation(final):
+                raise InputError(
+                    f"{final} holds a recording, not a dataset softjig simulated (it has no {AS_BUILT_NAME} "
+                    f"and {AS_BUILT_MARKERS_NAME}, which softjig writes for simulations only): --overwrite "
+                    "replaces only a simulation, never a recording (live --record, convert, your own "
+                    f"dataset); choose another output folder, or move {final} away yourself first"
                 )
             foreign = _foreign_entries(final)
             if foreign:

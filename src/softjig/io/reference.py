@@ -8,9 +8,11 @@ same way, from here:
 - a dataset's first frame marked ``reference`` (:func:`dataset_reference`: ``softjig estimate DATASET``,
   a replay in ``softjig live``/``serve``), or the reference frame of another dataset of the same rig;
 - a stereo pair of the unloaded jig (:func:`reference_from_pair`: ``--reference-left/--reference-right``,
-  the ``reference`` request of ``softjig serve``), checked like ``softjig survey`` checks its frame:
-  refused when a part seems pressed in (:func:`softjig.sensing.survey.check_unloaded`), or when too few
-  of its markers are the rig's.
+  the ``reference`` request of ``softjig serve``).
+
+Either is checked like ``softjig survey`` checks its frame: refused when a part seems pressed in
+(:func:`softjig.sensing.survey.check_unloaded`), or when too few of its markers are the rig's; a
+recorder's mark is not taken on trust.
 
 A reference of another rig (other cameras' resolution, another marker layout) is refused: its markers
 would be compared with markers they are not.
@@ -18,6 +20,7 @@ would be compared with markers they are not.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -37,6 +40,7 @@ __all__ = [
     "REST_SHAPE",
     "check_same_rig",
     "dataset_reference",
+    "recorded_reference",
     "reference_from_pair",
     "reference_source",
 ]
@@ -146,35 +150,59 @@ def reference_from_pair(
 
 
 def dataset_reference(
-    dataset: Dataset, jig: JigConfig, *, estimator: Estimator | None = None, check: bool = False
+    dataset: Dataset, jig: JigConfig, *, estimator: Estimator | None = None
 ) -> ReferenceMarkers | None:
-    """The reference markers from the dataset's first unloaded reference frame, if it has one.
+    """The reference markers from the dataset's first frame marked ``reference``, checked, if it has one.
+
+    A recorder marks the frame (``"reference": true``), but nothing proves the jig was empty then: the
+    frame is checked as a pair given by hand is (:func:`reference_from_pair`, as ``softjig survey`` and
+    serve's ``reference`` request check theirs), so a loaded or unusable frame is refused instead of
+    silently shifting every indentation measured against it. ``softjig estimate DATASET`` and a replay of
+    the dataset take it from here alike, so they agree.
 
     Parameters
     ----------
     dataset : the dataset (its ``rig.toml`` must be of the rig of ``jig``).
     jig : the nominal jig the estimates use (``--config``, or the dataset's own).
     estimator : an estimator of ``jig`` whose model to share.
-    check : also check the frame as a pair given by hand is checked (:func:`reference_from_pair`: a
-        dataset given as another recording's reference); a dataset's own frame marked ``reference`` by
-        its recorder is taken as it is.
 
     Raises
     ------
     InputError
-        The dataset is of another rig (:func:`check_same_rig`), or (``check``) its frame is not a pair of
-        the unloaded jig.
+        The dataset is of another rig (:func:`check_same_rig`), or its reference frame is unreadable, not
+        of the rig's markers, or loaded; the message names the frame and offers ``--no-reference``.
     """
-    where = f"the reference frame of {dataset.root}"
-    check_same_rig(dataset.jig, jig, where)
+    check_same_rig(dataset.jig, jig, f"the reference frame of {dataset.root}")
     for frame in dataset:
-        if not frame.reference:
-            continue
-        left, right = frame.load_left(), frame.load_right()
-        if check:
-            return reference_from_pair(left, right, jig, estimator=estimator, where=where)
-        from softjig.sensing.estimator import Estimator
-
-        probe = Estimator(jig) if estimator is None else estimator.with_reference(None)
-        return probe.reference_from_pair(left, right)
+        if frame.reference:
+            where = f"frame {frame.index} of {dataset.root} (marked reference)"
+            return recorded_reference(frame.load_left, frame.load_right, jig, where, estimator=estimator)
     return None
+
+
+def recorded_reference(
+    load_left: Callable[[], np.ndarray],
+    load_right: Callable[[], np.ndarray],
+    jig: JigConfig,
+    where: str,
+    *,
+    estimator: Estimator | None = None,
+) -> ReferenceMarkers:
+    """The reference markers of a frame a recorder marked ``reference`` (a dataset's, a bag's), loaded
+    and checked as :func:`reference_from_pair` checks a pair given by hand.
+
+    Raises
+    ------
+    InputError
+        The frame is unreadable, not of the rig's markers, or loaded: ``where`` names it, and the message
+        offers ``--no-reference``.
+    """
+    try:
+        return reference_from_pair(load_left(), load_right(), jig, estimator=estimator, where=where)
+    except InputError as exc:
+        text = str(exc).rstrip(".")
+        message = text if text.startswith(where) else f"{where}: {text}"
+        raise InputError(
+            f"{message}. The indentations would be measured against a wrong reference: fix or unmark that "
+            'frame ("reference": true), or estimate against the nominal rest shape with --no-reference'
+        ) from None

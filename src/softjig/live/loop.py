@@ -36,7 +36,7 @@ import statistics
 import threading
 import time
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
@@ -312,7 +312,8 @@ class Recorder:
     jig : the nominal jig, written as ``rig.toml``.
     queue_frames : pairs waiting to be written at most.
     default_part : the ``part`` entry of frames that do not name one (cameras, given a part diameter).
-    overwrite : replace an existing dataset in ``path``.
+    overwrite : replace a dataset softjig simulated in ``path`` (never a recording:
+        :class:`~softjig.io.dataset.DatasetWriter`).
     """
 
     def __init__(
@@ -594,13 +595,21 @@ class LiveLoop:
                 )
             return self._estimator
 
-    def use_reference(self, reference: ReferenceMarkers) -> None:
+    def use_reference(
+        self, reference: ReferenceMarkers, *, warm: Callable[[Any], object] | None = None
+    ) -> None:
         """Estimate against ``reference`` from the next pair on (thread-safe: the estimator is replaced
-        whole, its jig's model shared; a pair being estimated keeps the one it started with)."""
-        estimator = self.estimator()
+        whole, its jig's model shared; a pair being estimated keeps the one it started with).
+
+        ``warm`` is called with the new estimator before it replaces the one in use (a warm-up,
+        :func:`softjig.live.serve.warm_estimator`), so the first pair against it costs what later ones do.
+        """
+        replacement = self.estimator().with_reference(reference)
+        if warm is not None:
+            warm(replacement)
         with self._estimator_lock:
             self._reference = reference
-            self._estimator = estimator.with_reference(reference)
+            self._estimator = replacement
 
     @property
     def reference_source(self) -> str:

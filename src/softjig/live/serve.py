@@ -25,9 +25,12 @@ longer than ``max_request_bytes`` gets such a reply and the service goes on; a m
 :data:`HARD_MAX_MESSAGE_BYTES` is refused by ZeroMQ itself (``ZMQ_MAXMSGSIZE``: the sender is
 disconnected and gets no reply), so no request can exhaust the memory.
 
-**Warm before the cameras open.** The estimator runs once on a pair (a replay's first loaded frame, or a
-pair rendered from the jig) before the source is opened: the Numba kernels are loaded and the per-jig
-tables built, so the first request is answered as fast as the hundredth.
+**Warm before the cameras open.** The loop's own estimator (its method, calibration and reference) is
+built and run once on a pair (a replay's first loaded frame, or a pair rendered from the jig) before the
+source is opened (:meth:`EstimationService.warm_up`): the Numba kernels are loaded and the per-jig and
+per-reference tables built, so the first pair after start is estimated as fast as the hundredth. A
+``reference`` request warms the new estimator on that pair again before it replaces the one in use.
+``health`` says what the last warm-up ran (``"warmed_up"``).
 
 Threads: the live loop (:class:`~softjig.live.loop.LiveLoop`, which owns capture and estimation) runs in
 a background thread and posts every outcome to an :class:`OutcomeBoard`; the caller's thread answers
@@ -63,6 +66,9 @@ __all__ = [
     "OutcomeBoard",
     "PumpAdapter",
     "ServeSettings",
+    "WarmUp",
+    "rendered_warm_up_pair",
+    "warm_estimator",
     "warm_up",
 ]
 
@@ -350,37 +356,85 @@ def first_loaded_pair(dataset: Any) -> tuple[Any, Any, float | None] | None:
     return None
 
 
-def warm_up(settings: LiveSettings, pair: tuple[Any, Any, float | None] | None = None) -> float:
-    """Estimate one pair before the cameras open, so the first request costs what later ones do; returns
-    the seconds it took.
+@dataclass(frozen=True)
+class WarmUp:
+    """What a warm-up did: which estimator it ran, against what, and how long it took.
+
+    Attributes
+    ----------
+    seconds : wall time of the warm-up (s): the estimator's build, if it was not built yet, and one estimate.
+    method : the estimator's method.
+    against : what the warm-up estimate measured its indentations against (``"reference frame"``,
+        ``"rest shape"``): the estimate's own ``indentation_reference``, so it is the estimator the loop
+        uses; ``None`` for the paper's method, or when the pair gave no estimate.
+    estimated : whether the pair gave an estimate (one that did not still warmed most of the pipeline).
+    """
+
+    seconds: float
+    method: str
+    against: str | None
+    estimated: bool
+
+    def to_dict(self) -> dict[str, Any]:
+        """The ``warmed_up`` field of serve's ``health`` reply (milliseconds)."""
+        return {
+            "ms": round(1000.0 * self.seconds, 3),
+            "method": self.method,
+            "against": self.against,
+            "estimated": self.estimated,
+        }
+
+    def __str__(self) -> str:
+        against = f", against the {self.against}" if self.against else ""
+        failed = "" if self.estimated else " (its pair gave no estimate)"
+        return f"warmed up in {self.seconds:.2f} s: the {self.method} estimator{against}{failed}"
+
+
+def rendered_warm_up_pair(settings: LiveSettings) -> tuple[Any, Any, float | None]:
+    """A pair of the nominal jig to warm up on when no recorded one is at hand (cameras): a centred 50 mm
+    cylinder tilted by 5 degrees, ``(left, right, part_diameter_mm)``."""
+    from softjig.config import CylinderPart
+    from softjig.sim.asbuilt import nominal_as_built
+    from softjig.sim.parts import PartPose
+    from softjig.sim.render import render_pair
+
+    part = CylinderPart(50.0)
+    rendered = render_pair(nominal_as_built(settings.jig), part, PartPose(alpha_rad=math.radians(5.0)), 0)
+    return rendered.left, rendered.right, settings.part_diameter_mm or part.diameter_mm
+
+
+def warm_estimator(estimator: Any, settings: LiveSettings, pair: tuple[Any, Any, float | None]) -> WarmUp:
+    """Estimate ``pair`` (``(left, right, part_diameter_mm)``) once with ``estimator``; a pair that gives
+    no estimate still warms most of the pipeline, and is not an error."""
+    left, right, diameter = pair
+    t0 = time.perf_counter()
+    against = None
+    estimated = False
+    with contextlib.suppress(SoftjigError):
+        result = estimator.estimate(left, right, part_diameter_mm=settings.part_diameter_mm or diameter)
+        against, estimated = result.estimate.indentation_reference, True
+    return WarmUp(time.perf_counter() - t0, estimator.method, against, estimated)
+
+
+def warm_up(loop: LiveLoop, pair: tuple[Any, Any, float | None] | None = None) -> WarmUp:
+    """Build the loop's own estimator (with its method, calibration and reference) and estimate one pair
+    with it, before the cameras open, so the first pair after start costs what the hundredth does.
+
+    The estimator warmed is the one the loop then uses (:meth:`~softjig.live.loop.LiveLoop.estimator`),
+    not a throw-away one: a one-shot estimate would load the kernels but leave the loop's estimator, and
+    the tables of its jig and reference, to be built on the robot's first pair.
 
     ``pair`` is ``(left, right, part_diameter_mm)`` (a replay's first loaded frame); without it a pair of
-    the nominal jig is rendered (a centred 50 mm cylinder tilted by 5 degrees). A pair that gives no
-    estimate still warms most of the pipeline, and is not an error."""
-    from softjig.sensing.pipeline import estimate_pair
-
+    the nominal jig is rendered (:func:`rendered_warm_up_pair`). A settings error (the estimator cannot be
+    built) is left to each pair, as the loop reports it."""
     t0 = time.perf_counter()
-    if pair is None:
-        from softjig.config import CylinderPart
-        from softjig.sim.asbuilt import nominal_as_built
-        from softjig.sim.parts import PartPose
-        from softjig.sim.render import render_pair
-
-        part = CylinderPart(50.0)
-        rendered = render_pair(nominal_as_built(settings.jig), part, PartPose(alpha_rad=math.radians(5.0)), 0)
-        pair = (rendered.left, rendered.right, settings.part_diameter_mm or part.diameter_mm)
-    left, right, diameter = pair
-    kwargs: dict[str, Any] = {} if settings.method is None else {"method": settings.method}
-    with contextlib.suppress(SoftjigError):
-        estimate_pair(
-            left,
-            right,
-            settings.jig,
-            part_diameter_mm=settings.part_diameter_mm or diameter,
-            calibration=settings.calibration,
-            **kwargs,
-        )
-    return time.perf_counter() - t0
+    pair = rendered_warm_up_pair(loop.settings) if pair is None else pair
+    try:
+        estimator = loop.estimator()
+    except SoftjigError:
+        return WarmUp(time.perf_counter() - t0, loop.settings.method or "refractive", None, False)
+    done = warm_estimator(estimator, loop.settings, pair)
+    return dataclasses.replace(done, seconds=time.perf_counter() - t0)
 
 
 # ------------------------------------------------------------------------------------------- service
@@ -426,6 +480,8 @@ class EstimationService:
         self.source, self.live, self.settings, self.pump = source, live, settings, pump
         self.board = OutcomeBoard()
         self.loop = LiveLoop(source, live, on_outcome=self.board.post)
+        self.warmed_up: WarmUp | None = None  # the last warm-up (health's "warmed_up")
+        self._warm_pair: tuple[Any, Any, float | None] | None = None  # what a new reference is warmed on
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self.answered = 0
@@ -445,6 +501,18 @@ class EstimationService:
         self.endpoint = self._socket.getsockopt_string(zmq.LAST_ENDPOINT)
 
     # -- lifecycle
+    def warm_up(self, pair: tuple[Any, Any, float | None] | None = None) -> WarmUp:
+        """Warm the loop's estimator on ``pair`` (none: a rendered one) before :meth:`start` opens the
+        cameras (:func:`warm_up`); the pair is kept to warm the estimator of a new reference."""
+        self._warm_pair = rendered_warm_up_pair(self.live) if pair is None else pair
+        self.warmed_up = warm_up(self.loop, self._warm_pair)
+        return self.warmed_up
+
+    def _warm_new_estimator(self, estimator: Any) -> None:
+        """Warm the estimator of a new reference, before it replaces the one in use (``use_reference``)."""
+        if self._warm_pair is not None:
+            self.warmed_up = warm_estimator(estimator, self.live, self._warm_pair)
+
     def start(self) -> None:
         """Start the live loop in its thread (it opens the source)."""
 
@@ -547,6 +615,7 @@ class EstimationService:
                 settle_s=self.settings.settle_s,
                 ended=self.board.ended,
                 reference=self.loop.reference_source,
+                warmed_up=None if self.warmed_up is None else self.warmed_up.to_dict(),
             )
         if op in ("fix", "release"):
             if self.pump is None:
@@ -619,5 +688,5 @@ class EstimationService:
         except InputError as exc:
             kept = self.loop.reference_source
             return _error(f"reference refused, still estimating against the {kept}: {exc}", frame=frame)
-        self.loop.use_reference(reference)
+        self.loop.use_reference(reference, warm=self._warm_new_estimator)
         return _reply(True, reference={"source": reference.source, "markers": len(reference)}, frame=frame)

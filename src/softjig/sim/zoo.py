@@ -55,7 +55,7 @@ from softjig.rig import distortion_of, flat_layers
 from softjig.sim.parts import PartPose
 from softjig.sim.scenarios import FrameSpec, _loaded, _reference, check_reachable
 
-__all__ = ["PLATE_MATERIALS", "ZooDesign", "ZooRanges", "draw_designs"]
+__all__ = ["PLATE_MATERIALS", "ZooDesign", "ZooRanges", "draw_designs", "draw_frames"]
 
 # Refractive indices at ~589 nm of the plate materials a jig is built from.
 PLATE_MATERIALS: dict[str, float] = {"PET": 1.575, "PMMA": 1.491, "PC": 1.586, "glass": 1.517}
@@ -477,3 +477,26 @@ def _draw_frames(
         else:
             return specs, "no part fits this design"
     return specs, None
+
+
+def draw_frames(
+    jig: JigConfig, frames: int, rng: np.random.Generator, ranges: ZooRanges | None = None
+) -> list[FrameSpec]:
+    """The unloaded reference frame, then ``frames`` loaded frames of random parts and poses drawn over
+    ``ranges`` exactly as a zoo design's are (``softjig simulate --scenario zoo``), each fitting ``jig``
+    (a part that does not is redrawn). Used by design studies to test every design on the same random
+    frames.
+
+    Raises
+    ------
+    InputError
+        No part of the ranges fits ``jig`` within ``ranges.max_attempts`` draws.
+    """
+    ranges = ranges or ZooRanges()
+    specs, reason = _draw_frames(rng, jig, ranges, int(frames))
+    if reason is not None:
+        raise InputError(
+            f"no part of these ranges fits the jig within {ranges.max_attempts} draws (its size, offset, "
+            "tilt and push against the membrane and the plate); narrow them"
+        )
+    return specs

@@ -44,6 +44,7 @@ from softjig.files import write_text_atomic
 from softjig.study.best import best_rig_name, write_best_rigs
 from softjig.study.figures import DesignPoints, accuracy_plot, best_cells_plot, pareto_plot, save_png
 from softjig.study.pareto import pareto_front
+from softjig.study.results import frame_cells
 
 if TYPE_CHECKING:
     from softjig.study.spec import StudySpec
@@ -272,14 +273,17 @@ def _cost(designs: pa.Table, column: str) -> np.ndarray:
 # ------------------------------------------------------------------------------- the best design's cells
 
 
-def _failed_cells(results: pa.Table, design_id: int, method: str) -> list[tuple[float, float]]:
-    """(diameter, alpha) of each failed attempt of one design and method."""
+def _failed_cells(
+    spec: StudySpec, results: pa.Table, design_id: int, method: str
+) -> list[tuple[float, float]]:
+    """The (diameter, alpha) cell of each failed attempt of one design and method (as in ``cells``)."""
     mask = pc.and_(
         pc.and_(pc.equal(results.column("design_id"), design_id), pc.equal(results.column("method"), method)),
         pc.equal(results.column("quality"), "failed"),
     )
-    rows = results.filter(mask).select(["diameter_mm", "alpha_deg"]).to_pylist()
-    return [(r["diameter_mm"], r["alpha_deg"]) for r in rows]
+    failed = results.filter(mask)
+    d, a = frame_cells(spec, failed.column("diameter_mm").to_numpy(), failed.column("alpha_deg").to_numpy())
+    return list(zip(d.tolist(), a.tolist(), strict=True))
 
 
 def cell_grid(cells_json: str, failed: Sequence[tuple[float, float]] = ()) -> RmseGrid:
@@ -427,7 +431,12 @@ def _spec_config_for(spec: StudySpec) -> Callable[[int], JigConfig]:
 
 
 def _write_figures(
-    folder: Path, points: DesignPoints, ranked: list[dict[str, Any]], results: pa.Table, fronts: list[_Front]
+    folder: Path,
+    spec: StudySpec,
+    points: DesignPoints,
+    ranked: list[dict[str, Any]],
+    results: pa.Table,
+    fronts: list[_Front],
 ) -> list[tuple[Path, str]]:
     """Every figure of the report, written under ``folder``: ``(path, caption)`` in report order."""
     out: list[tuple[Path, str]] = []
@@ -442,7 +451,7 @@ def _write_figures(
         grids = [
             (
                 f"design {r['design_id']:03d}, {r['method']}",
-                cell_grid(r["cells"], _failed_cells(results, r["design_id"], r["method"])),
+                cell_grid(r["cells"], _failed_cells(spec, results, r["design_id"], r["method"])),
             )
             for r in best
         ]
@@ -474,6 +483,11 @@ def _note(design_id: int, rows: list[dict[str, Any]], paths: Sequence[str], meth
 def _simulate_command(spec: StudySpec, design_id: int) -> str:
     """The command that renders a design's study frames again (its first seed), from ``DIR``."""
     f = spec.frames
+    if f.zoo is not None:  # random frames only the study draws: the rig on the paper sweep
+        return (
+            f"softjig simulate --scenario paper-sweep --config best/{best_rig_name(design_id)} "
+            f"--seed {spec.seeds[0]}"
+        )
     if f.poses:  # the first pose (softjig simulate renders one explicit pose at a time)
         p = f.poses[0]
         return (
@@ -499,6 +513,8 @@ def _make_fronts(designs: pa.Table, points: DesignPoints, costs: Sequence[str]) 
 
 def _frames_note(spec: StudySpec) -> str:
     """What :func:`_simulate_command` renders again."""
+    if spec.frames.zoo is not None:
+        return "the paper sweep on it (its study's random zoo frames are drawn by softjig study itself)"
     if spec.frames.poses:
         return "its study's first pose (the others: their own --part-diameter, --alpha, --theta)"
     return "its study frames"
@@ -506,6 +522,14 @@ def _frames_note(spec: StudySpec) -> str:
 
 def _frames_text(f: Any) -> str:
     """What the study's frames are, in words."""
+    if f.zoo is not None:
+        r = f.zoo.ranges()
+        return (
+            f"{f.zoo.count} random parts and poses per seed, the same for every design "
+            f"({', '.join(r.part_kinds)} {r.part_size_mm[0]:g}-{r.part_size_mm[1]:g} mm across, tilted "
+            f"{r.tilt_deg[0]:g}-{r.tilt_deg[1]:g} deg towards any azimuth, up to {r.max_offset_mm:g} mm "
+            f"off-centre, pushed {r.push_mm[0]:g}-{r.push_mm[1]:g} mm)"
+        )
     if f.poses:
         return (
             f"{len(f.poses)} explicit poses of parts of diameter "
@@ -625,7 +649,7 @@ def write_study_outputs(
     fronts = _make_fronts(designs, points, cost_columns(designs, paths) if costs is None else costs)
     on_any = np.any([f.on for f in fronts], axis=0) if fronts else np.zeros(len(rows), bool)
     front_ids = tuple(sorted({int(i) for i in points.design_id[on_any]}))
-    figures = _write_figures(out_dir / FIGURES, points, ranked, results, fronts)
+    figures = _write_figures(out_dir / FIGURES, spec, points, ranked, results, fronts)
     rigs = write_best_rigs(
         out_dir / BEST,
         front_ids,

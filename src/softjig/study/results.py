@@ -318,8 +318,30 @@ def _median(values: np.ndarray) -> float:
     return float(np.median(values)) if len(values) else math.nan
 
 
+#: Width of a cell of random zoo frames: their diameters and tilts are all different, so they are grouped
+#: in bands (a band's centre names it: diameter 50 is 40-60 mm, tilt 7.5 is 5-10 deg).
+ZOO_CELL_DIAMETER_MM = 20.0
+ZOO_CELL_TILT_DEG = 5.0
+
+
+def frame_cells(
+    spec: StudySpec, diameter_mm: np.ndarray, alpha_deg: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The (diameter, tilt) cell of each frame: its own values for a sweep's or explicit poses, the centre
+    of its band (:data:`ZOO_CELL_DIAMETER_MM` x :data:`ZOO_CELL_TILT_DEG`) for random zoo frames."""
+    d, a = np.asarray(diameter_mm, float), np.asarray(alpha_deg, float)
+    if spec.frames.zoo is None:
+        return d, a
+    return _band_centre(d, ZOO_CELL_DIAMETER_MM), _band_centre(a, ZOO_CELL_TILT_DEG)
+
+
+def _band_centre(values: np.ndarray, width: float) -> np.ndarray:
+    return (np.floor(values / width) + 0.5) * width
+
+
 def _cells(d: np.ndarray, a: np.ndarray, err: np.ndarray) -> tuple[list[dict[str, Any]], str, float]:
-    """Per (diameter, tilt) cell: its RMSE and estimates; the worst cell's label and RMSE."""
+    """Per (diameter, tilt) cell (``d``, ``a``: each frame's, see :func:`frame_cells`): its RMSE and
+    estimates; the worst cell's label and RMSE."""
     cells = []
     worst, worst_rmse = "", math.nan
     for dv, av in sorted(set(zip(d.tolist(), a.tolist(), strict=True))):
@@ -334,7 +356,7 @@ def _cells(d: np.ndarray, a: np.ndarray, err: np.ndarray) -> tuple[list[dict[str
     return cells, worst, worst_rmse
 
 
-def _design_row(rows: dict[str, np.ndarray]) -> dict[str, Any]:
+def _design_row(spec: StudySpec, rows: dict[str, np.ndarray]) -> dict[str, Any]:
     """The aggregate columns of one design and method over its rows (numpy columns)."""
     err, sigma, quality = rows["error_deg"], rows["sigma_deg"], rows["quality"]
     n = len(err)
@@ -345,7 +367,7 @@ def _design_row(rows: dict[str, np.ndarray]) -> dict[str, Any]:
         & (err > SILENT_ERROR_DEG)
         & (err > SILENT_SIGMAS * np.nan_to_num(sigma))
     )
-    cells, worst, worst_rmse = _cells(rows["diameter_mm"], rows["alpha_deg"], err)
+    cells, worst, worst_rmse = _cells(*frame_cells(spec, rows["diameter_mm"], rows["alpha_deg"]), err)
     return {
         "n_estimates": n,
         "rmse_deg": _rmse(err),
@@ -385,7 +407,7 @@ def design_table(study: Study, results: pa.Table, complete: set[int]) -> pa.Tabl
                 continue
             design = study.designs[design_id]
             rows = {n: c[order[lo:hi]] for n, c in cols.items()}
-            row = {"design_id": design_id, "method": method, **_design_row(rows)}
+            row = {"design_id": design_id, "method": method, **_design_row(spec, rows)}
             row["marker_count"] = len(marker_layout_xy(design.jig))
             for path, value in zip(spec.paths, design.values, strict=True):
                 row[path] = value_cell(spec, path, value)

@@ -131,8 +131,9 @@ def make_tasks(study: Study) -> list[Task]:
 
 def task_inputs(study: Study, tasks: Iterable[Task]) -> Iterator[TaskInput]:
     """The inputs of ``tasks``, made as they are needed (a study of many designs is never all in memory)."""
-    specs = study.spec.frame_specs()
+    by_seed = {seed: study.spec.frame_specs(seed) for seed in study.spec.seeds}  # zoo frames: per seed
     for task in tasks:
+        specs = by_seed[task.seed]
         frames = (specs[0], *specs[1 + task.first : 1 + task.stop])
         yield TaskInput(task, study.designs[task.design_id].jig, frames, study.spec.methods)
 

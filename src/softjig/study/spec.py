@@ -15,6 +15,8 @@ the seeds and the estimation methods::
     alphas_deg = [5, 10, 20]
     theta_step_deg = 30
     push_depth_mm = 3.0            # optional
+    # or [[frames.poses]] tables (explicit poses), or random zoo frames drawn from each seed:
+    # zoo = { count = 20 }         # ranges optional: part_kinds, part_size_mm, tilt_deg, ...
     [estimate]
     methods = ["refractive"]
 
@@ -51,7 +53,7 @@ import tomllib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 import numpy as np
 from pydantic import ConfigDict, Field, TypeAdapter, ValidationError
@@ -75,6 +77,7 @@ __all__ = [
     "PoseSpec",
     "Study",
     "StudySpec",
+    "ZooFramesSpec",
     "build_designs",
     "load_study",
     "parse_study",
@@ -127,8 +130,60 @@ class PoseSpec:
     push_depth_mm: Annotated[float, Field(gt=0)] = 3.0
 
 
-#: ``[frames]`` keys of the paper sweep (exclusive with ``poses``).
+#: ``[frames]`` keys of the paper sweep (exclusive with ``poses`` and ``zoo``).
 SWEEP_KEYS = ("diameters_mm", "alphas_deg", "theta_step_deg", "push_depth_mm")
+#: Random zoo frames a study may draw per seed at most (each is rendered for every design).
+MAX_ZOO_FRAMES = 10_000
+#: ``SeedSequence(seed, spawn_key=(ZOO_FRAMES_SPAWN_KEY,))`` draws a seed's zoo frames; a task draws its
+#: as-built jig from ``spawn_key=(0,)`` and its frames' noise from ``(1, index)`` (softjig.study.run).
+ZOO_FRAMES_SPAWN_KEY = 2
+#: The zoo's part ranges a study may narrow (:class:`softjig.sim.zoo.ZooRanges`'s fields of those names).
+ZOO_PART_RANGES = ("part_kinds", "part_size_mm", "tilt_deg", "max_offset_mm", "push_mm")
+
+_Positive = Annotated[float, Field(gt=0)]
+_Tilt = Annotated[float, Field(ge=0, lt=90)]
+
+
+@dataclass(frozen=True)
+class ZooFramesSpec:
+    """Random frames as ``softjig simulate --scenario zoo`` draws a design's (:func:`softjig.sim.zoo.
+    draw_frames`): ``count`` loaded frames of cylinders, boxes and regular polygons ``part_size_mm`` across,
+    tilted by ``tilt_deg`` towards any azimuth, spun by any angle, their face's centre up to
+    ``max_offset_mm`` off the jig axis, pushed in by ``push_mm``. Unset ranges are the zoo's
+    (:class:`softjig.sim.zoo.ZooRanges`: 30-90 mm, 0-20 deg, 20 mm, 2-8 mm, all three kinds).
+
+    The frames are drawn from each study seed, fitted to the study's base jig, and are the same for every
+    design of that seed, so designs compare on equal terms."""
+
+    __pydantic_config__ = _STRICT
+    count: Annotated[int, Field(ge=1, le=MAX_ZOO_FRAMES)]
+    part_kinds: tuple[Literal["cylinder", "box", "polygon"], ...] | None = None
+    part_size_mm: tuple[_Positive, _Positive] | None = None
+    tilt_deg: tuple[_Tilt, _Tilt] | None = None
+    max_offset_mm: Annotated[float, Field(ge=0)] | None = None
+    push_mm: tuple[_Positive, _Positive] | None = None
+
+    def ranges(self) -> Any:
+        """The :class:`~softjig.sim.zoo.ZooRanges` the frames are drawn over."""
+        from softjig.sim.zoo import ZooRanges
+
+        given = {name: getattr(self, name) for name in ZOO_PART_RANGES if getattr(self, name) is not None}
+        return ZooRanges(**given)
+
+    def canonical(self) -> dict[str, Any]:
+        """The count and the effective part ranges (the zoo's where unset), JSON-ready."""
+        ranges = self.ranges()
+        return {"count": self.count, **{name: _plain(getattr(ranges, name)) for name in ZOO_PART_RANGES}}
+
+    def draw(self, jig: JigConfig, seed: int) -> list:
+        """The reference frame, then the seed's ``count`` random frames, fitted to ``jig``."""
+        from softjig.sim.zoo import draw_frames
+
+        rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(ZOO_FRAMES_SPAWN_KEY,)))
+        try:
+            return draw_frames(jig, self.count, rng, self.ranges())
+        except InputError as exc:
+            raise ConfigError(f"frames.zoo: {exc}") from None
 
 
 @dataclass(frozen=True)
@@ -136,7 +191,8 @@ class FramesSpec:
     """The poses each design is tested on: the paper sweep (:func:`softjig.sim.scenarios.paper_sweep`),
     cylinders of ``diameters_mm`` centred on the jig axis, pushed in by ``push_depth_mm`` and tilted by
     each of ``alphas_deg`` towards azimuths ``0, theta_step_deg, ...`` below 360 degrees; or, when
-    ``poses`` is given (and none of the sweep's keys), exactly those poses in their order."""
+    ``poses`` is given (and none of the sweep's keys), exactly those poses in their order; or, when
+    ``zoo`` is given (alone), random parts and poses drawn from each seed (:class:`ZooFramesSpec`)."""
 
     __pydantic_config__ = _STRICT
     diameters_mm: tuple[float, ...] = (40.0, 60.0)
@@ -144,12 +200,16 @@ class FramesSpec:
     theta_step_deg: float = 30.0
     push_depth_mm: float = 3.0
     poses: tuple[PoseSpec, ...] = ()
+    zoo: ZooFramesSpec | None = None
 
     def canonical(self) -> dict[str, Any]:
-        """JSON-ready: the poses alone when given, else the sweep (so a sweep's hash is what it was)."""
+        """JSON-ready: the poses or the zoo alone when given, else the sweep (so a sweep's hash is what it
+        was)."""
+        if self.zoo is not None:
+            return {"zoo": self.zoo.canonical()}
         if self.poses:
             return {"poses": [_plain(dataclasses.asdict(p)) for p in self.poses]}
-        return _plain({k: v for k, v in dataclasses.asdict(self).items() if k != "poses"})
+        return _plain({k: v for k, v in dataclasses.asdict(self).items() if k not in ("poses", "zoo")})
 
     def parts_and_poses(self) -> list[tuple[float, float, float, float]]:
         """``(diameter_mm, alpha_deg, theta_deg, push_depth_mm)`` of each distinct part and tilt to check
@@ -223,13 +283,16 @@ class StudySpec:
         text = json.dumps(self.canonical(), sort_keys=True, separators=(",", ":"))
         return hashlib.sha256(text.encode("utf-8")).hexdigest()
 
-    def frame_specs(self) -> list:
+    def frame_specs(self, seed: int | None = None) -> list:
         """The unloaded reference frame, then the loaded frames (:func:`~softjig.sim.scenarios.paper_sweep`
-        order: diameter, alpha, theta; or the explicit poses in their order); loaded frame ``k`` is the
-        list's ``k + 1``."""
+        order: diameter, alpha, theta; or the explicit poses in their order; or the zoo frames ``seed``
+        draws, default the first seed's); loaded frame ``k`` is the list's ``k + 1``. Only zoo frames
+        depend on the seed, and never on the design."""
         from softjig.sim.scenarios import FrameSpec, paper_sweep, single
 
         f = self.frames
+        if f.zoo is not None:
+            return f.zoo.draw(self.base, self.seeds[0] if seed is None else int(seed))
         try:
             if f.poses:
                 frames = [
@@ -251,7 +314,24 @@ def _cylinder(diameter_mm: float) -> CylinderPart:
 
 
 def _parse_frames(data: Any) -> FramesSpec:
-    """``[frames]``: the paper sweep's keys, or ``poses`` (a list of tables), not both."""
+    """``[frames]``: the paper sweep's keys, or ``poses`` (a list of tables), or ``zoo`` (a table), one."""
+    if isinstance(data, dict) and "zoo" in data:
+        given = [k for k in (*SWEEP_KEYS, "poses") if k in data]
+        if given:
+            raise ConfigError(
+                f"frames: give either zoo, poses or the paper sweep's {', '.join(SWEEP_KEYS)}, one of them "
+                f"(also given: {', '.join(given)})"
+            )
+        frames = _parse(FramesSpec, data, "frames")
+        for name in ("part_size_mm", "tilt_deg", "push_mm"):
+            bounds = getattr(frames.zoo, name)
+            if bounds is not None and bounds[0] > bounds[1]:
+                raise ConfigError(f"frames.zoo.{name}: [{bounds[0]:g}, {bounds[1]:g}] needs low <= high")
+        if frames.zoo.part_kinds is not None and not frames.zoo.part_kinds:
+            raise ConfigError(
+                "frames.zoo.part_kinds: an empty list draws no part; give cylinder, box or polygon"
+            )
+        return frames
     if isinstance(data, dict) and "poses" in data:
         given = [k for k in SWEEP_KEYS if k in data]
         if given:
@@ -651,6 +731,9 @@ def _check_frames(spec: StudySpec, jig: JigConfig, values: Sequence[Value]) -> N
     from softjig.sim.parts import PartPose
     from softjig.sim.scenarios import FrameSpec, check_reachable
 
+    if spec.frames.zoo is not None:
+        _check_zoo_frames(spec, jig, values)
+        return
     for d, a, t, depth in spec.frames.parts_and_poses():
         part = _cylinder(d)
         try:
@@ -661,6 +744,30 @@ def _check_frames(spec: StudySpec, jig: JigConfig, values: Sequence[Value]) -> N
             raise ConfigError(
                 f"frames: the {d:g} mm part does not fit the design {_where(spec, values)}: {exc}"
             ) from None
+
+
+def _check_zoo_frames(spec: StudySpec, jig: JigConfig, values: Sequence[Value]) -> None:
+    """Every seed's zoo frame (drawn to fit the base jig) fits the design's membrane and plate too."""
+    from softjig.sim.scenarios import check_reachable
+
+    for seed in spec.seeds:
+        for k, frame in enumerate(spec.frame_specs(seed)[1:]):
+            part, pose = frame.part, frame.pose
+            try:
+                validate_part(part, jig)
+                if (
+                    math.hypot(*pose.center_xy_mm) + part.circumradius_mm()
+                    >= jig.membrane.footprint_radius_mm
+                ):
+                    raise InputError("it overhangs the membrane")
+                check_reachable(jig, frame)
+            except InputError as exc:
+                raise ConfigError(
+                    f"frames.zoo: frame {k} of seed {seed} (a {part.kind} {part.diameter_mm:.0f} mm across, "
+                    f"{math.degrees(pose.alpha_rad):.1f} deg, {math.hypot(*pose.center_xy_mm):.0f} mm off "
+                    f"the axis) does not fit the design {_where(spec, values)}: {exc}; narrow "
+                    "frames.zoo.part_size_mm or max_offset_mm"
+                ) from None
 
 
 def build_designs(spec: StudySpec) -> tuple[Design, ...]:
