@@ -179,3 +179,24 @@ def test_fit_plane_matches_the_svd_of_the_points():
         )
     with pytest.raises(Exception, match="line"):
         fit_plane_svd(np.column_stack([np.arange(6.0), 2 * np.arange(6.0), np.zeros(6)]))
+
+
+@pytest.mark.parametrize("grid", ["square", "hex"])
+def test_indentation_noise_on_a_coarse_grid_is_the_markers_noise_not_the_drapes_curvature(grid):
+    """On a coarse grid (9.4 mm pitch, as zoo seed 0 design 42), a smoothly curved drape must not pass
+    for noise: the estimate stays within 25 % of the per-marker noise the heights were drawn with (the
+    mean of the nearest neighbours put ``3 pitch^2 / 8`` times the bowl's Laplacian into it: 2x)."""
+    from softjig.sensing.contact import indentation
+
+    pitch, sigma = 9.4, 0.2
+    rows = np.arange(-6, 7)
+    x, y = np.meshgrid(rows * pitch, rows * pitch * (np.sqrt(3) / 2 if grid == "hex" else 1.0))
+    if grid == "hex":
+        x = x + (rows[:, None] % 2) * pitch / 2
+    xy = np.c_[x.ravel(), y.ravel()]
+    drape = 8.0 * (1.0 - np.sum(xy**2, axis=1) / 80.0**2)  # mm: a bowl, its Laplacian -4 x 8 / 80^2
+    estimates = []
+    for seed in range(5):
+        z = -drape + np.random.default_rng(seed).normal(0.0, sigma, len(xy))
+        estimates.append(indentation(np.c_[xy, z], np.zeros(len(xy)), pitch_mm=pitch).noise_mm)
+    assert 0.75 * sigma < np.median(estimates) < 1.25 * sigma
