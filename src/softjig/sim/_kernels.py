@@ -270,38 +270,6 @@ def cast_marker_patches(
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _add_product(dst: np.ndarray, a: np.ndarray, b: np.ndarray) -> None:
-    """``dst += a * b`` over three 1-D arrays of one length (indexed from 0, so the loop vectorises)."""
-    for k in range(dst.shape[0]):
-        dst[k] += a[k] * b[k]
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _paste_row(
-    dst: np.ndarray,
-    src: np.ndarray,
-    gain: np.ndarray,
-    box_gain: np.ndarray,
-    by: int,
-    box_x0: int,
-    ox: int,
-    j0: int,
-    j1: int,
-) -> None:
-    """``dst[ox + j] += src[j] * gain[ox + j]`` for ``j0 <= j < j1`` (one patch row onto one image row), with
-    ``box_gain[by]``'s values instead of ``gain``'s over the box's columns when ``by`` is one of its rows."""
-    bh, bw = box_gain.shape
-    if 0 <= by < bh and bw > 0:
-        b0 = min(max(box_x0 - ox, j0), j1)  # the patch's columns inside the box: [b0, b1)
-        b1 = min(max(box_x0 + bw - ox, b0), j1)
-        _add_product(dst[ox + j0 : ox + b0], src[j0:b0], gain[ox + j0 : ox + b0])
-        _add_product(dst[ox + b0 : ox + b1], src[b0:b1], box_gain[by, ox + b0 - box_x0 : ox + b1 - box_x0])
-        _add_product(dst[ox + b1 : ox + j1], src[b1:j1], gain[ox + b1 : ox + j1])
-    else:
-        _add_product(dst[ox + j0 : ox + j1], src[j0:j1], gain[ox + j0 : ox + j1])
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
 def _sensor_row(
     src: np.ndarray,
     hi: np.ndarray,
@@ -362,14 +330,19 @@ def compose_sensor(
     hi, lo, offset, slope = deviates
     bh, bw = box_radiance.shape
     buf = np.empty((band_rows, w), dtype=np.float32)
+    band_gain = np.empty((band_rows, w), dtype=np.float32)  # the gain of a band that meets the box
     z = np.empty(w, dtype=np.float32)
     first = 0
     for y0 in range(0, h, band_rows):
         y1 = min(y0 + band_rows, h)
+        boxed = bw > 0 and box_y0 < y1 and y0 < box_y0 + bh
         for y in range(y0, y1):
             buf[y - y0] = base[y]
+            if boxed:
+                band_gain[y - y0] = gain[y]
             if 0 <= y - box_y0 < bh:
                 buf[y - y0, box_x0 : box_x0 + bw] = box_radiance[y - box_y0]
+                band_gain[y - y0, box_x0 : box_x0 + bw] = box_gain[y - box_y0]
         while first < n and origin[order[first], 1] + p <= y0:
             first += 1
         for k in range(first, n):
@@ -380,7 +353,13 @@ def compose_sensor(
             j0, j1 = max(0, -ox), min(p, w - ox)
             for i in range(max(0, y0 - oy), min(p, y1 - oy)):
                 y = oy + i
-                _paste_row(buf[y - y0], patches[m, i], gain[y], box_gain, y - box_y0, box_x0, ox, j0, j1)
+                row_gain = band_gain[y - y0] if boxed else gain[y]
+                # 1-D slices indexed from 0 in one loop: it vectorises (a helper splitting the row at the
+                # box's columns ran at half the speed: 2.3 against 1.1 ms a camera, 330 patches of 41 x 41 px)
+                dst, g = buf[y - y0, ox + j0 : ox + j1], row_gain[ox + j0 : ox + j1]
+                src = patches[m, i, j0:j1]
+                for j in range(dst.shape[0]):
+                    dst[j] += src[j] * g[j]
         for y in range(y0, y1):
             _sensor_row(buf[y - y0], hi[y], lo[y], z, out[y], (offset, slope), noise, out.itemsize == 1)
 
