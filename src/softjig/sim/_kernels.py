@@ -174,6 +174,59 @@ def project_refracted(
 
 
 @numba.njit(cache=True, nogil=True)
+def rays_in_top_region(
+    q: np.ndarray,
+    R: np.ndarray,
+    centre: np.ndarray,
+    heights: np.ndarray,
+    ratio: np.ndarray,
+    ratio_sq: np.ndarray,
+    layer_advance: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """Refracted rays in the top region of one camera's ideal normalised points ``q`` (``(m, 2)``): the
+    closed form of :func:`softjig.optics.rays_in_top_region_normalized`, compiled (its NumPy operations
+    took 0.25 of 0.3 ms a camera and frame on 1900 rays).
+
+    ``R`` (3x3) and ``centre`` (3) are the camera's orientation and centre in J; ``heights`` = ``(h_0,
+    z_top)``, the air below the first interface (mm, > 0) and the top interface's height; ``ratio``,
+    ``ratio_sq`` and ``layer_advance`` are :func:`softjig.optics.layer_constants`'s. Returns ``origins,
+    directions`` (``(m, 3)``, J) and a status: 0, or 1 if a ray does not go up, 2 if a ray is totally
+    reflected (the arrays are then incomplete).
+    """
+    m = q.shape[0]
+    origins = np.empty((m, 3))
+    directions = np.empty((m, 3))
+    regions = ratio_sq.shape[0]
+    h0, z_top = heights[0], heights[1]
+    for j in range(m):
+        x, y = q[j, 0], q[j, 1]
+        r0 = x * R[0, 0] + y * R[0, 1] + R[0, 2]
+        r1 = x * R[1, 0] + y * R[1, 1] + R[1, 2]
+        r2 = x * R[2, 0] + y * R[2, 1] + R[2, 2]
+        norm = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
+        r0, r1, r2 = r0 / norm, r1 / norm, r2 / norm
+        if not r2 > 0.0:
+            return origins, directions, 1
+        sin2 = r0 * r0 + r1 * r1
+        advance = h0 / r2
+        cos_top = 1.0
+        for k in range(regions):
+            cos2 = 1.0 - ratio_sq[k] * sin2
+            if not cos2 > 0.0:
+                return origins, directions, 2
+            cos_top = math.sqrt(cos2)
+            if k < layer_advance.shape[0]:
+                advance += layer_advance[k] / cos_top
+        origins[j, 0] = centre[0] + r0 * advance
+        origins[j, 1] = centre[1] + r1 * advance
+        origins[j, 2] = z_top
+        directions[j, 0] = r0 * ratio[-1]
+        directions[j, 1] = r1 * ratio[-1]
+        directions[j, 2] = cos_top
+    return origins, directions, 0
+
+
+@numba.njit(cache=True, nogil=True)
 def cast_marker_patches(
     du: np.ndarray,
     dv: np.ndarray,
