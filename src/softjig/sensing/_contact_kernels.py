@@ -18,10 +18,14 @@ LARGEST = float(np.finfo(float).max)
 HULL_TOLERANCE_MM = 1e-9
 #: The fewest finite markers, and the fewest with neighbours, for the neighbour noise of ``indentation``.
 MIN_NOISE_MARKERS = 10
-#: The neighbours averaged for the neighbour noise: a square grid's 4 edge and 4 diagonal neighbours.
-NEAREST_NEIGHBOURS = 8
-#: The fewest neighbours a marker needs for its residual to count.
-MIN_NEIGHBOURS = 3
+#: The terms of the quadratic surface fitted to a marker's neighbours for the neighbour noise.
+QUADRATIC_TERMS = 6
+#: The fewest neighbours a marker needs for its residual to count: the quadratic's terms and as many
+#: again, so that one outlying neighbour cannot be fitted exactly.
+MIN_QUADRATIC_NEIGHBOURS = 2 * QUADRATIC_TERMS
+#: The largest variance of the quadratic's prediction, in units of one marker's, for the residual to
+#: count: a marker at the grid's edge, whose neighbours lie to one side, is extrapolated to, not fitted.
+MAX_PREDICTION_VARIANCE = 1.0
 #: The median absolute deviation of a Gaussian times this is its standard deviation.
 MAD_TO_SIGMA = 1.4826
 #: The smallest noise reported (mm): a perfect simulation's zero noise would make every threshold zero.
@@ -77,20 +81,25 @@ def grid_cells(xy: np.ndarray, radius: float):
 
 
 @numba.njit(cache=True)
-def neighbour_residuals(xy: np.ndarray, raw: np.ndarray, radius: float, k_max: int) -> tuple[np.ndarray, int]:
-    """For each point with at least 3 others closer than ``radius`` (at most its ``k_max`` nearest):
-    its value minus their mean, over ``sqrt(1 + 1/k)``; the first ``count`` entries, in point order.
+def quadratic_residuals(xy: np.ndarray, raw: np.ndarray, radius: float) -> tuple[np.ndarray, int]:
+    """For each point with enough others closer than ``radius`` (:data:`MIN_QUADRATIC_NEIGHBOURS`, around
+    it well enough that the fit's prediction is no noisier than the point, :data:`MAX_PREDICTION_VARIANCE`):
+    its value minus a quadratic surface least-squares fitted to theirs, evaluated at the point, over
+    ``sqrt(1 + v)`` (``v``: the prediction's variance in units of one point's); the first ``count``
+    entries, in point order.
 
+    A quadratic follows the drape's curvature, which the mean of the nearest neighbours does not (its
+    residual carries ``pitch^2 / 4`` times the field's Laplacian, as large as the noise on a coarse grid).
     The points are binned into square cells of side ``radius``, so each one's neighbours lie in its own
-    and the 8 adjacent cells (half the candidates of a sweep along ``x``, measured 2x faster).
+    and the 8 adjacent cells.
     """
     n = xy.shape[0]
     cx, cy, nx, ny, start, members = grid_cells(xy, radius)
     r2 = radius * radius
     residual = np.empty(n)
     count = 0
-    d2s = np.empty(n)
-    idx = np.empty(n, dtype=np.int64)
+    design = np.empty((n, QUADRATIC_TERMS))
+    values = np.empty(n)
     for i in range(n):
         m = 0
         for gx in range(max(cx[i] - 1, 0), min(cx[i] + 2, nx)):
@@ -101,23 +110,24 @@ def neighbour_residuals(xy: np.ndarray, raw: np.ndarray, radius: float, k_max: i
                     if j == i:
                         continue
                     dx, dy = xy[j, 0] - xy[i, 0], xy[j, 1] - xy[i, 1]
-                    d2 = dx * dx + dy * dy
-                    if d2 < r2:
-                        d2s[m] = d2
-                        idx[m] = j
+                    if dx * dx + dy * dy < r2:
+                        u, w = dx / radius, dy / radius  # scaled to the radius: a well-conditioned fit
+                        design[m, 0], design[m, 1], design[m, 2] = 1.0, u, w
+                        design[m, 3], design[m, 4], design[m, 5] = u * u, u * w, w * w
+                        values[m] = raw[j]
                         m += 1
-        if m < MIN_NEIGHBOURS:
+        if m < MIN_QUADRATIC_NEIGHBOURS:
             continue
-        total = 0.0
-        if m > k_max:
-            nearest = np.argsort(d2s[:m], kind="mergesort")[:k_max]
-            for q in nearest:
-                total += raw[idx[q]]
-            m = k_max
-        else:
-            for q in range(m):
-                total += raw[idx[q]]
-        residual[count] = (raw[i] - total / m) / np.sqrt(1.0 + 1.0 / m)
+        a = design[:m]
+        normal = a.T @ a
+        unit = np.zeros(QUADRATIC_TERMS)
+        unit[0] = 1.0
+        row = np.linalg.solve(normal, unit)  # (A^T A)^-1 e0: the prediction's weights are A @ row
+        variance = row[0]
+        if not (0.0 < variance <= MAX_PREDICTION_VARIANCE):
+            continue
+        prediction = row @ (a.T @ values[:m])
+        residual[count] = (raw[i] - prediction) / np.sqrt(1.0 + variance)
         count += 1
     return residual, count
 
@@ -161,7 +171,7 @@ def indentation(
         if finite[i]:
             xy[k, 0], xy[k, 1], raw_finite[k] = points[i, 0], points[i, 1], raw[i]
             k += 1
-    residual, enough = neighbour_residuals(xy, raw_finite, radius, NEAREST_NEIGHBOURS)
+    residual, enough = quadratic_residuals(xy, raw_finite, radius)
     if enough < MIN_NOISE_MARKERS:
         return raw, 0.0, NO_NOISE
     noise = max(MAD_TO_SIGMA * np.median(np.abs(residual[:enough])), NOISE_FLOOR_MM)

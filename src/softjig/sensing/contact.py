@@ -59,6 +59,10 @@ HOLE_THRESHOLDS = 2.0
 BESIDE_HOLE_THRESHOLDS = 1.5
 #: A marker's neighbours lie within this many marker pitches (a square grid's 8 nearest).
 NEIGHBOUR_RADIUS_PITCHES = 1.5
+#: The indentation noise is measured against a quadratic fitted to the markers within this many pitches
+#: (a square grid's 20 nearest, a hexagonal grid's 18: two rings, which a quadratic needs, since the
+#: first ring alone cannot tell the field's curvature from the marker's own noise).
+NOISE_RADIUS_PITCHES = 2.5
 #: The steepest plausible contact plane (deg): no part pressed into a soft jig stands steeper.
 MAX_TILT_DEG = 45.0
 #: Violations of a contact's plane that noise explains: at least this many ...
@@ -107,12 +111,15 @@ def indentation(
 
     Notes
     -----
-    Noise: the indentation field is smooth (planar under a face, a gently curved drape around it, flat at
-    rest), so a marker's indentation minus the mean of its neighbours' (within 1.5 pitches) is noise,
-    of variance ``sigma^2 (1 + 1 / k)`` for ``k`` neighbours, except at the few kinks (the contact's
-    edge), which a median ignores. Without the pitch, the noise is the spread of the markers indented
-    less than the median, which assumes that at least half the markers are at rest: a part that drags
-    most of the membrane down (80 mm at 20 deg) inflates it two- to three-fold.
+    Noise: the indentation field is smooth (planar under a face, a curved drape around it, flat at
+    rest), so a marker's indentation minus a quadratic least-squares fitted to its neighbours' (within
+    2.5 pitches, :data:`NOISE_RADIUS_PITCHES`) is noise, of variance ``sigma^2 (1 + v)`` for the fit's
+    prediction variance ``v sigma^2``, except near the few kinks (the contact's edge), which a median
+    ignores. The mean of the 8 nearest neighbours instead carries ``3 pitch^2 / 8`` times the drape's
+    Laplacian, as large as the noise on a coarse (9.4 mm) grid. Without the pitch, the noise is the
+    spread of the markers indented less than the median, which assumes that at least half the markers
+    are at rest: a part that drags most of the membrane down (80 mm at 20 deg) inflates it two- to
+    three-fold.
     Zero: the median raw indentation of the markers within 2.5 sigma of it (iterated from the median of
     all), which also absorbs a uniform depth bias of an imperfectly calibrated camera pair.
     """
@@ -120,7 +127,7 @@ def indentation(
         depth, zero, noise = kernels.indentation(
             np.ascontiguousarray(points_J, dtype=float),
             np.ascontiguousarray(reference_z_mm, dtype=float),
-            NEIGHBOUR_RADIUS_PITCHES * pitch_mm,
+            NOISE_RADIUS_PITCHES * pitch_mm,
         )
         if noise > 0:
             return Indentation(depth, float(zero), float(noise))
