@@ -98,9 +98,14 @@ def quadratic_residuals(xy: np.ndarray, raw: np.ndarray, radius: float) -> tuple
     r2 = radius * radius
     residual = np.empty(n)
     count = 0
-    design = np.empty((n, QUADRATIC_TERMS))
-    values = np.empty(n)
+    normal = np.empty((QUADRATIC_TERMS, QUADRATIC_TERMS))
+    rhs = np.empty(QUADRATIC_TERMS)
+    term = np.empty(QUADRATIC_TERMS)
     for i in range(n):
+        # The normal equations A^T A, A^T z summed neighbour by neighbour, solved by a 6x6 Cholesky:
+        # NumPy's matmul and solve on each marker's small arrays cost 3x more (BLAS/LAPACK calls, copies).
+        normal[:] = 0.0
+        rhs[:] = 0.0
         m = 0
         for gx in range(max(cx[i] - 1, 0), min(cx[i] + 2, nx)):
             for gy in range(max(cy[i] - 1, 0), min(cy[i] + 2, ny)):
@@ -112,24 +117,60 @@ def quadratic_residuals(xy: np.ndarray, raw: np.ndarray, radius: float) -> tuple
                     dx, dy = xy[j, 0] - xy[i, 0], xy[j, 1] - xy[i, 1]
                     if dx * dx + dy * dy < r2:
                         u, w = dx / radius, dy / radius  # scaled to the radius: a well-conditioned fit
-                        design[m, 0], design[m, 1], design[m, 2] = 1.0, u, w
-                        design[m, 3], design[m, 4], design[m, 5] = u * u, u * w, w * w
-                        values[m] = raw[j]
+                        term[0], term[1], term[2], term[3], term[4], term[5] = 1.0, u, w, u * u, u * w, w * w
+                        for p in range(QUADRATIC_TERMS):
+                            rhs[p] += term[p] * raw[j]
+                            for q in range(p + 1):
+                                normal[p, q] += term[p] * term[q]
                         m += 1
-        if m < MIN_QUADRATIC_NEIGHBOURS:
+        if m < MIN_QUADRATIC_NEIGHBOURS or not _cholesky_in_place(normal):
             continue
-        a = design[:m]
-        normal = a.T @ a
-        unit = np.zeros(QUADRATIC_TERMS)
-        unit[0] = 1.0
-        row = np.linalg.solve(normal, unit)  # (A^T A)^-1 e0: the prediction's weights are A @ row
-        variance = row[0]
+        # (A^T A)^-1 e0 and (A^T A)^-1 A^T z: the prediction's variance (its first entry, in units of one
+        # point's) and the fitted coefficients (the first is the quadratic's value at the point).
+        variance = _cholesky_solve(normal, np.eye(QUADRATIC_TERMS)[0])[0]
         if not (0.0 < variance <= MAX_PREDICTION_VARIANCE):
             continue
-        prediction = row @ (a.T @ values[:m])
+        prediction = _cholesky_solve(normal, rhs)[0]
         residual[count] = (raw[i] - prediction) / np.sqrt(1.0 + variance)
         count += 1
     return residual, count
+
+
+@numba.njit(cache=True)
+def _cholesky_in_place(a: np.ndarray) -> bool:
+    """Overwrite the lower triangle of the symmetric ``a`` (only its lower triangle is read) with its
+    Cholesky factor ``L`` (``a = L L^T``); ``False`` if ``a`` is not positive definite (the neighbours do
+    not determine a quadratic: too few, or on a line)."""
+    k = a.shape[0]
+    for j in range(k):
+        d = a[j, j]
+        for t in range(j):
+            d -= a[j, t] * a[j, t]
+        if not d > 0.0:
+            return False
+        a[j, j] = np.sqrt(d)
+        for r in range(j + 1, k):
+            v = a[r, j]
+            for t in range(j):
+                v -= a[r, t] * a[j, t]
+            a[r, j] = v / a[j, j]
+    return True
+
+
+@numba.njit(cache=True)
+def _cholesky_solve(factor: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``x`` with ``L L^T x = b``, ``L`` the lower triangle of ``factor`` (:func:`_cholesky_in_place`)."""
+    k = factor.shape[0]
+    x = b.copy()
+    for r in range(k):  # L y = b
+        for t in range(r):
+            x[r] -= factor[r, t] * x[t]
+        x[r] /= factor[r, r]
+    for r in range(k - 1, -1, -1):  # L^T x = y
+        for t in range(r + 1, k):
+            x[r] -= factor[t, r] * x[t]
+        x[r] /= factor[r, r]
+    return x
 
 
 @numba.njit(cache=True)
