@@ -21,7 +21,7 @@ import softjig.sim.membrane as membrane
 import softjig.sim.render as render
 from render_golden import CASES, SEED, small_jig
 from softjig.config import CylinderPart, default_jig
-from softjig.optics import project_points
+from softjig.optics import project_points, rays_in_top_region
 from softjig.rig import distortion_of, flat_layers
 from softjig.sim import _kernels
 from softjig.sim.asbuilt import draw_as_built
@@ -170,18 +170,37 @@ def test_rest_heights_held_once_give_the_same_membrane():
         deform(jig, as_built.marker_xy_mm[:-1], PART, POSE.T_J_part(jig), rest=rest)
 
 
-def test_membrane_envelope_kernel_matches_numpy():
-    rng = np.random.default_rng(0)
+@pytest.mark.parametrize("contacts", [1, 7, 8, 9, 300])  # chunks of 8 contacts: partial, whole, several
+def test_membrane_envelope_kernel_matches_numpy(contacts):
+    rng = np.random.default_rng(contacts)
     q = rng.uniform(-60, 60, (500, 2)).astype(np.float32)
-    c = rng.uniform(-25, 25, (300, 2)).astype(np.float32)
-    log_depth = np.log(rng.uniform(0.01, 3.0, 300)).astype(np.float32)
-    inverse_decay = (1.0 / rng.uniform(5.0, 12.0, 300)).astype(np.float32)
+    c = rng.uniform(-25, 25, (contacts, 2)).astype(np.float32)
+    log_depth = np.log(rng.uniform(0.01, 3.0, contacts)).astype(np.float32)
+    inverse_decay = (1.0 / rng.uniform(5.0, 12.0, contacts)).astype(np.float32)
     d = np.hypot(q[:, None, 0] - c[None, :, 0], q[:, None, 1] - c[None, :, 1])
     want = np.max(log_depth - d * inverse_decay, axis=1)
     got = _kernels.log_envelope(
         q[:, 0].copy(), q[:, 1].copy(), c[:, 0].copy(), c[:, 1].copy(), log_depth, inverse_decay
     )
     np.testing.assert_array_equal(got, want)
+
+
+def test_ray_kernel_matches_optics():
+    """The markers' compiled oil rays are :func:`softjig.optics.rays_in_top_region`'s, and fail alike."""
+    jig = default_jig()
+    layers = flat_layers(jig)
+    pixels = np.random.default_rng(3).uniform([-100, -100], [1380, 820], (2000, 2))
+    distorted = replace(jig.cameras.left, distortion=(-0.12, 0.03, 0.001, -0.002, 0.004))
+    for camera in (jig.cameras.left, jig.cameras.right, distorted):
+        want = rays_in_top_region(pixels, camera.K, distortion_of(camera), camera.T_J_cam, layers)
+        got = render._rays(pixels, camera, layers)
+        for a, b in zip(got, want, strict=True):
+            np.testing.assert_allclose(a, b, rtol=0, atol=1e-9)
+    tilted = replace(jig.cameras.left, fx_px=100.0, rotation_deg=(0.0, 60.0, 0.0))  # some rays point down
+    with pytest.raises(ValueError, match="upwards"):
+        rays_in_top_region(pixels, tilted.K, None, tilted.T_J_cam, layers)
+    with pytest.raises(ValueError, match="upwards"):
+        render._rays(pixels, tilted, layers)
 
 
 def test_redrawn_speckle_region_equals_the_whole_texture_resized(small_as_built, monkeypatch):

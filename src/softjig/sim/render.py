@@ -23,7 +23,7 @@ Radiance is computed in float32 on ``[0, 1]`` (fraction of full scale), in this 
    ``a`` (unit, pointing into the oil, towards the cameras). A marker spans ~15 px at ~170 mm, so the
    perspective change across it is ~1 % and a *local-affine* ray model is used: with ``p0`` the exact
    projection of ``P`` (:func:`softjig.optics.project_points`), ``J`` the 2x3 projection Jacobian at
-   ``P`` and ``d`` the unit oil ray of ``p0`` (:func:`softjig.optics.rays_in_top_region`), the ray
+   ``P`` and ``d`` the unit oil ray of ``p0`` (:func:`softjig.optics.rays_in_top_region`, compiled), the ray
    through the sub-pixel ``p0 + du`` is the line ``P + q + s d`` with ``q = B (J B)^{-1} du`` (``B`` a
    3x2 orthonormal basis of the plane perpendicular to ``d``). ``(J B)^{-1}`` is found by central
    differences of the back-projection: the oil rays of ``p0 +- 0.01 px`` in ``u`` and in ``v`` meet that
@@ -140,7 +140,7 @@ from scipy.special import ndtri
 from softjig.aruco import aruco_dictionary
 from softjig.config import CameraConfig, ImagingConfig, JigConfig, MediumConfig, Part, PlateConfig
 from softjig.jig_shape import rest_inner_height_mm
-from softjig.optics import FlatLayers, project_points, rays_in_top_region
+from softjig.optics import FlatLayers, layer_constants, pixels_to_normalized, project_points
 from softjig.rig import AIR_REFRACTIVE_INDEX, distortion_of, flat_layers
 from softjig.sensing.fiducials import fiducial_corners_J
 from softjig.sim import _kernels
@@ -1022,7 +1022,6 @@ def _marker_optics(
 ) -> _MarkerOptics:
     """Local-affine imaging of the markers whose projection lies within ``margin_px`` of the image
     (default: a tenth of its larger side); the others get NaN (they are neither drawn nor visible)."""
-    K, dist, T = camera.K, distortion_of(camera), camera.T_J_cam
     P = np.asarray(state.marker_xyz_mm, dtype=float)
     axis = np.asarray(state.marker_axis, dtype=float)
     px = _project(P, camera, layers)
@@ -1036,9 +1035,7 @@ def _marker_optics(
     if near.any():
         # The oil rays of each marker's pixel and of its four neighbours at +-_PIXEL_STEP in u and v.
         pixels = (px[near][:, None, :] + _PIXEL_OFFSETS).reshape(-1, 2)
-        origins, rays = (
-            a.reshape(-1, len(_PIXEL_OFFSETS), 3) for a in rays_in_top_region(pixels, K, dist, T, layers)
-        )
+        origins, rays = (a.reshape(-1, len(_PIXEL_OFFSETS), 3) for a in _rays(pixels, camera, layers))
         r = jig.markers.diameter_mm / 2.0
         shape = _kernels.marker_shapes(
             np.ascontiguousarray(P[near]), np.ascontiguousarray(axis[near]), origins, rays, r, _PIXEL_STEP
@@ -1073,6 +1070,27 @@ def _project(points: np.ndarray, camera: CameraConfig, layers: FlatLayers) -> np
     if np.isnan(px).any():
         raise ValueError("a marker is behind the camera or in its image plane")
     return px
+
+
+def _rays(pixels: np.ndarray, camera: CameraConfig, layers: FlatLayers) -> tuple[np.ndarray, np.ndarray]:
+    """Oil rays ``(origins, directions)`` of ``(M, 2)`` pixels: :func:`softjig.optics.rays_in_top_region`'s
+    model (the same rays to float rounding, its errors), the closed form compiled
+    (:func:`softjig.sim._kernels.rays_in_top_region`)."""
+    T = np.asarray(camera.T_J_cam, dtype=float)
+    q = np.ascontiguousarray(pixels_to_normalized(pixels, camera.K, distortion_of(camera)))
+    z_if, ratio, ratio_sq, layer_advance = layer_constants(layers)
+    heights = np.array([z_if[0] - T[2, 3], z_if[-1]])
+    if not heights[0] > 0:
+        raise ValueError(f"camera centre z = {T[2, 3]} mm must lie below the lowest interface {z_if[0]} mm")
+    R, centre = np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3])
+    origins, directions, status = _kernels.rays_in_top_region(
+        q, R, centre, heights, ratio, ratio_sq, layer_advance
+    )
+    if status == 1:
+        raise ValueError("some rays do not go upwards (d_z <= 0 in J); is the camera looking up?")
+    if status == 2:
+        raise ValueError(f"total internal reflection for some rays going through the layers {layers}")
+    return origins, directions
 
 
 def _cast_marker_patches(
