@@ -205,3 +205,28 @@ def test_indentation_noise_on_a_coarse_grid_is_the_markers_noise_not_the_drapes_
         z = -drape + np.random.default_rng(seed).normal(0.0, sigma, len(xy))
         estimates.append(indentation(np.c_[xy, z], np.zeros(len(xy)), pitch_mm=pitch).noise_mm)
     assert 0.75 * sigma < np.median(estimates) < 1.25 * sigma
+
+
+def test_indentations_against_two_references_equal_one_call_each():
+    """The reference frame's and the rest shape's indentation share their neighbour fits in one pass: each
+    must be what its own call gives."""
+    from softjig.sensing.contact import indentation, indentations
+
+    rng = np.random.default_rng(3)
+    g = np.arange(-40.0, 40.1, 6.0)
+    gx, gy = np.meshgrid(g, g)
+    xy = np.column_stack([gx.ravel(), gy.ravel()]) + rng.normal(0, 0.2, (gx.size, 2))
+    z = -0.004 * (xy**2).sum(axis=1) - 3.0 * (np.hypot(*xy.T) < 15) + rng.normal(0, 0.1, len(xy))
+    points = np.column_stack([xy, z])
+    reference = -0.004 * (xy**2).sum(axis=1) + rng.normal(0, 0.05, len(xy))
+    rest = -0.0041 * (xy**2).sum(axis=1)
+    both = indentations(points, (reference, rest), pitch_mm=6.0)
+    for shared, own in zip(
+        both,
+        (indentation(points, reference, pitch_mm=6.0), indentation(points, rest, pitch_mm=6.0)),
+        strict=True,
+    ):
+        np.testing.assert_allclose(shared.depth_mm, own.depth_mm, rtol=0, atol=1e-12)
+        assert shared.zero_mm == pytest.approx(own.zero_mm, abs=1e-12)
+        assert shared.noise_mm == pytest.approx(own.noise_mm, rel=1e-12)
+    assert both[0].noise_mm != pytest.approx(both[1].noise_mm)  # two different fields

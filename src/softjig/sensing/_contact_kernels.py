@@ -85,30 +85,30 @@ def quadratic_residuals(xy: np.ndarray, raw: np.ndarray, radius: float) -> tuple
     """For each point with enough others closer than ``radius`` (:data:`MIN_QUADRATIC_NEIGHBOURS`, around
     it well enough that the fit's prediction is no noisier than the point, :data:`MAX_PREDICTION_VARIANCE`):
     its value minus a quadratic surface least-squares fitted to theirs, evaluated at the point, over
-    ``sqrt(1 + v)`` (``v``: the prediction's variance in units of one point's); the first ``count``
-    entries, in point order.
+    ``sqrt(1 + v)`` (``v``: the prediction's variance in units of one point's); the first ``count`` rows,
+    in point order. ``raw`` is ``(m, k)``: ``k`` fields on the same points share the fits' geometry.
 
     A quadratic follows the drape's curvature, which the mean of the nearest neighbours does not (its
     residual carries ``pitch^2 / 4`` times the field's Laplacian, as large as the noise on a coarse grid).
     The points are binned into square cells of side ``radius``, so each one's neighbours lie in its own
     and the 8 adjacent cells.
     """
-    n = xy.shape[0]
+    n, k = raw.shape
     cx, cy, nx, ny, start, members = grid_cells(xy, radius)
     r2 = radius * radius
-    residual = np.empty(n)
+    residual = np.empty((n, k))
     count = 0
     normal = np.empty((QUADRATIC_TERMS, QUADRATIC_TERMS))
-    rhs = np.empty(QUADRATIC_TERMS)
+    rhs = np.empty((k, QUADRATIC_TERMS))
     unit = np.empty(QUADRATIC_TERMS)
     inverse = 1.0 / radius
     for i in range(n):
         # The normal equations A^T A, A^T z of the terms (1, u, w, u^2, uw, w^2) summed as their 15 distinct
         # moments in scalars, then solved by a 6x6 Cholesky: 3-4x faster than NumPy's matmul and solve on
-        # each marker's small arrays (BLAS/LAPACK calls, copies) and 2x faster than summing the matrix.
+        # each marker's small arrays (BLAS/LAPACK calls, copies).
         s0 = su = sw = suu = suw = sww = 0.0
         suuu = suuw = suww = swww = su4 = su3w = su2w2 = suw3 = sw4 = 0.0
-        z0 = zu = zw = zuu = zuw = zww = 0.0
+        rhs[:] = 0.0
         m = 0
         for gx in range(max(cx[i] - 1, 0), min(cx[i] + 2, nx)):
             for gy in range(max(cy[i] - 1, 0), min(cy[i] + 2, ny)):
@@ -119,7 +119,7 @@ def quadratic_residuals(xy: np.ndarray, raw: np.ndarray, radius: float) -> tuple
                         continue
                     dx, dy = xy[j, 0] - xy[i, 0], xy[j, 1] - xy[i, 1]
                     if dx * dx + dy * dy < r2:
-                        u, w, z = dx * inverse, dy * inverse, raw[j]  # scaled to the radius: well conditioned
+                        u, w = dx * inverse, dy * inverse  # scaled to the radius: a well-conditioned fit
                         uu, uw, ww = u * u, u * w, w * w
                         s0 += 1.0
                         su += u
@@ -136,12 +136,14 @@ def quadratic_residuals(xy: np.ndarray, raw: np.ndarray, radius: float) -> tuple
                         su2w2 += uu * ww
                         suw3 += uw * ww
                         sw4 += ww * ww
-                        z0 += z
-                        zu += u * z
-                        zw += w * z
-                        zuu += uu * z
-                        zuw += uw * z
-                        zww += ww * z
+                        for f in range(k):
+                            z = raw[j, f]
+                            rhs[f, 0] += z
+                            rhs[f, 1] += u * z
+                            rhs[f, 2] += w * z
+                            rhs[f, 3] += uu * z
+                            rhs[f, 4] += uw * z
+                            rhs[f, 5] += ww * z
                         m += 1
         if m < MIN_QUADRATIC_NEIGHBOURS:
             continue
@@ -153,7 +155,6 @@ def quadratic_residuals(xy: np.ndarray, raw: np.ndarray, radius: float) -> tuple
         normal[4, 0], normal[4, 1], normal[4, 2], normal[4, 3], normal[4, 4] = suw, suuw, suww, su3w, su2w2
         normal[5, 0], normal[5, 1], normal[5, 2] = sww, suww, swww
         normal[5, 3], normal[5, 4], normal[5, 5] = su2w2, suw3, sw4
-        rhs[0], rhs[1], rhs[2], rhs[3], rhs[4], rhs[5] = z0, zu, zw, zuu, zuw, zww
         if not _cholesky_in_place(normal):
             continue
         # (A^T A)^-1 e0 and (A^T A)^-1 A^T z: the prediction's variance (its first entry, in units of one
@@ -164,9 +165,10 @@ def quadratic_residuals(xy: np.ndarray, raw: np.ndarray, radius: float) -> tuple
         variance = unit[0]
         if not (0.0 < variance <= MAX_PREDICTION_VARIANCE):
             continue
-        _cholesky_solve_in_place(normal, rhs)
-        prediction = rhs[0]
-        residual[count] = (raw[i] - prediction) / np.sqrt(1.0 + variance)
+        scale = 1.0 / np.sqrt(1.0 + variance)
+        for f in range(k):
+            _cholesky_solve_in_place(normal, rhs[f])
+            residual[count, f] = (raw[i, f] - rhs[f, 0]) * scale
         count += 1
     return residual, count
 
@@ -225,33 +227,42 @@ def settle_zero(raw: np.ndarray, noise: float, rounds: int) -> float:
 @numba.njit(cache=True)
 def indentation(
     points: np.ndarray, reference_z: np.ndarray, radius: float
-) -> tuple[np.ndarray, float, float]:
-    """:func:`~softjig.sensing.contact.indentation` with the neighbour noise: ``(depth, zero, noise)``,
-    or ``noise =`` :data:`NO_NOISE` when fewer than :data:`MIN_NOISE_MARKERS` markers are finite or have
-    neighbours (an expected outcome: the caller then measures the noise from the markers at rest)."""
-    n = points.shape[0]
-    raw = np.empty(n)
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`~softjig.sensing.contact.indentation` with the neighbour noise against each of the ``k``
+    columns of ``reference_z`` (``(n, k)``): ``(depth (n, k), zero (k,), noise (k,))``, or every
+    ``noise =`` :data:`NO_NOISE` when fewer than :data:`MIN_NOISE_MARKERS` markers are finite (in every
+    column) or have neighbours (an expected outcome: the caller then measures the noise from the markers
+    at rest). The columns share the markers' neighbours and their fits' geometry."""
+    n, k = reference_z.shape
+    raw = np.empty((n, k))
     finite = np.empty(n, dtype=np.bool_)
     m = 0
     for i in range(n):
-        raw[i] = reference_z[i] - points[i, 2]
-        finite[i] = np.isfinite(raw[i])
+        finite[i] = True
+        for f in range(k):
+            raw[i, f] = reference_z[i, f] - points[i, 2]
+            finite[i] &= np.isfinite(raw[i, f])
         m += finite[i]
+    zero, noise = np.zeros(k), np.full(k, NO_NOISE)
     if m < MIN_NOISE_MARKERS:
-        return raw, 0.0, NO_NOISE
+        return raw, zero, noise
     xy = np.empty((m, 2))
-    raw_finite = np.empty(m)
-    k = 0
+    raw_finite = np.empty((m, k))
+    q = 0
     for i in range(n):
         if finite[i]:
-            xy[k, 0], xy[k, 1], raw_finite[k] = points[i, 0], points[i, 1], raw[i]
-            k += 1
+            xy[q, 0], xy[q, 1] = points[i, 0], points[i, 1]
+            raw_finite[q] = raw[i]
+            q += 1
     residual, enough = quadratic_residuals(xy, raw_finite, radius)
     if enough < MIN_NOISE_MARKERS:
-        return raw, 0.0, NO_NOISE
-    noise = max(MAD_TO_SIGMA * np.median(np.abs(residual[:enough])), NOISE_FLOOR_MM)
-    zero = settle_zero(raw_finite, noise, ZERO_ROUNDS)
-    return raw - zero, zero, noise
+        return raw, zero, noise
+    for f in range(k):
+        noise[f] = max(MAD_TO_SIGMA * np.median(np.abs(residual[:enough, f])), NOISE_FLOOR_MM)
+        zero[f] = settle_zero(np.ascontiguousarray(raw_finite[:, f]), noise[f], ZERO_ROUNDS)
+        for i in range(n):
+            raw[i, f] -= zero[f]
+    return raw, zero, noise
 
 
 @numba.njit(cache=True)

@@ -23,6 +23,7 @@ membrane draped down from it.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -123,15 +124,31 @@ def indentation(
     Zero: the median raw indentation of the markers within 2.5 sigma of it (iterated from the median of
     all), which also absorbs a uniform depth bias of an imperfectly calibrated camera pair.
     """
+    return indentations(points_J, (reference_z_mm,), pitch_mm=pitch_mm)[0]
+
+
+def indentations(
+    points_J: np.ndarray, reference_zs_mm: Sequence[np.ndarray], *, pitch_mm: float | None = None
+) -> tuple[Indentation, ...]:
+    """:func:`indentation` against each of several reference heights (for example the reference frame's
+    and the rest shape's), in one pass: the neighbour noise's fits depend on the markers' positions only,
+    so they are shared."""
     if pitch_mm:  # the usual case, in one compiled pass
         depth, zero, noise = kernels.indentation(
             np.ascontiguousarray(points_J, dtype=float),
-            np.ascontiguousarray(reference_z_mm, dtype=float),
+            np.ascontiguousarray(np.column_stack(reference_zs_mm), dtype=float),
             NOISE_RADIUS_PITCHES * pitch_mm,
         )
-        if noise > 0:
-            return Indentation(depth, float(zero), float(noise))
-    # Too few markers with neighbours (or no pitch): the noise of the markers at rest.
+        if (noise > 0).all():
+            return tuple(
+                Indentation(np.ascontiguousarray(depth[:, f]), float(zero[f]), float(noise[f]))
+                for f in range(len(noise))
+            )
+    return tuple(_indentation_from_markers_at_rest(points_J, z) for z in reference_zs_mm)
+
+
+def _indentation_from_markers_at_rest(points_J: np.ndarray, reference_z_mm: np.ndarray) -> Indentation:
+    """Too few markers with neighbours (or no pitch): the noise of the markers at rest."""
     raw = np.asarray(reference_z_mm, dtype=float) - points_J[:, 2]
     finite = np.isfinite(raw)
     if not finite.any():

@@ -35,6 +35,7 @@ from softjig.sensing.contact import (
     face_depth_mm,
     grow_contact,
     indentation,
+    indentations,
     just_outside,
     under_face,
 )
@@ -308,17 +309,14 @@ class NoiseScales:
         return CONTACT_INLIER_SIGMAS * self.plane_sigma_mm
 
 
-def noise_scales(
-    points_J: np.ndarray, dent: Indentation, reference: ReferenceModel, jig: JigConfig
-) -> NoiseScales:
-    """Measure :class:`NoiseScales` for one frame (the reference's own scatter was measured once, with
-    the :class:`ReferenceModel`)."""
+def noise_scales(dent: Indentation, absolute: Indentation | None, reference: ReferenceModel) -> NoiseScales:
+    """Measure :class:`NoiseScales` for one frame from its indentation against the reference and, with a
+    reference frame, against the rest shape (``absolute``: its noise is the markers' absolute scatter);
+    the reference's own scatter was measured once, with the :class:`ReferenceModel`."""
     sigma = float(dent.noise_mm) if np.isfinite(dent.noise_mm) else UNCERTAINTY_FLOOR_MM
-    if reference.scatter_mm is None:  # the rest shape: the indentation is already the absolute height's
+    if reference.scatter_mm is None or absolute is None:  # the rest shape: already the absolute heights'
         return NoiseScales(sigma, max(sigma, UNCERTAINTY_FLOOR_MM), sigma)
-    rest_z = rest_inner_height_mm(jig, points_J[:, 0], points_J[:, 1])
-    scatter = indentation(points_J, rest_z, pitch_mm=jig.markers.pitch_mm).noise_mm
-    scatter = float(scatter) if np.isfinite(scatter) else sigma
+    scatter = float(absolute.noise_mm) if np.isfinite(absolute.noise_mm) else sigma
     return NoiseScales(sigma, max(scatter, sigma, UNCERTAINTY_FLOOR_MM), max(reference.scatter_mm, sigma))
 
 
@@ -383,7 +381,7 @@ class ContactPlaneFitter:
         identities = identify_markers(
             points_J, self._reference.markers, max_lateral_mm=IDENTITY_REACH_PITCHES * self._pitch
         )
-        dent = self._indentation(points_J, identities.ids)
+        dent, absolute = self._indentation(points_J, identities.ids)
         candidates = contact_candidates(dent)
         if candidates.sum() < self._minimum:
             return Refusal(
@@ -391,7 +389,7 @@ class ContactPlaneFitter:
                 f"beyond the noise ({_mm(dent.noise_mm)}); at least {self._minimum} are needed "
                 "(sensing.min_points). Is a part pressed onto the jig?"
             )
-        noise = noise_scales(points_J, dent, self._reference, self._jig)
+        noise = noise_scales(dent, absolute, self._reference)
         order = canonical_order(identities.ids, points_J)
         in_order = Indentation(dent.depth_mm[order], dent.zero_mm, dent.noise_mm)
         ordered = Dent(points_J[order], in_order, candidates[order], noise, noise.inlier_mm)
@@ -473,8 +471,9 @@ class ContactPlaneFitter:
             beside_thresholds=BESIDE_HOLE_THRESHOLDS,
         )
 
-    def _indentation(self, points_J: np.ndarray, ids: np.ndarray) -> Indentation:
-        """Each marker's indentation against its reference marker (the rest shape where none is near)."""
+    def _indentation(self, points_J: np.ndarray, ids: np.ndarray) -> tuple[Indentation, Indentation | None]:
+        """Each marker's indentation against its reference marker (the rest shape where none is near) and,
+        with a reference frame, against the rest shape (whose noise is the markers' absolute scatter)."""
         reference_xyz = self._reference.markers.xyz_mm
         reference_z = (
             reference_xyz[np.maximum(ids, 0), 2] if len(reference_xyz) else np.full(len(ids), np.nan)
@@ -483,7 +482,11 @@ class ContactPlaneFitter:
         if not known.all():
             unknown = points_J[~known]
             reference_z[~known] = rest_inner_height_mm(self._jig, unknown[:, 0], unknown[:, 1])
-        return indentation(points_J, reference_z, pitch_mm=self._pitch)
+        if self._reference.scatter_mm is None:  # against the rest shape already
+            return indentation(points_J, reference_z, pitch_mm=self._pitch), None
+        rest_z = rest_inner_height_mm(self._jig, points_J[:, 0], points_J[:, 1])
+        dent, absolute = indentations(points_J, (reference_z, rest_z), pitch_mm=self._pitch)
+        return dent, absolute
 
     def _robust_fit(self, threshold_mm: float) -> PlaneFitFunction:
         """``points -> (inliers, plane)``: the robust fit with the contact's inlier distance."""
