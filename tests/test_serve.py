@@ -82,6 +82,18 @@ def creep(tmp_path_factory):
     return out
 
 
+def reference_then_loaded_dataset(out, frame_period_s: float):
+    """A replay dataset at ``out``: an unloaded reference frame (index 0), then a loaded one (index 1),
+    ``frame_period_s`` apart (for the serve tests that swap references)."""
+    specs = single(CylinderPart(50.0), 8.0, 30.0, reference=True)
+    simulate_dataset(out, specs, default_jig(), seed=3, workers=1, progress=False)
+    lines = (out / "frames.jsonl").read_text().splitlines()
+    with open(out / "frames.jsonl", "w") as fh:
+        for i, line in enumerate(lines):
+            fh.write(json.dumps({**json.loads(line), "time_s": round(i * frame_period_s, 6)}) + "\n")
+    return out
+
+
 def _free_port():
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))

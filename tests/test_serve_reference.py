@@ -16,10 +16,8 @@ import pytest
 from typer.testing import CliRunner
 
 from softjig.cli import app
-from softjig.config import CylinderPart, default_jig
-from softjig.io.simulated import simulate_dataset
-from softjig.sim.scenarios import single
-from test_serve import Client, _free_port, _start
+from softjig.config import default_jig
+from test_serve import Client, _free_port, _start, reference_then_loaded_dataset
 
 pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
 
@@ -29,14 +27,7 @@ FRAME_PERIOD_S = 0.1
 @pytest.fixture(scope="module")
 def dataset(tmp_path_factory):
     """An unloaded reference frame (index 0), then a loaded one (index 1), 0.1 s apart."""
-    out = tmp_path_factory.mktemp("reference") / "ds"
-    specs = single(CylinderPart(50.0), 8.0, 30.0, reference=True)
-    simulate_dataset(out, specs, default_jig(), seed=3, workers=1, progress=False)
-    lines = (out / "frames.jsonl").read_text().splitlines()
-    with open(out / "frames.jsonl", "w") as fh:
-        for i, line in enumerate(lines):
-            fh.write(json.dumps({**json.loads(line), "time_s": round(i * FRAME_PERIOD_S, 6)}) + "\n")
-    return out
+    return reference_then_loaded_dataset(tmp_path_factory.mktemp("reference") / "ds", FRAME_PERIOD_S)
 
 
 @pytest.fixture(scope="module")

@@ -9,7 +9,6 @@ pass for one of the loop's estimator of the reference frame. Real loopback sessi
 
 from __future__ import annotations
 
-import json
 import sys
 import time
 
@@ -17,10 +16,7 @@ import pytest
 from typer.testing import CliRunner
 
 from softjig.cli import app
-from softjig.config import CylinderPart, default_jig
-from softjig.io.simulated import simulate_dataset
-from softjig.sim.scenarios import single
-from test_serve import Client, _free_port, _start
+from test_serve import Client, _free_port, _start, reference_then_loaded_dataset
 
 pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
 
@@ -30,14 +26,7 @@ FRAME_PERIOD_S = 0.1
 @pytest.fixture(scope="module")
 def dataset(tmp_path_factory):
     """An unloaded reference frame (index 0), then a loaded one (index 1), 0.1 s apart."""
-    out = tmp_path_factory.mktemp("warm") / "ds"
-    specs = single(CylinderPart(50.0), 8.0, 30.0, reference=True)
-    simulate_dataset(out, specs, default_jig(), seed=3, workers=1, progress=False)
-    lines = (out / "frames.jsonl").read_text().splitlines()
-    with open(out / "frames.jsonl", "w") as fh:
-        for i, line in enumerate(lines):
-            fh.write(json.dumps({**json.loads(line), "time_s": round(i * FRAME_PERIOD_S, 6)}) + "\n")
-    return out
+    return reference_then_loaded_dataset(tmp_path_factory.mktemp("warm") / "ds", FRAME_PERIOD_S)
 
 
 def _serve(dataset, *extra):
