@@ -288,9 +288,10 @@ def count_within(query: np.ndarray, points: np.ndarray, radius: float, inclusive
 def violations(
     xy: np.ndarray, contact: np.ndarray, above: np.ndarray, below: np.ndarray, radius: float
 ) -> int:
-    """How many markers are ``above`` inside the hull of the contact's core (``contact._core`` with
-    ``radius`` = 1.5 pitches) plus how many are ``below`` inside the contact's hull (as
-    ``contact.penetrating`` and ``contact.holes``; a marker is never both)."""
+    """How many markers are ``above`` inside the hull of the contact's core (its markers with at least
+    :data:`CORE_NEIGHBOURS` other contact markers within ``radius``, 1.5 pitches; all of them if fewer
+    than 3 are) plus how many are ``below`` inside the contact's hull (a marker is never both; none for a
+    contact of fewer than 3 markers)."""
     index = np.flatnonzero(contact)
     members = xy[index]
     count = 0
