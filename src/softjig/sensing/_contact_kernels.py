@@ -11,11 +11,10 @@ import numba
 import numpy as np
 
 from softjig._geometry_kernels import inside_hull
+from softjig.geometry import HULL_TOLERANCE_MM
 
 #: The largest finite float: ``np.nan_to_num``'s stand-in for ``+inf``.
 LARGEST = float(np.finfo(float).max)
-#: How far outside a hull (mm) a point still counts as inside (as ``geometry.inside_convex_hull_xy``).
-HULL_TOLERANCE_MM = 1e-9
 #: The fewest finite markers, and the fewest with neighbours, for the neighbour noise of ``indentation``.
 MIN_NOISE_MARKERS = 10
 #: The terms of the quadratic surface fitted to a marker's neighbours for the neighbour noise.
