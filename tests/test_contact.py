@@ -126,16 +126,16 @@ def _marker_cloud(rng: np.random.Generator, count: int) -> np.ndarray:
 def test_inside_hull_matches_delaunay():
     from scipy.spatial import Delaunay
 
-    from softjig.sensing.contact import _inside_hull
+    from softjig.geometry import inside_convex_hull_xy
 
     rng = np.random.default_rng(3)
     for trial in range(60):
         xy = _marker_cloud(rng, 150 + trial)
         contact = rng.random(len(xy)) < rng.uniform(0.05, 0.6)
         expected = Delaunay(xy[contact]).find_simplex(xy) >= 0
-        assert np.array_equal(_inside_hull(xy, contact), expected)
+        assert np.array_equal(inside_convex_hull_xy(xy[contact], xy), expected)
     line = np.column_stack([np.arange(5.0), np.zeros(5)])  # no area: nothing is inside
-    assert not _inside_hull(line, np.ones(5, dtype=bool)).any()
+    assert not inside_convex_hull_xy(line, line).any()
 
 
 def test_neighbour_helpers_match_a_kd_tree():

@@ -18,6 +18,9 @@ from softjig.errors import InputError
 #: rounding: they define no plane.
 DEGENERATE_PLANE_RATIO = 1e-9
 
+#: How far outside a convex hull (mm) a point still counts as inside: a point on the hull's edge is inside.
+HULL_TOLERANCE_MM = 1e-9
+
 #: Below this angle (rad) a rotation vector's matrix is taken from the Taylor series of Rodrigues' formula.
 ROTVEC_TAYLOR_BELOW_RAD = 1e-4
 
@@ -180,7 +183,9 @@ def fit_plane_svd(points_mm: np.ndarray, *, min_points: int = 3) -> PlaneFit:
 # ---------------------------------------------------------------------------------------- polygons
 
 
-def inside_convex_hull_xy(hull_of_xy: np.ndarray, xy: np.ndarray, tolerance_mm: float = 1e-9) -> np.ndarray:
+def inside_convex_hull_xy(
+    hull_of_xy: np.ndarray, xy: np.ndarray, tolerance_mm: float = HULL_TOLERANCE_MM
+) -> np.ndarray:
     """Which ``(x, y)`` lie inside the convex hull of ``hull_of_xy`` (or within ``tolerance_mm`` outside
     it), as booleans; none when the hull has no area (fewer than 3 points, or all on a line).
 

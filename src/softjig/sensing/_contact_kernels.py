@@ -11,11 +11,10 @@ import numba
 import numpy as np
 
 from softjig._geometry_kernels import inside_hull
+from softjig.geometry import HULL_TOLERANCE_MM
 
 #: The largest finite float: ``np.nan_to_num``'s stand-in for ``+inf``.
 LARGEST = float(np.finfo(float).max)
-#: How far outside a hull (mm) a point still counts as inside (as ``geometry.inside_convex_hull_xy``).
-HULL_TOLERANCE_MM = 1e-9
 #: The fewest finite markers, and the fewest with neighbours, for the neighbour noise of ``indentation``.
 MIN_NOISE_MARKERS = 10
 #: The terms of the quadratic surface fitted to a marker's neighbours for the neighbour noise.
@@ -288,9 +287,10 @@ def count_within(query: np.ndarray, points: np.ndarray, radius: float, inclusive
 def violations(
     xy: np.ndarray, contact: np.ndarray, above: np.ndarray, below: np.ndarray, radius: float
 ) -> int:
-    """How many markers are ``above`` inside the hull of the contact's core (``contact._core`` with
-    ``radius`` = 1.5 pitches) plus how many are ``below`` inside the contact's hull (as
-    ``contact.penetrating`` and ``contact.holes``; a marker is never both)."""
+    """How many markers are ``above`` inside the hull of the contact's core (its markers with at least
+    :data:`CORE_NEIGHBOURS` other contact markers within ``radius``, 1.5 pitches; all of them if fewer
+    than 3 are) plus how many are ``below`` inside the contact's hull (a marker is never both; none for a
+    contact of fewer than 3 markers)."""
     index = np.flatnonzero(contact)
     members = xy[index]
     count = 0

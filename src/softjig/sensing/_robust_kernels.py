@@ -7,19 +7,13 @@ import numba
 import numpy as np
 
 from softjig._geometry_kernels import inside_hull, plane_fit
-
-#: Points whose second singular value is below this ratio of the first lie on a line or a point, to
-#: rounding (as :data:`softjig.geometry.DEGENERATE_PLANE_RATIO`).
-DEGENERATE_PLANE_RATIO = 1e-9
+from softjig.geometry import DEGENERATE_PLANE_RATIO, HULL_TOLERANCE_MM
 
 #: A triple whose triangle's angle at its first point has a sine below this is collinear: no plane.
 COLLINEAR_SINE = 1e-6
 
 #: A plane whose unit normal has ``|n_z|`` below this is vertical: it has no side "into the part".
 VERTICAL_NZ = 1e-6
-
-#: Tolerance (mm) of the hull test of the one-sided penalty: a point on the hull's edge is inside.
-HULL_TOLERANCE_MM = 1e-9
 
 
 @numba.njit(cache=True)

@@ -10,7 +10,7 @@ the neighbours on their plane (:func:`grow_contact`, robust fits from :mod:`soft
 rejecting the membrane that the indentation drags down around it.
 
 A plane is the face of its contact only if no marker contradicts it (:func:`contact_violations`): none
-penetrates it inside the contact, none lies far below it inside the contact's hull (:func:`holes`), and
+penetrates it inside the contact, none lies far below it inside the contact's hull (a hole), and
 none beside the contact lies deep below it where it would still press into the membrane, deeper than the
 contact next to it (:func:`holes_beside`: the part's real face beside a strip of wall fitted instead).
 
@@ -31,7 +31,7 @@ import numpy as np
 
 from softjig.config import JigConfig
 from softjig.errors import EstimationError
-from softjig.geometry import PlaneFit, inside_convex_hull_xy
+from softjig.geometry import PlaneFit
 from softjig.jig_shape import rest_inner_height_mm
 from softjig.sensing import _contact_kernels as kernels
 from softjig.sensing._contact_kernels import (
@@ -47,7 +47,7 @@ from softjig.sensing._contact_kernels import (
 #: deepest tenth's depth.
 SEED_DEPTH_SHARES = (0.5, 0.75, 0.25)
 #: A marker out of the contact lying this many inlier thresholds below the plane, inside the contact's
-#: hull, is a hole: no face pressed into the membrane leaves one (:func:`holes`).
+#: hull, is a hole: no face pressed into the membrane leaves one (:func:`contact_violations`).
 HOLE_THRESHOLDS = 2.0
 #: A marker just outside the contact, pushed in deeper than the contact beside it, is a hole beside it
 #: when it lies this many inlier thresholds below the plane (:func:`holes_beside`), as a check of the
@@ -185,36 +185,6 @@ def contact_candidates(dent: Indentation, *, sigmas: float = 4.0, min_depth_mm: 
     return dent.depth_mm > threshold  # False where NaN, as -inf would be
 
 
-def penetrating(
-    points_J: np.ndarray, contact: np.ndarray, plane: PlaneFit, threshold_mm: float
-) -> np.ndarray:
-    """Markers that would penetrate the part if ``plane`` were its face: more than ``threshold_mm`` above
-    the plane (into the part) with ``(x, y)`` inside the contact's convex hull, as booleans."""
-    above = (points_J - plane.centroid_mm) @ plane.normal > threshold_mm
-    return above & _inside_hull(points_J[:, :2], contact)
-
-
-def holes(points_J: np.ndarray, contact: np.ndarray, plane: PlaneFit, depth_mm: float) -> np.ndarray:
-    """Markers out of the contact, more than ``depth_mm`` below ``plane``, inside the contact's convex hull.
-
-    A face pressed into the membrane touches it everywhere inside its footprint except near the line where
-    it lifts off, where the membrane falls away only gradually: a marker deep below the plane in the
-    middle of the footprint means that the plane is not the face (e.g. a ring of membrane wall around
-    the real, deeper contact).
-    """
-    below = (points_J - plane.centroid_mm) @ plane.normal < -depth_mm
-    return below & ~contact & _inside_hull(points_J[:, :2], contact)
-
-
-def _inside_hull(xy: np.ndarray, contact: np.ndarray) -> np.ndarray:
-    """Which ``(x, y)`` lie inside the convex hull of the contact's, as booleans (none for < 3 markers, or
-    all on a line). A compiled hull test (:func:`~softjig.geometry.inside_convex_hull_xy`): it matches
-    ``Delaunay(xy[contact]).find_simplex(xy) >= 0``, at a fraction of its cost."""
-    if contact.sum() < 3:
-        return np.zeros(len(xy), dtype=bool)
-    return inside_convex_hull_xy(xy[contact], xy)
-
-
 def grow_contact(
     points_J: np.ndarray,
     dent: Indentation,
@@ -239,14 +209,14 @@ def grow_contact(
        plane is fitted again, until nothing changes. The wall of membrane beside a deep indentation rises
        steeply off the plane, and where the part lifts off the membrane falls away below it, so the growth
        stops at both.
-    3. **Check.** No marker may lie above the face inside the contact (:func:`penetrating`), nor far
-       below it (:func:`holes`), beyond a few that noise explains (2, or 5 % of the contact): the wall
-       just outside a deeply pressed edge is as deep as the contact and can win the seed's fit, but its
-       plane leaves the real contact markers above it; a ring of wall around a deep contact leaves them
-       below it. Such a plane's markers are peeled off the seed and the rest is fitted again (at most
-       twice), then the next seed is tried; the first contact without violations is taken, else the one
-       with the fewest. A plane tilted beyond ``max_tilt_rad`` (no part pressed into a soft jig stands so
-       steep: it is a line of markers on the membrane's wall) counts as the worst.
+    3. **Check.** No marker may lie above the face inside the contact, nor far below it inside the contact's
+       hull, beyond a few that noise explains (2, or 5 % of the contact): the wall just outside a deeply
+       pressed edge is as deep as the contact and can win the seed's fit, but its plane leaves the real
+       contact markers above it; a ring of wall around a deep contact leaves them below it. Such a plane's
+       markers are peeled off the seed and the rest is fitted again (at most twice), then the next seed is
+       tried; the first contact without violations is taken, else the one with the fewest. A plane tilted
+       beyond ``max_tilt_rad`` (no part pressed into a soft jig stands so steep: it is a line of markers on
+       the membrane's wall) counts as the worst.
 
     Parameters
     ----------
@@ -404,9 +374,8 @@ def _violations(
     # Penetration is judged inside the contact's core (its markers surrounded by contact), not its rim:
     # the growth takes in a ring of wall markers level with a deep edge, whose hull holds more wall above
     # the plane. Holes are judged in the whole hull: the membrane never falls far below a real face.
-    # :func:`penetrating` (in the core) and :func:`holes` (in the hull), fused: the markers' heights above
-    # the plane computed once, and the core and both hull tests in one compiled pass, made only for the
-    # markers above or below (the same counts).
+    # The markers' heights above the plane are computed once, and the core and both hull tests made in
+    # one compiled pass (``_contact_kernels.violations``), only for the markers above or below.
     height = (points_J - plane.centroid_mm) @ plane.normal
     above = height > threshold_mm
     below = (height < -HOLE_THRESHOLDS * threshold_mm) & ~contact
@@ -425,19 +394,6 @@ def _violations(
         )
     )
     return max(0, count - tolerated) + beside
-
-
-def _core(
-    xy: np.ndarray, contact: np.ndarray, pitch_mm: float, min_neighbours: int = kernels.CORE_NEIGHBOURS
-) -> np.ndarray:
-    """The contact markers with at least ``min_neighbours`` contact markers within 1.5 pitches (all of
-    them if fewer than 3 are)."""
-    index = np.flatnonzero(contact)
-    members = np.ascontiguousarray(xy[index], dtype=float)
-    counts = kernels.count_within(members, members, NEIGHBOUR_RADIUS_PITCHES * pitch_mm, True) - 1
-    core = np.zeros_like(contact)
-    core[index[counts >= min_neighbours]] = True
-    return core if core.sum() >= 3 else contact.copy()
 
 
 def _grow(points_J, eligible, seed, pitch_mm, fit_plane, threshold_mm, max_rounds):

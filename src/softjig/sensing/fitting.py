@@ -24,6 +24,7 @@ from softjig.geometry import PlaneFit, fit_plane_svd, normal_from_tilt_angles, t
 from softjig.jig_shape import rest_inner_height_mm
 from softjig.sensing.contact import (
     BESIDE_HOLE_THRESHOLDS,
+    MAX_TILT_DEG,
     ContactRegion,
     Indentation,
     ambiguous_selection,
@@ -75,8 +76,6 @@ SELF_CHECK_MIN_POINTS = 15
 # of them. Size-free only: with the size, the contact is cut to the face and a steep part's drape is most
 # of the dent.
 MIN_CANDIDATE_SHARE = 0.2
-# No part pressed into a soft jig stands steeper than this (deg): such a plane is a strip of the wall.
-MAX_PLAUSIBLE_TILT_DEG = 45.0
 # With the part's size known, a contact footprint larger than the part's face grown by this many marker
 # pitches all round (the footprint is the markers' hull dilated by half a pitch, and the drape's first
 # ring may join it) is not that part's.
@@ -196,10 +195,10 @@ def suspicions(
             f"suspect: {violations} markers in or beside the contact lie above the fitted face or far below "
             "it, beyond what the noise explains: the plane may not be the part's face"
         )
-    if plane.normal[2] < np.cos(np.radians(MAX_PLAUSIBLE_TILT_DEG)):
+    if plane.normal[2] < np.cos(np.radians(MAX_TILT_DEG)):
         reasons.append(
             f"suspect: the plane is tilted {np.degrees(np.arccos(plane.normal[2])):.0f} deg, steeper than a "
-            f"part pressed into a soft jig stands ({MAX_PLAUSIBLE_TILT_DEG:g} deg)"
+            f"part pressed into a soft jig stands ({MAX_TILT_DEG:g} deg)"
         )
     if part_diameter_mm is not None and contact is not None:
         largest = np.pi * (part_diameter_mm / 2.0 + CONTACT_AREA_SLACK_PITCHES * jig.markers.pitch_mm) ** 2
