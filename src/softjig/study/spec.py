@@ -61,6 +61,7 @@ from pydantic import ConfigDict, Field, TypeAdapter, ValidationError
 from softjig.config import (
     CylinderPart,
     JigConfig,
+    _parse,  # a pydantic model of a TOML section, its first error as a ConfigError naming the key
     default_jig,
     jig_to_dict,
     load_jig,
@@ -90,8 +91,6 @@ STUDY_METHODS = ("refractive", "paper")
 #: Loaded frames per task at most: a task renders its chunk's frames plus the unloaded reference frame,
 #: so the reference costs at most 1/96 extra; a design with more frames is split into chunks.
 DEFAULT_FRAMES_PER_TASK = 96
-#: Designs a study may hold at most (each is built and validated up front, ~1 ms each).
-MAX_DESIGNS = 1_000_000
 
 Scalar = float | int | str | bool
 Value = Scalar | tuple[Any, ...]
@@ -356,15 +355,6 @@ def _plain(value: Any) -> Any:
     return value
 
 
-def _parse(cls: type, data: Any, where: str) -> Any:
-    try:
-        return TypeAdapter(cls).validate_python(data)
-    except ValidationError as exc:
-        err = exc.errors()[0]
-        loc = ".".join(str(x) for x in (where, *err["loc"]) if x != "")
-        raise ConfigError(f"{loc}: {err['msg']}") from None
-
-
 _SECTIONS = ("study", "vary", "frames", "estimate")
 
 
@@ -419,8 +409,6 @@ def parse_study(data: dict[str, Any], *, folder: Path | None = None) -> StudySpe
     _check_methods(methods)
     vary = _parse_vary(data.get("vary", {}))
     spec = StudySpec(section.name, section.seeds, vary, frames, methods, base, section.frames_per_task)
-    if spec.n_designs > MAX_DESIGNS:
-        raise ConfigError(f"vary: {spec.n_designs} designs, more than the {MAX_DESIGNS} a study may hold")
     spec.frame_specs()  # the sweep's own checks (diameters, alphas, step)
     return spec
 
