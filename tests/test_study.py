@@ -188,6 +188,10 @@ def test_bad_paths_values_and_designs_are_errors_naming_the_field(vary, message)
             "frames: a tilt alpha must be in [0, 90)",
         ),
         ({"study": {"name": "t"}, "frame": {}}, "frame: unknown section"),
+        (
+            {"study": {"name": "t"}, "frames": {"theta_step_deg": 1e-9}},
+            "frames.theta_step_deg: 1e-09 gives 2,160,000,000,000 sweep frames per design",
+        ),
         ({"vary": {}}, "study: missing"),
     ],
 )

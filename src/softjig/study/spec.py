@@ -131,7 +131,8 @@ class PoseSpec:
 
 #: ``[frames]`` keys of the paper sweep (exclusive with ``poses`` and ``zoo``).
 SWEEP_KEYS = ("diameters_mm", "alphas_deg", "theta_step_deg", "push_depth_mm")
-#: Random zoo frames a study may draw per seed at most (each is rendered for every design).
+#: Random zoo frames a study may draw per seed at most (each is rendered for every design); also the
+#: paper sweep's frames per design at most.
 MAX_ZOO_FRAMES = 10_000
 #: ``SeedSequence(seed, spawn_key=(ZOO_FRAMES_SPAWN_KEY,))`` draws a seed's zoo frames; a task draws its
 #: as-built jig from ``spawn_key=(0,)`` and its frames' noise from ``(1, index)`` (softjig.study.run).
@@ -340,7 +341,17 @@ def _parse_frames(data: Any) -> FramesSpec:
             )
         if not data["poses"]:
             raise ConfigError("frames.poses: an empty list gives no frame; give at least one pose")
-    return _parse(FramesSpec, data, "frames")
+        return _parse(FramesSpec, data, "frames")
+    frames = _parse(FramesSpec, data, "frames")
+    step = frames.theta_step_deg
+    if math.isfinite(step) and step > 0:  # else the sweep's own check (frame_specs) says what is wrong
+        n = len(frames.diameters_mm) * len(frames.alphas_deg) * math.ceil(360.0 / step - 1e-9)
+        if n > MAX_ZOO_FRAMES:
+            raise ConfigError(
+                f"frames.theta_step_deg: {step:g} gives {n:,} sweep frames per design, over the "
+                f"{MAX_ZOO_FRAMES:,} a study may render; give a larger step"
+            )
+    return frames
 
 
 def _is_number(value: Any) -> bool:
