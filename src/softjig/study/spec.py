@@ -725,13 +725,16 @@ def _where(spec: StudySpec, values: Sequence[Value]) -> str:
     return text or "(the base jig)"
 
 
-def _check_frames(spec: StudySpec, jig: JigConfig, values: Sequence[Value]) -> None:
-    """Every part of ``[frames]`` fits the design's membrane and stays clear of its plate."""
+def _check_frames(
+    spec: StudySpec, jig: JigConfig, values: Sequence[Value], zoo_frames: dict[int, list]
+) -> None:
+    """Every part of ``[frames]`` fits the design's membrane and stays clear of its plate (``zoo_frames``:
+    each seed's zoo frames, when the frames are the zoo's)."""
     from softjig.sim.parts import PartPose
     from softjig.sim.scenarios import FrameSpec, check_reachable
 
     if spec.frames.zoo is not None:
-        _check_zoo_frames(spec, jig, values)
+        _check_zoo_frames(spec, jig, values, zoo_frames)
         return
     for d, a, t, depth in spec.frames.parts_and_poses():
         part = _cylinder(d)
@@ -745,12 +748,14 @@ def _check_frames(spec: StudySpec, jig: JigConfig, values: Sequence[Value]) -> N
             ) from None
 
 
-def _check_zoo_frames(spec: StudySpec, jig: JigConfig, values: Sequence[Value]) -> None:
+def _check_zoo_frames(
+    spec: StudySpec, jig: JigConfig, values: Sequence[Value], zoo_frames: dict[int, list]
+) -> None:
     """Every seed's zoo frame (drawn to fit the base jig) fits the design's membrane and plate too."""
     from softjig.sim.scenarios import check_reachable
 
-    for seed in spec.seeds:
-        for k, frame in enumerate(spec.frame_specs(seed)[1:]):
+    for seed, frames in zoo_frames.items():
+        for k, frame in enumerate(frames[1:]):
             part, pose = frame.part, frame.pose
             try:
                 validate_part(part, jig)
@@ -779,11 +784,13 @@ def build_designs(spec: StudySpec) -> tuple[Design, ...]:
     """
     designs = []
     checked: set[tuple[Any, ...]] = set()  # the parts' fit depends on the membrane and the plate only
+    # A seed's zoo frames are the same for every design (drawn on the base jig): drawn once, not per check.
+    zoo_frames = {seed: spec.frame_specs(seed) for seed in spec.seeds} if spec.frames.zoo is not None else {}
     for design_id, values in enumerate(itertools.product(*(v for _, v in spec.vary))):
         jig = design_jig(spec, values)
         key = (jig.membrane, jig.plate)
         if key not in checked:
-            _check_frames(spec, jig, values)
+            _check_frames(spec, jig, values, zoo_frames)
             checked.add(key)
         designs.append(Design(design_id, tuple(values), jig))
     return tuple(designs)
