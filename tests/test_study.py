@@ -77,7 +77,7 @@ def test_the_issues_example_is_the_product_of_its_lists_row_major(tmp_path):
     assert jig.markers.pitch_mm == 8.0
     assert jig.cameras.baseline_mm == pytest.approx(40.0)
     assert jig.cameras.left.position_mm == pytest.approx((-20.0, 0.0, -155.0))
-    assert len(spec.frame_specs()) == 1 + 2 * 3 * 12
+    assert len(spec.frame_specs()) == 1 + 2 * 3 * 12 == 1 + spec.n_frames
     assert len(make_tasks(study)) == 15 * 2  # 72 frames fit one task
 
 

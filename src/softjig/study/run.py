@@ -118,7 +118,7 @@ class TaskResult:
 def make_tasks(study: Study) -> list[Task]:
     """Every task of the study, design by design (then seed, then chunk), so that designs complete early."""
     spec = study.spec
-    n = len(spec.frame_specs()) - 1
+    n = spec.n_frames
     n_chunks = max(1, math.ceil(n / spec.frames_per_task))
     bounds = [round(c * n / n_chunks) for c in range(n_chunks + 1)]
     return [
