@@ -100,7 +100,7 @@ def _results(study: Study, todo: list[Task], workers: int, ray: str | None) -> I
     inputs = task_inputs(study, todo)
     if ray is not None:
         return ray_results(inputs, ray, workers)
-    return local_results(inputs, workers)
+    return local_results(inputs, min(workers, max(1, len(todo))))  # no idle worker forked, as simulate
 
 
 def _complete_designs(study: Study, tasks: list[Task], finished: set[str]) -> set[int]:
