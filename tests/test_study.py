@@ -77,7 +77,7 @@ def test_the_issues_example_is_the_product_of_its_lists_row_major(tmp_path):
     assert jig.markers.pitch_mm == 8.0
     assert jig.cameras.baseline_mm == pytest.approx(40.0)
     assert jig.cameras.left.position_mm == pytest.approx((-20.0, 0.0, -155.0))
-    assert len(spec.frame_specs()) == 1 + 2 * 3 * 12
+    assert len(spec.frame_specs()) == 1 + 2 * 3 * 12 == 1 + spec.n_frames
     assert len(make_tasks(study)) == 15 * 2  # 72 frames fit one task
 
 
@@ -188,6 +188,10 @@ def test_bad_paths_values_and_designs_are_errors_naming_the_field(vary, message)
             "frames: a tilt alpha must be in [0, 90)",
         ),
         ({"study": {"name": "t"}, "frame": {}}, "frame: unknown section"),
+        (
+            {"study": {"name": "t"}, "frames": {"theta_step_deg": 1e-9}},
+            "frames.theta_step_deg: 1e-09 gives 2,160,000,000,000 sweep frames per design",
+        ),
         ({"vary": {}}, "study: missing"),
     ],
 )

@@ -166,7 +166,7 @@ def test_the_docs_zoo_example_is_a_valid_study():
     narrowed = "[frames]\n" + " ".join(commented.splitlines()[1:])  # the optional form, uncommented
     for frames in (tomllib.loads(block)["frames"], tomllib.loads(narrowed)["frames"]):
         spec = parse_study({"study": {"name": "docs", "seeds": [0]}, "frames": frames})
-        assert len(spec.frame_specs(0)) == 21
+        assert len(spec.frame_specs(0)) == 21 and spec.n_frames == 20
     assert (
         spec.frames.zoo.canonical()
         == parse_study({"study": {"name": "d"}, "frames": {"zoo": {"count": 20}}}).frames.zoo.canonical()

@@ -49,7 +49,7 @@ def study(
     spec = loaded.spec
     stderr_console().print(
         f"study {spec.name!r}: {spec.n_designs} designs x {len(spec.seeds)} seeds x "
-        f"{len(spec.frame_specs()) - 1} frames x {len(spec.methods)} methods"
+        f"{spec.n_frames} frames x {len(spec.methods)} methods"
     )
     run = run_study(loaded, out, workers=workers, ray=ray, resume=resume, progress=progress, report=report)
     _print_summary(run, spec.paths)

@@ -17,7 +17,6 @@ from __future__ import annotations
 import contextlib
 import itertools
 import os
-import time
 from collections import deque
 from collections.abc import Iterable, Iterator
 from concurrent.futures import Future, ProcessPoolExecutor
@@ -29,7 +28,7 @@ import numpy as np
 from softjig.config import JigConfig, validate_jig, validate_part
 from softjig.errors import InputError
 from softjig.io.dataset import DatasetWriter, encode_png
-from softjig.io.workers import worker_pool
+from softjig.io.workers import stderr_progress, worker_pool
 from softjig.sim.asbuilt import AsBuiltJig, draw_as_built
 from softjig.sim.scenarios import FrameSpec, check_reachable, frame_truth
 
@@ -214,30 +213,11 @@ class _progress_bar:
         self.enabled, self.total = enabled, total
         self._progress: Any = None
         self._task: Any = None
-        self._t0 = time.perf_counter()
 
     def __enter__(self):
         if not self.enabled:
             return lambda: None
-        from rich.console import Console
-        from rich.progress import (
-            BarColumn,
-            MofNCompleteColumn,
-            Progress,
-            TextColumn,
-            TimeElapsedColumn,
-            TimeRemainingColumn,
-        )
-
-        self._progress = Progress(
-            TextColumn("rendering"),
-            BarColumn(),
-            MofNCompleteColumn(),
-            TimeElapsedColumn(),
-            TimeRemainingColumn(),
-            console=Console(stderr=True),
-            transient=False,
-        )
+        self._progress = stderr_progress("rendering")
         self._progress.start()
         self._task = self._progress.add_task("render", total=self.total)
         return lambda: self._progress.advance(self._task)

@@ -37,7 +37,15 @@ from softjig.errors import SoftjigError
 if TYPE_CHECKING:  # imported when a pool is made: every command imports this module (the CLI's signals)
     from concurrent.futures import ProcessPoolExecutor
 
-__all__ = ["Terminated", "die_with_parent", "init_worker", "stop_pool", "terminate_raises", "worker_pool"]
+__all__ = [
+    "Terminated",
+    "die_with_parent",
+    "init_worker",
+    "stderr_progress",
+    "stop_pool",
+    "terminate_raises",
+    "worker_pool",
+]
 
 _PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
 #: Seconds the workers of an aborted pool get to end after SIGTERM before they are killed.
@@ -216,3 +224,21 @@ def one_thread_per_worker() -> Iterator[None]:
                 os.environ.pop(name, None)
             else:
                 os.environ[name] = value
+
+
+def stderr_progress(label: str, *fields: str, eta: str | None = None) -> Any:
+    """A (not yet started) Rich progress bar on stderr: ``label``, the bar, done/total, a text column per
+    format string of ``fields``, elapsed time, then ``eta`` (a text, if given) and the time remaining."""
+    from rich.console import Console
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
+
+    columns = [TextColumn(label), BarColumn(), MofNCompleteColumn(), *map(TextColumn, fields)]
+    columns += [TimeElapsedColumn(), *([TextColumn(eta)] if eta is not None else []), TimeRemainingColumn()]
+    return Progress(*columns, console=Console(stderr=True))

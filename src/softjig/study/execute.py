@@ -22,6 +22,7 @@ from typing import Any
 
 import pyarrow as pa
 
+from softjig.io.workers import stderr_progress
 from softjig.study.results import StudyFolder, check_study_folder, open_study_folder, part_table
 from softjig.study.run import (
     Task,
@@ -81,26 +82,7 @@ class _Progress:
     def __enter__(self) -> _Progress:
         if not self.enabled:
             return self
-        from rich.console import Console
-        from rich.progress import (
-            BarColumn,
-            MofNCompleteColumn,
-            Progress,
-            TextColumn,
-            TimeElapsedColumn,
-            TimeRemainingColumn,
-        )
-
-        self._bar = Progress(
-            TextColumn("study"),
-            BarColumn(),
-            MofNCompleteColumn(),
-            TextColumn("frames, {task.fields[tasks]}"),
-            TimeElapsedColumn(),
-            TextColumn("ETA"),
-            TimeRemainingColumn(),
-            console=Console(stderr=True),
-        )
+        self._bar = stderr_progress("study", "frames, {task.fields[tasks]}", eta="ETA")
         self._bar.start()
         self._id = self._bar.add_task("study", total=self.total, completed=self.done, tasks="")
         return self
@@ -118,7 +100,7 @@ def _results(study: Study, todo: list[Task], workers: int, ray: str | None) -> I
     inputs = task_inputs(study, todo)
     if ray is not None:
         return ray_results(inputs, ray, workers)
-    return local_results(inputs, workers)
+    return local_results(inputs, min(workers, max(1, len(todo))))  # no idle worker forked, as simulate
 
 
 def _complete_designs(study: Study, tasks: list[Task], finished: set[str]) -> set[int]:

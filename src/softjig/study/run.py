@@ -41,6 +41,7 @@ import math
 import time
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
+from itertools import islice
 from typing import Any
 
 import numpy as np
@@ -118,7 +119,7 @@ class TaskResult:
 def make_tasks(study: Study) -> list[Task]:
     """Every task of the study, design by design (then seed, then chunk), so that designs complete early."""
     spec = study.spec
-    n = len(spec.frame_specs()) - 1
+    n = spec.n_frames
     n_chunks = max(1, math.ceil(n / spec.frames_per_task))
     bounds = [round(c * n / n_chunks) for c in range(n_chunks + 1)]
     return [
@@ -294,22 +295,12 @@ def local_results(inputs: Iterable[TaskInput], workers: int) -> Iterator[TaskRes
         one_thread_per_worker(),
         worker_pool(workers, mp_context=multiprocessing.get_context("fork")) as pool,
     ):
-        pending = {pool.submit(run_task, inp) for inp in _take(todo, IN_FLIGHT_PER_WORKER * workers)}
+        pending = {pool.submit(run_task, inp) for inp in islice(todo, IN_FLIGHT_PER_WORKER * workers)}
         while pending:
             done, pending = wait(pending, return_when=FIRST_COMPLETED)
-            pending |= {pool.submit(run_task, inp) for inp in _take(todo, len(done))}
+            pending |= {pool.submit(run_task, inp) for inp in islice(todo, len(done))}
             for future in done:
                 yield future.result()
-
-
-def _take(iterator: Iterator[TaskInput], n: int) -> list[TaskInput]:
-    out = []
-    for _ in range(n):
-        item = next(iterator, None)
-        if item is None:
-            break
-        out.append(item)
-    return out
 
 
 def _ray() -> Any:
@@ -429,13 +420,13 @@ def _ray_stream(ray: Any, inputs: Iterable[TaskInput]) -> Iterator[TaskResult]:
     remote = ray.remote(num_cpus=1, max_retries=2)(run_task)
     cpus = max(1, int(ray.cluster_resources().get("CPU", 1)))
     todo = iter(inputs)
-    pending = [remote.remote(inp) for inp in _take(todo, IN_FLIGHT_PER_WORKER * cpus)]
+    pending = [remote.remote(inp) for inp in islice(todo, IN_FLIGHT_PER_WORKER * cpus)]
     # Tasks still in flight when the study stops are not cancelled: ray.cancel races with the task's reply
     # in Ray's core and can abort this process ("Tried to complete task that was not pending",
     # ray-project/ray#54738), losing the results written so far. Shutting a local cluster down ends its
     # workers; a running cluster finishes them and their results are dropped (--resume recomputes them).
     while pending:
         done, pending = ray.wait(pending, num_returns=1)
-        pending += [remote.remote(inp) for inp in _take(todo, len(done))]
+        pending += [remote.remote(inp) for inp in islice(todo, len(done))]
         for ref in done:
             yield ray.get(ref)

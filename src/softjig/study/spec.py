@@ -61,6 +61,7 @@ from pydantic import ConfigDict, Field, TypeAdapter, ValidationError
 from softjig.config import (
     CylinderPart,
     JigConfig,
+    _parse,  # a pydantic model of a TOML section, its first error as a ConfigError naming the key
     default_jig,
     jig_to_dict,
     load_jig,
@@ -90,8 +91,6 @@ STUDY_METHODS = ("refractive", "paper")
 #: Loaded frames per task at most: a task renders its chunk's frames plus the unloaded reference frame,
 #: so the reference costs at most 1/96 extra; a design with more frames is split into chunks.
 DEFAULT_FRAMES_PER_TASK = 96
-#: Designs a study may hold at most (each is built and validated up front, ~1 ms each).
-MAX_DESIGNS = 1_000_000
 
 Scalar = float | int | str | bool
 Value = Scalar | tuple[Any, ...]
@@ -132,7 +131,8 @@ class PoseSpec:
 
 #: ``[frames]`` keys of the paper sweep (exclusive with ``poses`` and ``zoo``).
 SWEEP_KEYS = ("diameters_mm", "alphas_deg", "theta_step_deg", "push_depth_mm")
-#: Random zoo frames a study may draw per seed at most (each is rendered for every design).
+#: Random zoo frames a study may draw per seed at most (each is rendered for every design); also the
+#: paper sweep's frames per design at most.
 MAX_ZOO_FRAMES = 10_000
 #: ``SeedSequence(seed, spawn_key=(ZOO_FRAMES_SPAWN_KEY,))`` draws a seed's zoo frames; a task draws its
 #: as-built jig from ``spawn_key=(0,)`` and its frames' noise from ``(1, index)`` (softjig.study.run).
@@ -283,6 +283,11 @@ class StudySpec:
         text = json.dumps(self.canonical(), sort_keys=True, separators=(",", ":"))
         return hashlib.sha256(text.encode("utf-8")).hexdigest()
 
+    @property
+    def n_frames(self) -> int:
+        """Loaded frames per design and seed (without drawing the zoo's: that takes ~1.5 ms a frame)."""
+        return self.frames.zoo.count if self.frames.zoo is not None else len(self.frame_specs()) - 1
+
     def frame_specs(self, seed: int | None = None) -> list:
         """The unloaded reference frame, then the loaded frames (:func:`~softjig.sim.scenarios.paper_sweep`
         order: diameter, alpha, theta; or the explicit poses in their order; or the zoo frames ``seed``
@@ -341,7 +346,17 @@ def _parse_frames(data: Any) -> FramesSpec:
             )
         if not data["poses"]:
             raise ConfigError("frames.poses: an empty list gives no frame; give at least one pose")
-    return _parse(FramesSpec, data, "frames")
+        return _parse(FramesSpec, data, "frames")
+    frames = _parse(FramesSpec, data, "frames")
+    step = frames.theta_step_deg
+    if math.isfinite(step) and step > 0:  # else the sweep's own check (frame_specs) says what is wrong
+        n = len(frames.diameters_mm) * len(frames.alphas_deg) * math.ceil(360.0 / step - 1e-9)
+        if n > MAX_ZOO_FRAMES:
+            raise ConfigError(
+                f"frames.theta_step_deg: {step:g} gives {n:,} sweep frames per design, over the "
+                f"{MAX_ZOO_FRAMES:,} a study may render; give a larger step"
+            )
+    return frames
 
 
 def _is_number(value: Any) -> bool:
@@ -354,15 +369,6 @@ def _plain(value: Any) -> Any:
     if isinstance(value, dict):
         return {k: _plain(v) for k, v in value.items()}
     return value
-
-
-def _parse(cls: type, data: Any, where: str) -> Any:
-    try:
-        return TypeAdapter(cls).validate_python(data)
-    except ValidationError as exc:
-        err = exc.errors()[0]
-        loc = ".".join(str(x) for x in (where, *err["loc"]) if x != "")
-        raise ConfigError(f"{loc}: {err['msg']}") from None
 
 
 _SECTIONS = ("study", "vary", "frames", "estimate")
@@ -419,8 +425,6 @@ def parse_study(data: dict[str, Any], *, folder: Path | None = None) -> StudySpe
     _check_methods(methods)
     vary = _parse_vary(data.get("vary", {}))
     spec = StudySpec(section.name, section.seeds, vary, frames, methods, base, section.frames_per_task)
-    if spec.n_designs > MAX_DESIGNS:
-        raise ConfigError(f"vary: {spec.n_designs} designs, more than the {MAX_DESIGNS} a study may hold")
     spec.frame_specs()  # the sweep's own checks (diameters, alphas, step)
     return spec
 
@@ -726,13 +730,16 @@ def _where(spec: StudySpec, values: Sequence[Value]) -> str:
     return text or "(the base jig)"
 
 
-def _check_frames(spec: StudySpec, jig: JigConfig, values: Sequence[Value]) -> None:
-    """Every part of ``[frames]`` fits the design's membrane and stays clear of its plate."""
+def _check_frames(
+    spec: StudySpec, jig: JigConfig, values: Sequence[Value], zoo_frames: dict[int, list]
+) -> None:
+    """Every part of ``[frames]`` fits the design's membrane and stays clear of its plate (``zoo_frames``:
+    each seed's zoo frames, when the frames are the zoo's)."""
     from softjig.sim.parts import PartPose
     from softjig.sim.scenarios import FrameSpec, check_reachable
 
     if spec.frames.zoo is not None:
-        _check_zoo_frames(spec, jig, values)
+        _check_zoo_frames(spec, jig, values, zoo_frames)
         return
     for d, a, t, depth in spec.frames.parts_and_poses():
         part = _cylinder(d)
@@ -746,12 +753,14 @@ def _check_frames(spec: StudySpec, jig: JigConfig, values: Sequence[Value]) -> N
             ) from None
 
 
-def _check_zoo_frames(spec: StudySpec, jig: JigConfig, values: Sequence[Value]) -> None:
+def _check_zoo_frames(
+    spec: StudySpec, jig: JigConfig, values: Sequence[Value], zoo_frames: dict[int, list]
+) -> None:
     """Every seed's zoo frame (drawn to fit the base jig) fits the design's membrane and plate too."""
     from softjig.sim.scenarios import check_reachable
 
-    for seed in spec.seeds:
-        for k, frame in enumerate(spec.frame_specs(seed)[1:]):
+    for seed, frames in zoo_frames.items():
+        for k, frame in enumerate(frames[1:]):
             part, pose = frame.part, frame.pose
             try:
                 validate_part(part, jig)
@@ -780,11 +789,13 @@ def build_designs(spec: StudySpec) -> tuple[Design, ...]:
     """
     designs = []
     checked: set[tuple[Any, ...]] = set()  # the parts' fit depends on the membrane and the plate only
+    # A seed's zoo frames are the same for every design (drawn on the base jig): drawn once, not per check.
+    zoo_frames = {seed: spec.frame_specs(seed) for seed in spec.seeds} if spec.frames.zoo is not None else {}
     for design_id, values in enumerate(itertools.product(*(v for _, v in spec.vary))):
         jig = design_jig(spec, values)
         key = (jig.membrane, jig.plate)
         if key not in checked:
-            _check_frames(spec, jig, values)
+            _check_frames(spec, jig, values, zoo_frames)
             checked.add(key)
         designs.append(Design(design_id, tuple(values), jig))
     return tuple(designs)
