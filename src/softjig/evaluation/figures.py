@@ -30,6 +30,7 @@ __all__ = [
     "normal_projection_figure",
     "rmse_grid_figure",
     "rmse_grid_plot",
+    "save_png",
     "shared_colour_limits",
     "tilt_methods_figure",
     "tilt_sweep_figure",
@@ -39,11 +40,13 @@ RED, GREEN = "#d62728", "#2ca02c"
 BAR_COLOURS = ["#7f7f7f", "#1f77b4", "#ff7f0e", "#9467bd", "#8c564b"]
 
 
-def _save(fig: Figure, path: str | os.PathLike[str], dpi: int = 110) -> None:
+def save_png(fig: Figure, path: str | os.PathLike[str], dpi: int = 110, *, durable: bool = True) -> None:
+    """Render ``fig`` to PNG and write it atomically (:func:`softjig.files.write_bytes_atomic`; ``durable``:
+    fsynced before it is renamed into place)."""
     FigureCanvasAgg(fig)
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png", dpi=dpi)
-    write_bytes_atomic(path, buffer.getvalue())
+    write_bytes_atomic(path, buffer.getvalue(), durable=durable)
 
 
 def tilt_sweep_figure(
@@ -97,7 +100,7 @@ def tilt_sweep_figure(
         + "  (opaque: jig Ax red, Ay green; translucent: commanded)",
         fontsize=10,
     )
-    _save(fig, path)
+    save_png(fig, path)
 
 
 def shared_colour_limits(grids: Sequence[RmseGrid]) -> tuple[float, float]:
@@ -161,7 +164,7 @@ def rmse_grid_figure(
     grids : ``(panel title, grid)`` pairs, drawn side by side on one colour scale.
     path : the PNG to write.
     """
-    _save(rmse_grid_plot(grids, title=title), path)
+    save_png(rmse_grid_plot(grids, title=title), path)
 
 
 def methods_plot(
@@ -214,7 +217,7 @@ def methods_figure(
     title: str | None = None,
 ) -> None:
     """Write :func:`methods_plot` as a PNG."""
-    _save(methods_plot(grids, cube, title=title), path)
+    save_png(methods_plot(grids, cube, title=title), path)
 
 
 def tilt_methods_figure(
@@ -279,7 +282,7 @@ def tilt_methods_figure(
     ]
     fig.legend(handles=handles, loc="outside lower center", ncol=2, fontsize=8)
     fig.suptitle(title or "Tilt angles over the sweep, the methods overlaid", fontsize=10)
-    _save(fig, path)
+    save_png(fig, path)
 
 
 def normal_projection_figure(
@@ -331,4 +334,4 @@ def normal_projection_figure(
     fig.suptitle(
         title or "Cube: estimated vs motion-capture normal, projected on the YZ and XZ planes", fontsize=10
     )
-    _save(fig, path)
+    save_png(fig, path)

@@ -9,18 +9,16 @@ Methods keep one colour in every figure (:func:`method_colour`).
 
 from __future__ import annotations
 
-import io
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from softjig.evaluation import figures as evaluation_figures
 from softjig.evaluation.figures import rmse_grid_plot
 from softjig.evaluation.metrics import RmseGrid
-from softjig.files import write_bytes_atomic
 
 __all__ = [
     "DesignPoints",
@@ -49,11 +47,9 @@ def method_colour(method: str, methods: Sequence[str]) -> str:
 
 
 def save_png(fig: Figure, path: str | os.PathLike[str], dpi: int = FIGURE_DPI) -> None:
-    """Render ``fig`` to PNG and write it atomically (:func:`softjig.files.write_bytes_atomic`)."""
-    FigureCanvasAgg(fig)
-    buffer = io.BytesIO()
-    fig.savefig(buffer, format="png", dpi=dpi)
-    write_bytes_atomic(path, buffer.getvalue(), durable=False)
+    """Render ``fig`` to PNG and write it atomically, not fsynced (figures are derived: a study's report
+    writes them again), through :func:`softjig.evaluation.figures.save_png`."""
+    evaluation_figures.save_png(fig, path, dpi, durable=False)
 
 
 @dataclass(frozen=True)
