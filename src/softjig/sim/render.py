@@ -65,7 +65,7 @@ Radiance is computed in float32 on ``[0, 1]`` (fraction of full scale), in this 
    pushed the membrane by more than ``medium.speckle_redraw_displacement_mm`` (about half a bead: the
    beads next to it are pushed out of their pockets and re-pack) is a fraction
    ``medium.speckle_redraw_fraction`` of its variance new (only the layer of beads next to the
-   membrane moves, not the whole column; :func:`_bead_speckle`). With ``speckle_static = False`` the
+   membrane moves, not the whole column; :func:`_redrawn_speckle`). With ``speckle_static = False`` the
    texture is drawn anew from ``rng`` every frame, with ``c`` from the frame's markers (the idealised
    model the simulator used before). It is applied *before* the fiducials, which lie below the plate
    and are opaque: there is no speckle on the fiducials.
