@@ -777,11 +777,6 @@ def _compose(
     return out
 
 
-def _sensor(image: np.ndarray, im: ImagingConfig, rng: np.random.Generator, gain: float) -> np.ndarray:
-    """The sensor alone on a radiance ``image`` (:func:`_compose` without markers)."""
-    return _compose(image, image, None, _NO_PATCHES, _NO_ORIGINS, im, rng, gain)
-
-
 def _redrawn_speckle(
     jig: JigConfig,
     grid: _SpeckleGrid,
