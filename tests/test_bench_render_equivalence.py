@@ -1,0 +1,26 @@
+"""``benchmarks/bench_render_equivalence.py`` refuses frame counts it would answer with NaN figures."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_render_equivalence.py"
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--frames", "0"], "--frames must be between 1 and 36"),
+        (["--frames", "37"], "--frames must be between 1 and 36"),  # was cut to the grid's 36 silently
+        (["--seeds", "0"], "--seeds must be at least 1"),
+        (["--frames", "1", "--seeds", "1"], "at least 2"),  # one frame: no standard error (NaN)
+    ],
+)
+def test_frame_counts_without_figures_are_refused(args, message):
+    done = subprocess.run([sys.executable, str(SCRIPT), *args], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2
+    assert message in done.stderr
