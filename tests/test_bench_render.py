@@ -1,4 +1,4 @@
-"""``benchmarks/bench_render_equivalence.py`` refuses frame counts it would answer with NaN figures."""
+"""The render benchmarks refuse counts they would answer with NaN figures or a traceback."""
 
 from __future__ import annotations
 
@@ -24,3 +24,14 @@ def test_frame_counts_without_figures_are_refused(args, message):
     done = subprocess.run([sys.executable, str(SCRIPT), *args], capture_output=True, text=True, timeout=120)
     assert done.returncode == 2
     assert message in done.stderr
+
+
+@pytest.mark.parametrize("name", ["--repeats", "--rounds"])
+def test_bench_render_refuses_no_pairs(name):
+    # --repeats 0 (or --rounds 0 with --src) ended in a traceback on the empty medians
+    bench_render = SCRIPT.with_name("bench_render.py")
+    done = subprocess.run(
+        [sys.executable, str(bench_render), name, "0"], capture_output=True, text=True, timeout=120
+    )
+    assert done.returncode == 2
+    assert f"{name} must be at least 1" in done.stderr
