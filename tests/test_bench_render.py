@@ -1,4 +1,4 @@
-"""The render benchmarks refuse counts they would answer with NaN figures or a traceback."""
+"""The render and study benchmarks refuse counts they would answer with NaN figures or a traceback."""
 
 from __future__ import annotations
 
@@ -32,6 +32,17 @@ def test_bench_render_refuses_no_pairs(name):
     bench_render = SCRIPT.with_name("bench_render.py")
     done = subprocess.run(
         [sys.executable, str(bench_render), name, "0"], capture_output=True, text=True, timeout=120
+    )
+    assert done.returncode == 2
+    assert f"{name} must be at least 1" in done.stderr
+
+
+@pytest.mark.parametrize("name", ["--tasks", "--frames-per-task", "--repeats", "--empty"])
+def test_bench_study_refuses_no_work(name):
+    # each ended in a traceback (an empty median, a division by --empty) after Ray had started
+    bench_study = SCRIPT.with_name("bench_study.py")
+    done = subprocess.run(
+        [sys.executable, str(bench_study), name, "0"], capture_output=True, text=True, timeout=300
     )
     assert done.returncode == 2
     assert f"{name} must be at least 1" in done.stderr
