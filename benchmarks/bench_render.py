@@ -125,6 +125,9 @@ def main() -> None:
     parser.add_argument("--color", action="store_true", help="render RGB images")
     parser.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
+    for name in ("repeats", "rounds"):
+        if getattr(args, name) < 1:
+            parser.error(f"--{name} must be at least 1, got {getattr(args, name)}")
     if args.child:
         json.dump(_measure(args.repeats, args.color), sys.stdout)
         return

@@ -156,6 +156,14 @@ def main() -> None:
     parser.add_argument("--child-render", default=None, help=argparse.SUPPRESS)
     parser.add_argument("--child-estimate", default=None, help=argparse.SUPPRESS)
     args = parser.parse_args()
+    grid_size = len(_frames(sys.maxsize, 1))
+    if not 1 <= args.frames <= grid_size:
+        parser.error(f"--frames must be between 1 and {grid_size} (the grid), got {args.frames}")
+    if args.seeds < 1 or args.frames * args.seeds < 2:
+        parser.error(
+            f"--seeds must be at least 1 and --frames x --seeds at least 2 (the figures' standard error over "
+            f"the frames), got --frames {args.frames} --seeds {args.seeds}"
+        )
     frames = _frames(args.frames, args.seeds)
     if args.child_render:
         _render(frames, args.child_render)

@@ -373,6 +373,9 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--empty", type=int, default=100, help="empty tasks for the dispatch cost")
     parser.add_argument("--write", type=Path, default=None, help="write this section into a RESULTS.md")
     args = parser.parse_args(argv)
+    for name in ("tasks", "frames_per_task", "repeats", "empty"):
+        if getattr(args, name) < 1:
+            parser.error(f"--{name.replace('_', '-')} must be at least 1, got {getattr(args, name)}")
     study = make_study(args.tasks * (1 + args.repeats * len(BACKENDS)), args.frames_per_task)
     timings, extra = run_rounds(study, args)
     extra["write_part_s"], extra["consolidate_per_task_s"] = driver_costs(study, batches(study, 1)[0])

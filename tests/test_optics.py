@@ -487,6 +487,9 @@ def test_point_sets_project_exactly_as_one_call_per_set():
         project_point_sets([sets[0], ([[-15.0, 0.0, -200.0]], 0)], cameras, LAYERS)
     with pytest.raises(ValueError, match="region 0"):
         project_point_sets([sets[1]], [*cameras, (K, None, pose((0.0, 0.0, -2.0)))], LAYERS)
+    for camera in (-1, 3, 1.0, True):  # -1 took the last camera
+        with pytest.raises(ValueError, match=r"camera must be an index in 0\.\.2"):
+            project_point_sets([(sets[1][0], camera)], cameras, LAYERS)
 
 
 def test_jacobian_stencil_gives_the_projection_jacobian():

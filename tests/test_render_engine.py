@@ -101,12 +101,17 @@ def test_cast_kernel_matches_brute_force(disc):
     assert np.sum(got > 0) == np.sum(want > 0)
 
 
+def _sensor(image, im, rng, gain):
+    """The sensor alone on a radiance ``image``: :func:`softjig.sim.render._compose` without markers."""
+    return render._compose(image, image, None, render._NO_PATCHES, render._NO_ORIGINS, im, rng, gain)
+
+
 @pytest.mark.parametrize("bit_depth", [8, 16])
 def test_sensor_kernel_matches_opencv_oracle(bit_depth):
     rng = np.random.default_rng(3)
     image = rng.uniform(-0.05, 1.05, (64, 96)).astype(np.float32)
     im = replace(default_jig().imaging, bit_depth=bit_depth)
-    got = render._sensor(image.copy(), im, np.random.default_rng(11), 1.1)
+    got = _sensor(image.copy(), im, np.random.default_rng(11), 1.1)
     # the oracle: the same deviates, then one OpenCV/NumPy operation per step
     hi, lo = render._random_bytes(np.random.default_rng(11), image.shape)
     z = render._NORMAL_OFFSET[hi] + render._NORMAL_SLOPE[hi] * lo.astype(np.float32)
@@ -153,7 +158,7 @@ def test_compose_kernel_matches_numpy_paste_then_sensor():
     for patch, (x, y) in zip(patches, origin, strict=True):
         ys, xs = slice(max(y, 0), min(y + p, h)), slice(max(x, 0), min(x + p, w))
         image[ys, xs] += patch[ys.start - y : ys.stop - y, xs.start - x : xs.stop - x] * g[ys, xs]
-    want = render._sensor(image, im, np.random.default_rng(1), 1.05)
+    want = _sensor(image, im, np.random.default_rng(1), 1.05)
     diff = np.abs(got.astype(int) - want.astype(int))
     assert diff.max() <= 1 and np.mean(diff > 0) < 1e-3  # overlapping patches: sums in another order
 

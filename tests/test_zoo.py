@@ -10,11 +10,11 @@ import pytest
 from typer.testing import CliRunner
 
 from softjig.cli.app import app
-from softjig.config import load_jig, validate_jig, validate_part
+from softjig.config import default_jig, load_jig, validate_jig, validate_part
 from softjig.errors import InputError
 from softjig.io.dataset import Dataset
 from softjig.sim.scenarios import check_reachable
-from softjig.sim.zoo import PLATE_MATERIALS, ZooRanges, draw_designs
+from softjig.sim.zoo import PLATE_MATERIALS, ZooRanges, draw_designs, draw_frames
 
 # Small images and few frames: the zoo's drawing is what is tested here, not the renderer.
 SMALL = ZooRanges(resolutions=((640, 480), (800, 600)))
@@ -75,6 +75,13 @@ def test_ranges_that_cannot_be_met_are_a_clear_error():
         ZooRanges(baseline_mm=(60.0, 20.0))
     with pytest.raises(InputError, match="part_kinds is empty"):
         ZooRanges(part_kinds=())
+
+
+@pytest.mark.parametrize("frames", [0, -3, 2.9, True])
+def test_draw_frames_refuses_a_count_that_is_not_a_positive_integer(frames):
+    # It returned the reference frame alone for 0 or -3 and truncated 2.9 to 2 loaded frames.
+    with pytest.raises(InputError, match="at least one loaded frame"):
+        draw_frames(default_jig(), frames, np.random.default_rng(0))
 
 
 def test_cli_writes_each_design_as_a_dataset(tmp_path):

@@ -674,6 +674,15 @@ def project_point_sets(
     for K, dist, T_J_cam in cameras:
         T = _check_pose(T_J_cam)
         checked.append((_check_K(K), _check_dist(dist), T, _check_center(T[:3, 3], layers)))
+    for _, camera in point_sets:  # a negative index would pick a camera from the end
+        if (
+            isinstance(camera, bool)
+            or not isinstance(camera, int | np.integer)
+            or not 0 <= camera < len(checked)
+        ):
+            raise ValueError(
+                f"a point set's camera must be an index in 0..{len(checked) - 1}, got {camera!r}"
+            )
     sets = [(*_as_vectors(points_J, 3, "points_J"), checked[camera]) for points_J, camera in point_sets]
     directions = _directions_of_sets([cam[3] for *_, cam in sets], [p for p, _, _ in sets], layers)
     return [

@@ -65,7 +65,7 @@ Radiance is computed in float32 on ``[0, 1]`` (fraction of full scale), in this 
    pushed the membrane by more than ``medium.speckle_redraw_displacement_mm`` (about half a bead: the
    beads next to it are pushed out of their pockets and re-pack) is a fraction
    ``medium.speckle_redraw_fraction`` of its variance new (only the layer of beads next to the
-   membrane moves, not the whole column; :func:`_bead_speckle`). With ``speckle_static = False`` the
+   membrane moves, not the whole column; :func:`_redrawn_speckle`). With ``speckle_static = False`` the
    texture is drawn anew from ``rng`` every frame, with ``c`` from the frame's markers (the idealised
    model the simulator used before). It is applied *before* the fiducials, which lie below the plate
    and are opaque: there is no speckle on the fiducials.
@@ -625,7 +625,7 @@ class _CameraView:
         maps = (*_fiducial_maps(fiducials, (h, w)), illumination)
         half_planes = _quad_half_planes([f.quad for f in fiducials])
         _read_only(*half_planes, *maps)
-        base, gain = _finish(texture, im, _FiducialsAndMaps(fiducials, maps), 0, 0)
+        base, gain = _finish(texture, im, fiducials, maps, 0, 0)
         view = cls(camera, side, layers, corners_px, fiducials, half_planes, speckle, maps, base, gain)
         _read_only(corners_px, base, gain)
         if speckle is not None:
@@ -681,7 +681,7 @@ class _CameraView:
             corr_px = md.bead_diameter_mm * float(np.median(scale)) if len(scale) else 5.0
             shape = (self.camera.height_px, self.camera.width_px)
             texture = _speckle(rng, shape, corr_px, md.speckle_std)
-            return (*_finish(texture, jig.imaging, self, 0, 0), None)
+            return (*_finish(texture, jig.imaging, self.fiducials, self.maps, 0, 0), None)
         if self.speckle is None or md.speckle_redraw_fraction <= 0:
             return self.base, self.gain, None
         displaced = np.abs(np.asarray(state.indentation_mm)) > md.speckle_redraw_displacement_mm
@@ -692,33 +692,30 @@ class _CameraView:
         if redrawn is None:
             return self.base, self.gain, None
         texture, x0, y0 = redrawn
-        box_radiance, box_gain = _finish(texture, jig.imaging, self, y0, x0)
+        box_radiance, box_gain = _finish(texture, jig.imaging, self.fiducials, self.maps, y0, x0)
         return self.base, self.gain, _Box(box_radiance, box_gain, x0, y0)
 
 
 def _finish(
-    texture: np.ndarray, im: ImagingConfig, view: _CameraView | _FiducialsAndMaps, y0: int, x0: int
+    texture: np.ndarray,
+    im: ImagingConfig,
+    fiducials: tuple[_Fiducial, ...],
+    maps: tuple[np.ndarray, np.ndarray, np.ndarray],
+    y0: int,
+    x0: int,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The bare membrane's radiance and the markers' gain over the region of a bead speckle ``texture``
     (top-left pixel ``y0, x0``; module docstring, steps 4-6): its speckle, the fiducials over it, the
-    fall-off and exposure (:func:`softjig.sim._kernels.finish_radiance`; the fiducials' maps are read only
-    if one meets the region)."""
+    fall-off and exposure (:func:`softjig.sim._kernels.finish_radiance`; a camera view's ``fiducials`` and
+    ``maps``, the fiducials' maps read only if one meets the region)."""
     h, w = texture.shape
-    under = any(f.y0 < y0 + h and y0 < f.y1 and f.x0 < x0 + w and x0 < f.x1 for f in view.fiducials)
+    under = any(f.y0 < y0 + h and y0 < f.y1 and f.x0 < x0 + w and x0 < f.x1 for f in fiducials)
     radiance = np.empty(texture.shape, dtype=np.float32)
     gain = np.empty(texture.shape, dtype=np.float32)
     texture = np.ascontiguousarray(texture)  # a crop's rows: contiguous, the kernel's loop vectorises
     background = np.float32(im.background_level)
-    _kernels.finish_radiance(texture, background, view.maps, under, (y0, x0), radiance, gain)
+    _kernels.finish_radiance(texture, background, maps, under, (y0, x0), radiance, gain)
     return radiance, gain
-
-
-@dataclass(frozen=True)
-class _FiducialsAndMaps:
-    """What :func:`_finish` reads of a camera view (while the view is being built)."""
-
-    fiducials: tuple[_Fiducial, ...]
-    maps: tuple[np.ndarray, np.ndarray, np.ndarray]
 
 
 def _fiducial_maps(fiducials: tuple[_Fiducial, ...], shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
@@ -775,11 +772,6 @@ def _compose(
     deviates = (hi, lo, _NORMAL_OFFSET, _NORMAL_SLOPE)
     _kernels.compose_sensor(base, gain, boxed, patches, origin, order, deviates, noise, _BAND_ROWS, out)
     return out
-
-
-def _sensor(image: np.ndarray, im: ImagingConfig, rng: np.random.Generator, gain: float) -> np.ndarray:
-    """The sensor alone on a radiance ``image`` (:func:`_compose` without markers)."""
-    return _compose(image, image, None, _NO_PATCHES, _NO_ORIGINS, im, rng, gain)
 
 
 def _redrawn_speckle(

@@ -201,17 +201,27 @@ def draw_designs(
         ``ranges.max_attempts`` draws (naming the most frequent reason).
     """
     ranges = ranges or ZooRanges()
-    if isinstance(n_designs, bool) or not isinstance(n_designs, int | np.integer) or n_designs < 1:
+    if not _is_count(n_designs, 1):
         raise InputError(f"the zoo needs at least one design (--designs), got {n_designs!r}")
-    if isinstance(frames, bool) or not isinstance(frames, int | np.integer) or frames < 1:
-        raise InputError(f"a zoo design needs at least one loaded frame (--frames), got {frames!r}")
-    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
+    _check_frames(frames)
+    if not _is_count(seed, 0):
         raise InputError(f"the seed must be a non-negative integer, got {seed!r}")
     # Check that the zoo can be met before any design is handed out (and written).
     first = _draw_design(0, int(seed), int(frames), ranges)
     yield first
     for index in range(1, int(n_designs)):
         yield _draw_design(index, int(seed), int(frames), ranges)
+
+
+def _is_count(value: object, least: int) -> bool:
+    """Whether ``value`` is an integer (not a bool) of at least ``least``."""
+    return not isinstance(value, bool) and isinstance(value, int | np.integer) and value >= least
+
+
+def _check_frames(frames: object) -> None:
+    """Refuse a number of loaded frames that is not an integer of at least 1 (InputError)."""
+    if not _is_count(frames, 1):
+        raise InputError(f"a zoo design needs at least one loaded frame (--frames), got {frames!r}")
 
 
 def _draw_design(index: int, seed: int, frames: int, ranges: ZooRanges) -> ZooDesign:
@@ -490,8 +500,10 @@ def draw_frames(
     Raises
     ------
     InputError
-        No part of the ranges fits ``jig`` within ``ranges.max_attempts`` draws.
+        ``frames`` not an integer of at least 1, or no part of the ranges fits ``jig`` within
+        ``ranges.max_attempts`` draws.
     """
+    _check_frames(frames)
     ranges = ranges or ZooRanges()
     specs, reason = _draw_frames(rng, jig, ranges, int(frames))
     if reason is not None:
