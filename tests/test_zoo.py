@@ -121,3 +121,13 @@ def test_cli_zoo_bad_input_exits_2(tmp_path, extra, message):
     assert result.exit_code == 2, result.output
     assert message in result.output
     assert not out.exists()
+
+
+def test_a_zoo_frame_count_beyond_the_limit_is_refused_before_anything_is_drawn():
+    """A mistyped --frames (10^9) hung while drawing the first design's frames, before any was written."""
+    from softjig.sim.zoo import MAX_ZOO_FRAMES, draw_designs
+    from softjig.study.spec import MAX_ZOO_FRAMES as STUDY_MAX_ZOO_FRAMES
+
+    assert STUDY_MAX_ZOO_FRAMES == MAX_ZOO_FRAMES
+    with pytest.raises(InputError, match="at most 10,000 loaded frames"):
+        next(draw_designs(1, seed=0, frames=10**9))

@@ -218,10 +218,20 @@ def _is_count(value: object, least: int) -> bool:
     return not isinstance(value, bool) and isinstance(value, int | np.integer) and value >= least
 
 
+#: Loaded frames a zoo design (or a study's seed) may have at most: all of a design's frames are drawn
+#: before the first is written, so a mistyped count would hang the command with nothing to show.
+MAX_ZOO_FRAMES = 10_000
+
+
 def _check_frames(frames: object) -> None:
-    """Refuse a number of loaded frames that is not an integer of at least 1 (InputError)."""
+    """Refuse a number of loaded frames that is not an integer from 1 to :data:`MAX_ZOO_FRAMES`
+    (InputError)."""
     if not _is_count(frames, 1):
         raise InputError(f"a zoo design needs at least one loaded frame (--frames), got {frames!r}")
+    if int(frames) > MAX_ZOO_FRAMES:
+        raise InputError(
+            f"a zoo design may have at most {MAX_ZOO_FRAMES:,} loaded frames (--frames), got {int(frames):,}"
+        )
 
 
 def _draw_design(index: int, seed: int, frames: int, ranges: ZooRanges) -> ZooDesign:

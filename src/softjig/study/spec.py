@@ -131,8 +131,9 @@ class PoseSpec:
 
 #: ``[frames]`` keys of the paper sweep (exclusive with ``poses`` and ``zoo``).
 SWEEP_KEYS = ("diameters_mm", "alphas_deg", "theta_step_deg", "push_depth_mm")
-#: Random zoo frames a study may draw per seed at most (each is rendered for every design); also the
-#: paper sweep's frames per design at most.
+#: Random zoo frames a study may draw per seed at most (each is rendered for every design): the zoo's own
+#: limit, :data:`softjig.sim.zoo.MAX_ZOO_FRAMES` (not imported: sim.zoo loads the renderer's modules; the
+#: two are tested equal); also the paper sweep's frames per design at most.
 MAX_ZOO_FRAMES = 10_000
 #: ``SeedSequence(seed, spawn_key=(ZOO_FRAMES_SPAWN_KEY,))`` draws a seed's zoo frames; a task draws its
 #: as-built jig from ``spawn_key=(0,)`` and its frames' noise from ``(1, index)`` (softjig.study.run).
