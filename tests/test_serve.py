@@ -281,6 +281,10 @@ def test_a_fixed_jig_is_kept_fixed_by_the_heartbeat_between_requests(service):
         (b"[1, 2]", "JSON object"),
         (b'{"op": "teleport"}', "unknown op 'teleport'; valid: estimate, settled, fix, release, health"),
         (b'{"op": "estimate", "timeout_s": -1}', "timeout_s"),
+        (b'{"op": "estimate", "timeout_s": NaN}', "timeout_s must be a number"),  # Python's JSON reads NaN
+        (b'{"op": "settled", "timeout_s": 1e999}', "timeout_s must be a number"),  # inf
+        (b'{"op": "estimate", "timeout_s": 1e9}', "timeout_s must be in (0, 300] s"),
+        (b'{"op": "estimate", "timeout_s": true}', "timeout_s must be a number"),
         (b'{"op": "health", "pad": "' + b"x" * 100_000 + b'"}', "exceeds the limit of 65536 bytes"),
     ],
 )
@@ -420,3 +424,21 @@ def test_choices_are_listed_and_checked_before_any_work(tmp_path, option, value)
     assert result.exit_code == 2
     assert ("refractive" in result.output) if option == "--method" else ("recorded" in result.output)
     assert "no-such-dataset" not in result.output
+
+
+@pytest.mark.parametrize(
+    ("options", "message"),
+    [
+        (["--rate", "fast"], "--rate applies to --replay, not to cameras"),
+        (["--method", "paper"], "the paper's method on live cameras needs --part-diameter MM"),
+    ],
+)
+def test_cameras_are_checked_as_live_checks_them_before_any_are_opened(options, message):
+    """``--source`` goes through live's checks (:func:`softjig.cli.live.open_cameras`): refused, exit 2,
+    before the (here missing) cameras are opened."""
+    from typer.testing import CliRunner
+
+    from softjig.cli import app
+
+    result = CliRunner().invoke(app, ["serve", "--source", "opencv:/no/l.avi,/no/r.avi", *options])
+    assert result.exit_code == 2 and message in " ".join(result.output.split()), result.output
