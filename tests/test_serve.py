@@ -129,6 +129,22 @@ def _start(args, wait_for="serving on", timeout_s=180.0):
     raise AssertionError(f"softjig {' '.join(args)} did not say {wait_for!r}: {''.join(seen)}")
 
 
+def serve_replay(dataset, *extra):
+    """`softjig serve --replay dataset` on a free loopback port, once serving: (process, its stderr lines
+    so far, a :class:`Client` of it). Stop it with :func:`stop_served`."""
+    port = _free_port()
+    proc, seen, _lines, _reader = _start(
+        ["serve", "--replay", str(dataset), "--bind", f"tcp://127.0.0.1:{port}", *extra]
+    )
+    return proc, seen, Client(f"tcp://127.0.0.1:{port}")
+
+
+def stop_served(proc, client):
+    client.close()
+    proc.terminate()
+    proc.wait(timeout=60)
+
+
 class Client:
     """A REQ socket with bounded waits (a fresh socket after a lost reply: REQ must alternate)."""
 
