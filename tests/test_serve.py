@@ -70,16 +70,21 @@ def test_a_failed_or_sigma_less_estimate_in_the_window_is_not_settled():
 # ------------------------------------------------------------------------------- the service process
 
 
+def _timed(out, frame_period_s: float):
+    """The dataset at ``out``, its frames stamped ``frame_period_s`` apart (``time_s``)."""
+    lines = (out / "frames.jsonl").read_text().splitlines()
+    with open(out / "frames.jsonl", "w") as fh:
+        for i, line in enumerate(lines):
+            fh.write(json.dumps({**json.loads(line), "time_s": round(i * frame_period_s, 6)}) + "\n")
+    return out
+
+
 @pytest.fixture(scope="module")
 def creep(tmp_path_factory):
     out = tmp_path_factory.mktemp("serve") / "creep"
     specs = [spec for alpha in CREEP_ALPHAS for spec in single(CylinderPart(50.0), alpha, 0.0)]
     simulate_dataset(out, specs, default_jig(), seed=11, workers=1, progress=False)
-    lines = (out / "frames.jsonl").read_text().splitlines()
-    with open(out / "frames.jsonl", "w") as fh:
-        for i, line in enumerate(lines):
-            fh.write(json.dumps({**json.loads(line), "time_s": round(i * FRAME_PERIOD_S, 6)}) + "\n")
-    return out
+    return _timed(out, FRAME_PERIOD_S)
 
 
 def reference_then_loaded_dataset(out, frame_period_s: float):
@@ -87,11 +92,7 @@ def reference_then_loaded_dataset(out, frame_period_s: float):
     ``frame_period_s`` apart (for the serve tests that swap references)."""
     specs = single(CylinderPart(50.0), 8.0, 30.0, reference=True)
     simulate_dataset(out, specs, default_jig(), seed=3, workers=1, progress=False)
-    lines = (out / "frames.jsonl").read_text().splitlines()
-    with open(out / "frames.jsonl", "w") as fh:
-        for i, line in enumerate(lines):
-            fh.write(json.dumps({**json.loads(line), "time_s": round(i * frame_period_s, 6)}) + "\n")
-    return out
+    return _timed(out, frame_period_s)
 
 
 def _free_port():
