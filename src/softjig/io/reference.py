@@ -208,7 +208,8 @@ def recorded_reference(
     except InputError as exc:
         text = str(exc).rstrip(".")
         message = text if text.startswith(where) else f"{where}: {text}"
+        message += "" if message.endswith("?") else "."
         raise InputError(
-            f"{message}. The indentations would be measured against a wrong reference: fix or unmark that "
+            f"{message} The indentations would be measured against a wrong reference: fix or unmark that "
             'frame ("reference": true), or estimate against the nominal rest shape with --no-reference'
         ) from None
