@@ -31,33 +31,39 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 
+def timed_frames(frames, estimator, *, estimate: bool):
+    """``(reference, wall s, CPU s)`` per frame of ``frames``: from asking for the frame to having its
+    images (and, ``estimate``, the estimate of a loaded frame). Of this benchmark and bench_frame's."""
+    from softjig.errors import SoftjigError
+
+    it = iter(frames)
+    while True:
+        t0, c0 = time.perf_counter(), time.process_time()
+        frame = next(it, None)
+        if frame is None:
+            return
+        left, right = frame.load_left(), frame.load_right()
+        if not frame.reference and estimate:
+            with contextlib.suppress(SoftjigError):
+                estimator.estimate(left, right)
+        yield frame.reference, time.perf_counter() - t0, time.process_time() - c0
+
+
 def _time_source(frames, jig, reference, *, estimate: bool) -> tuple[list[float], list[float], float]:
     """Wall and CPU seconds per loaded frame: from asking for the frame to having its images (and its
     estimate), and the mean CPU seconds a loaded frame. The source's opening (a bag's metadata and type
     definitions, ~0.1-0.3 s once) falls on the first frame, which the medians ignore and the mean leaves
     out; the reference frame's read counts towards the mean."""
-    from softjig.errors import SoftjigError
     from softjig.sensing.estimator import Estimator
 
     estimator = Estimator(jig, reference=reference, method="refractive")  # once, as estimate_dataset does
     wall, cpu = [], []
-    it = iter(frames)
-    total, first = 0.0, True
-    while True:
-        t0, c0 = time.perf_counter(), time.process_time()
-        frame = next(it, None)
-        if frame is None:
-            break
-        left, right = frame.load_left(), frame.load_right()
-        if not frame.reference and estimate:
-            with contextlib.suppress(SoftjigError):
-                estimator.estimate(left, right)
-        spent = time.process_time() - c0
-        total += 0.0 if first else spent
-        if not frame.reference:
-            wall.append(time.perf_counter() - t0)
+    total = 0.0
+    for k, (is_reference, spent_wall, spent) in enumerate(timed_frames(frames, estimator, estimate=estimate)):
+        total += 0.0 if k == 0 else spent
+        if not is_reference:
+            wall.append(spent_wall)
             cpu.append(spent)
-        first = False
     return wall, cpu, total / max(len(cpu) - 1, 1)
 
 

@@ -86,22 +86,12 @@ def _estimate_pass(estimator, pairs, spent: dict[str, float]) -> dict[str, float
 def _bag_pass(bag: Path, estimator, *, estimate: bool) -> tuple[float, float]:
     """Mean and median CPU ms a loaded frame of reading the bag (and estimating), first frame (the bag's
     opening) left out."""
-    from softjig.errors import SoftjigError
+    from bench_bag import timed_frames
     from softjig.io.rosbag import BagReader
 
-    cpu = []
     with BagReader(bag) as reader:
-        it = iter(reader.pairs(reader.choose_topics()))
-        while True:
-            t0 = time.process_time()
-            frame = next(it, None)
-            if frame is None:
-                break
-            left, right = frame.load_left(), frame.load_right()
-            if not frame.reference and estimate:
-                with contextlib.suppress(SoftjigError):
-                    estimator.estimate(left, right)
-            cpu.append((frame.reference, time.process_time() - t0))
+        frames = reader.pairs(reader.choose_topics())
+        cpu = [(ref, c) for ref, _, c in timed_frames(frames, estimator, estimate=estimate)]
     # a reference frame's read is a read all the same: it counts towards the loaded frames' mean
     total = sum(c for _, c in cpu[1:])
     loaded = [c for ref, c in cpu[1:] if not ref]

@@ -105,12 +105,7 @@ def test_overwrite_replaces_a_simulation_atomically(small_dataset, tmp_path, com
         ]
     else:
         bag = tmp_path / "bag"
-        assert (
-            runner.invoke(
-                app, ["convert", str(small_dataset), str(bag), "--no-estimate", "--no-progress"]
-            ).exit_code
-            == 0
-        )
+        assert _to_bag(small_dataset, bag).exit_code == 0
         args = ["convert", str(bag), str(target), "--overwrite", "--no-progress"]
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output

@@ -60,6 +60,13 @@ def _blank(record, root, _loaded):
     (root / record["right"]).write_bytes(blank)
 
 
+def _noise(record, root, _loaded):
+    rng = np.random.default_rng(0)  # a garbage frame: noise triangulates a dozen stray points
+    shape = (default_jig().cameras.left.height_px, default_jig().cameras.left.width_px)
+    (root / record["left"]).write_bytes(encode_png(rng.integers(0, 255, shape, dtype=np.uint8)))
+    (root / record["right"]).write_bytes(encode_png(rng.integers(0, 255, shape, dtype=np.uint8)))
+
+
 def _missing(record, root, _loaded):
     (root / record["left"]).unlink()
 
@@ -71,7 +78,13 @@ def test_the_recorded_reference_frame_is_taken_when_it_is_unloaded(dataset):
 
 
 @pytest.mark.parametrize(
-    ("edit", "says"), [(_loaded, "is loaded"), (_blank, "blank"), (_missing, "does not exist")]
+    ("edit", "says"),
+    [
+        (_loaded, "is loaded"),
+        (_blank, "blank"),
+        (_noise, "within half a pitch"),
+        (_missing, "does not exist"),
+    ],
 )
 def test_estimate_dataset_refuses_an_unusable_reference_frame(dataset, tmp_path, edit, says):
     root = _marked(dataset, tmp_path, edit)

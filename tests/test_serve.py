@@ -70,16 +70,21 @@ def test_a_failed_or_sigma_less_estimate_in_the_window_is_not_settled():
 # ------------------------------------------------------------------------------- the service process
 
 
+def _timed(out, frame_period_s: float):
+    """The dataset at ``out``, its frames stamped ``frame_period_s`` apart (``time_s``)."""
+    lines = (out / "frames.jsonl").read_text().splitlines()
+    with open(out / "frames.jsonl", "w") as fh:
+        for i, line in enumerate(lines):
+            fh.write(json.dumps({**json.loads(line), "time_s": round(i * frame_period_s, 6)}) + "\n")
+    return out
+
+
 @pytest.fixture(scope="module")
 def creep(tmp_path_factory):
     out = tmp_path_factory.mktemp("serve") / "creep"
     specs = [spec for alpha in CREEP_ALPHAS for spec in single(CylinderPart(50.0), alpha, 0.0)]
     simulate_dataset(out, specs, default_jig(), seed=11, workers=1, progress=False)
-    lines = (out / "frames.jsonl").read_text().splitlines()
-    with open(out / "frames.jsonl", "w") as fh:
-        for i, line in enumerate(lines):
-            fh.write(json.dumps({**json.loads(line), "time_s": round(i * FRAME_PERIOD_S, 6)}) + "\n")
-    return out
+    return _timed(out, FRAME_PERIOD_S)
 
 
 def reference_then_loaded_dataset(out, frame_period_s: float):
@@ -87,11 +92,7 @@ def reference_then_loaded_dataset(out, frame_period_s: float):
     ``frame_period_s`` apart (for the serve tests that swap references)."""
     specs = single(CylinderPart(50.0), 8.0, 30.0, reference=True)
     simulate_dataset(out, specs, default_jig(), seed=3, workers=1, progress=False)
-    lines = (out / "frames.jsonl").read_text().splitlines()
-    with open(out / "frames.jsonl", "w") as fh:
-        for i, line in enumerate(lines):
-            fh.write(json.dumps({**json.loads(line), "time_s": round(i * frame_period_s, 6)}) + "\n")
-    return out
+    return _timed(out, frame_period_s)
 
 
 def _free_port():
@@ -127,6 +128,22 @@ def _start(args, wait_for="serving on", timeout_s=180.0):
     proc.kill()
     proc.wait()
     raise AssertionError(f"softjig {' '.join(args)} did not say {wait_for!r}: {''.join(seen)}")
+
+
+def serve_replay(dataset, *extra):
+    """`softjig serve --replay dataset` on a free loopback port, once serving: (process, its stderr lines
+    so far, a :class:`Client` of it). Stop it with :func:`stop_served`."""
+    port = _free_port()
+    proc, seen, _lines, _reader = _start(
+        ["serve", "--replay", str(dataset), "--bind", f"tcp://127.0.0.1:{port}", *extra]
+    )
+    return proc, seen, Client(f"tcp://127.0.0.1:{port}")
+
+
+def stop_served(proc, client):
+    client.close()
+    proc.terminate()
+    proc.wait(timeout=60)
 
 
 class Client:
@@ -281,6 +298,10 @@ def test_a_fixed_jig_is_kept_fixed_by_the_heartbeat_between_requests(service):
         (b"[1, 2]", "JSON object"),
         (b'{"op": "teleport"}', "unknown op 'teleport'; valid: estimate, settled, fix, release, health"),
         (b'{"op": "estimate", "timeout_s": -1}', "timeout_s"),
+        (b'{"op": "estimate", "timeout_s": NaN}', "timeout_s must be a number"),  # Python's JSON reads NaN
+        (b'{"op": "settled", "timeout_s": 1e999}', "timeout_s must be a number"),  # inf
+        (b'{"op": "estimate", "timeout_s": 1e9}', "timeout_s must be in (0, 300] s"),
+        (b'{"op": "estimate", "timeout_s": true}', "timeout_s must be a number"),
         (b'{"op": "health", "pad": "' + b"x" * 100_000 + b'"}', "exceeds the limit of 65536 bytes"),
     ],
 )
@@ -420,3 +441,21 @@ def test_choices_are_listed_and_checked_before_any_work(tmp_path, option, value)
     assert result.exit_code == 2
     assert ("refractive" in result.output) if option == "--method" else ("recorded" in result.output)
     assert "no-such-dataset" not in result.output
+
+
+@pytest.mark.parametrize(
+    ("options", "message"),
+    [
+        (["--rate", "fast"], "--rate applies to --replay, not to cameras"),
+        (["--method", "paper"], "the paper's method on live cameras needs --part-diameter MM"),
+    ],
+)
+def test_cameras_are_checked_as_live_checks_them_before_any_are_opened(options, message):
+    """``--source`` goes through live's checks (:func:`softjig.cli.live.open_cameras`): refused, exit 2,
+    before the (here missing) cameras are opened."""
+    from typer.testing import CliRunner
+
+    from softjig.cli import app
+
+    result = CliRunner().invoke(app, ["serve", "--source", "opencv:/no/l.avi,/no/r.avi", *options])
+    assert result.exit_code == 2 and message in " ".join(result.output.split()), result.output

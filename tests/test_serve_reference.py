@@ -17,7 +17,7 @@ from typer.testing import CliRunner
 
 from softjig.cli import app
 from softjig.config import default_jig
-from test_serve import Client, _free_port, _start, reference_then_loaded_dataset
+from test_serve import reference_then_loaded_dataset, serve_replay, stop_served
 
 pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
 
@@ -54,20 +54,6 @@ def rest_shape_row(dataset, tmp_path_factory):
     return row
 
 
-def _serve(dataset, *extra):
-    port = _free_port()
-    proc, seen, _lines, _reader = _start(
-        ["serve", "--replay", str(dataset), "--bind", f"tcp://127.0.0.1:{port}", *extra]
-    )
-    return proc, seen, Client(f"tcp://127.0.0.1:{port}")
-
-
-def _stop(proc, client):
-    client.close()
-    proc.terminate()
-    proc.wait(timeout=60)
-
-
 def _estimate_of_loaded_frame(client, tries=20):
     """The estimate of the loaded frame (the replay loops over the reference frame and it)."""
     for _ in range(tries):
@@ -78,13 +64,13 @@ def _estimate_of_loaded_frame(client, tries=20):
 
 
 def test_a_replay_estimates_against_its_datasets_reference_frame(dataset, estimated):
-    proc, seen, client = _serve(dataset)
+    proc, seen, client = serve_replay(dataset)
     try:
         assert any("indentations against the reference frame" in line for line in seen), seen
         assert client.ask({"op": "health"})["reference"] == "reference frame"
         est = _estimate_of_loaded_frame(client)
     finally:
-        _stop(proc, client)
+        stop_served(proc, client)
     assert est["indentation_reference"] == "reference frame"
     np.testing.assert_allclose(est["normal"], estimated["normal"], atol=1e-9)
     assert est["push_depth_mm"] == pytest.approx(estimated["push_depth_mm"], abs=1e-9)
@@ -97,7 +83,7 @@ def test_the_reference_request_refuses_a_loaded_pair_and_takes_an_unloaded_one(
     frame is refused (the reference is kept), one on the empty jig's frame is taken, and from then on the
     answer is the reference frame's: the one `softjig estimate DATASET` gives."""
     assert not np.allclose(rest_shape_row["normal"], estimated["normal"], atol=1e-6)  # the test can fail
-    proc, seen, client = _serve(dataset, "--no-reference")
+    proc, seen, client = serve_replay(dataset, "--no-reference")
     try:
         assert any("against the rest shape" in line for line in seen), seen
         before = _estimate_of_loaded_frame(client)
@@ -122,7 +108,7 @@ def test_the_reference_request_refuses_a_loaded_pair_and_takes_an_unloaded_one(
         assert client.ask({"op": "health"})["reference"] == "reference frame"
         after = _estimate_of_loaded_frame(client)
     finally:
-        _stop(proc, client)
+        stop_served(proc, client)
     assert after["indentation_reference"] == "reference frame"
     np.testing.assert_allclose(after["normal"], estimated["normal"], atol=1e-9)
 

@@ -16,7 +16,7 @@ import pytest
 from typer.testing import CliRunner
 
 from softjig.cli import app
-from test_serve import Client, _free_port, _start, reference_then_loaded_dataset
+from test_serve import reference_then_loaded_dataset, serve_replay, stop_served
 
 pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
 
@@ -29,29 +29,15 @@ def dataset(tmp_path_factory):
     return reference_then_loaded_dataset(tmp_path_factory.mktemp("warm") / "ds", FRAME_PERIOD_S)
 
 
-def _serve(dataset, *extra):
-    port = _free_port()
-    proc, seen, _lines, _reader = _start(
-        ["serve", "--replay", str(dataset), "--bind", f"tcp://127.0.0.1:{port}", *extra]
-    )
-    return proc, seen, Client(f"tcp://127.0.0.1:{port}")
-
-
-def _stop(proc, client):
-    client.close()
-    proc.terminate()
-    proc.wait(timeout=60)
-
-
 def test_serve_warms_the_estimator_of_its_reference_frame_before_serving(dataset):
-    proc, seen, client = _serve(dataset)
+    proc, seen, client = serve_replay(dataset)
     try:
         (line,) = [x for x in seen if "warmed up in" in x]
         assert "the refractive estimator, against the reference frame" in line, seen
         assert seen.index(line) < next(i for i, x in enumerate(seen) if "serving on" in x)
         health = client.ask({"op": "health"})
     finally:
-        _stop(proc, client)
+        stop_served(proc, client)
     assert health["ok"] and health["reference"] == "reference frame"
     warmed = health["warmed_up"]
     assert warmed["against"] == "reference frame" and warmed["estimated"] and warmed["ms"] > 0
@@ -60,7 +46,7 @@ def test_serve_warms_the_estimator_of_its_reference_frame_before_serving(dataset
 def test_a_reference_request_warms_the_new_estimator(dataset):
     """Served against the rest shape (and warmed so); once a reference is taken, the estimator that
     replaced the old one was warmed against it, before it answered any pair."""
-    proc, seen, client = _serve(dataset, "--no-reference")
+    proc, seen, client = serve_replay(dataset, "--no-reference")
     try:
         assert any("the refractive estimator, against the rest shape" in x for x in seen), seen
         assert client.ask({"op": "health"})["warmed_up"]["against"] == "rest shape"
@@ -73,7 +59,7 @@ def test_a_reference_request_warms_the_new_estimator(dataset):
         assert taken is not None, "no reference was taken in 60 s"
         health = client.ask({"op": "health"})
     finally:
-        _stop(proc, client)
+        stop_served(proc, client)
     assert health["reference"] == "reference frame"
     assert health["warmed_up"]["against"] == "reference frame" and health["warmed_up"]["estimated"]
 

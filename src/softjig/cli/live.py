@@ -122,7 +122,7 @@ def live(
     if replay is not None:
         cameras, jig = _open_replay(replay, rate=rate, fps=fps, config=config, record=record)
     else:
-        cameras, jig = _open_cameras(
+        cameras, jig = open_cameras(
             source, rate=rate, fps=fps, config=config, method=method, part_diameter=part_diameter
         )
     from softjig.cli.reference import announced_reference
@@ -196,10 +196,11 @@ def _open_replay(replay: Path, *, rate: str, fps: float, config: Path | None, re
     return cameras, (load_config(config) if config else cameras.dataset.jig)
 
 
-def _open_cameras(
+def open_cameras(
     source: str, *, rate: str, fps: float, config: Path | None, method: str, part_diameter: float | None
 ):
-    """The cameras of ``--source``, and the jig (``--config``, else the default one, with a warning)."""
+    """The cameras of ``--source``, and the jig (``--config``, else the default one, with a warning); of
+    ``softjig live`` and ``softjig serve`` alike."""
     from softjig.io.cameras import open_source
 
     if rate != "recorded":

@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from softjig.cli.app import app, handle_errors, load_config, warn
+from softjig.cli.app import app, handle_errors, load_config
 from softjig.cli.choices import DEFAULT_METHOD, Method, ReplayRate
 from softjig.cli.options import (
     DEFAULT_FPS,
@@ -85,7 +85,7 @@ def serve(
 
     A reference request, while the jig is empty, makes the next pair the reference frame."""
     from softjig.calibration.tilt import load_tilt_calibration
-    from softjig.io.cameras import ReplaySource, open_source
+    from softjig.io.cameras import ReplaySource
     from softjig.io.dataset import Dataset
     from softjig.io.stream import check_endpoint
     from softjig.live.loop import LiveSettings
@@ -122,15 +122,11 @@ def serve(
         jig = load_config(config) if config else dataset.jig
         first_pair = first_loaded_pair(dataset)  # warm up on the first loaded frame
     else:
-        if rate != "recorded":
-            raise InputError("--rate applies to --replay, not to cameras")
-        if config is None:
-            warn("no --config: using the default (the paper's) jig; pass the rig.toml of your cameras")
-        jig = load_config(config)
-        if part_diameter is None and method == "paper":
-            raise InputError("the paper's method on live cameras needs --part-diameter MM")
-        cam = jig.cameras.left
-        cameras = open_source(source, width_px=cam.width_px, height_px=cam.height_px, fps=fps)
+        from softjig.cli.live import open_cameras
+
+        cameras, jig = open_cameras(
+            source, rate=rate, fps=fps, config=config, method=method, part_diameter=part_diameter
+        )
     reference = announced_reference(
         jig, method, left=reference_left, right=reference_right, from_dataset=reference_from,
         replay=dataset, use_reference=use_reference,

@@ -49,6 +49,10 @@ __all__ = [
 REFERENCE_FRAME = "reference frame"
 REST_SHAPE = "rest shape"
 
+#: A reference frame must hold at least 1/MIN_REFERENCE_SHARE of the rig's markers (a real unloaded pair
+#: of the simulated rig holds ~3/4 of them; a pair of noise images ~1/30).
+MIN_REFERENCE_SHARE = 4
+
 
 def reference_source(reference: ReferenceMarkers | None) -> str:
     """``"reference frame"`` or ``"rest shape"`` (``None``: the estimator's default, the rest shape)."""
@@ -95,7 +99,9 @@ def check_unloaded_reference(reference: ReferenceMarkers, jig: JigConfig, where:
     points = reference.xyz_mm
     ids = identify_markers(points, nominal, max_lateral_mm=jig.markers.pitch_mm / 2.0).ids
     known = ids >= 0
-    needed = max(jig.sensing.min_points, MIN_DENT_MARKERS + 3)
+    # a quarter of the rig's markers at least: an image of noise triangulates a dozen points, most of
+    # them within half a pitch of some marker (laterally), and too scattered for the dent check to flag
+    needed = max(jig.sensing.min_points, MIN_DENT_MARKERS + 3, -(-len(nominal.xyz_mm) // MIN_REFERENCE_SHARE))
     if known.sum() < needed:
         raise InputError(
             f"{where}: only {int(known.sum())} of its {len(points)} markers lie within half a pitch of one "
@@ -202,7 +208,8 @@ def recorded_reference(
     except InputError as exc:
         text = str(exc).rstrip(".")
         message = text if text.startswith(where) else f"{where}: {text}"
+        message += "" if message.endswith("?") else "."
         raise InputError(
-            f"{message}. The indentations would be measured against a wrong reference: fix or unmark that "
+            f"{message} The indentations would be measured against a wrong reference: fix or unmark that "
             'frame ("reference": true), or estimate against the nominal rest shape with --no-reference'
         ) from None
