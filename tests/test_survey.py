@@ -124,6 +124,25 @@ def test_survey_of_a_loaded_pair_is_refused(dataset, tmp_path):
     assert not out.exists()
 
 
+def test_survey_of_a_pair_of_noise_is_refused(dataset, tmp_path):
+    """Noise triangulates a dozen stray points, most within half a pitch of some marker and too scattered
+    for the dent check: a survey of them would write a rig of a dozen markers."""
+    from softjig.io.dataset import encode_png
+
+    rng = np.random.default_rng(0)
+    shape = (dataset.jig.cameras.left.height_px, dataset.jig.cameras.left.width_px)
+    paths = []
+    for side in ("left", "right"):
+        paths.append(tmp_path / f"{side}.png")
+        paths[-1].write_bytes(encode_png(rng.integers(0, 255, shape, dtype=np.uint8)))
+    out = tmp_path / "s.toml"
+    args = ["survey", *map(str, paths), "--config", str(dataset.root / "rig.toml"), "--out", str(out)]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 2, result.output
+    assert "half a pitch" in result.output
+    assert not out.exists()
+
+
 def test_survey_of_one_unloaded_pair(dataset, tmp_path):
     frame = dataset[0]
     out = tmp_path / "s.toml"

@@ -29,7 +29,7 @@ from softjig.config import JigConfig
 from softjig.errors import EstimationError, InputError
 from softjig.jig_shape import rest_marker_points_mm
 from softjig.sensing.identities import ReferenceMarkers, identify_markers, rest_shape_reference
-from softjig.sensing.survey import MIN_DENT_MARKERS, check_unloaded
+from softjig.sensing.survey import check_unloaded, min_matched_markers
 
 if TYPE_CHECKING:
     from softjig.io.dataset import Dataset
@@ -48,10 +48,6 @@ __all__ = [
 #: What an estimate says its indentations were measured against (``indentation_reference``).
 REFERENCE_FRAME = "reference frame"
 REST_SHAPE = "rest shape"
-
-#: A reference frame must hold at least 1/MIN_REFERENCE_SHARE of the rig's markers (a real unloaded pair
-#: of the simulated rig holds ~3/4 of them; a pair of noise images ~1/30).
-MIN_REFERENCE_SHARE = 4
 
 
 def reference_source(reference: ReferenceMarkers | None) -> str:
@@ -99,10 +95,7 @@ def check_unloaded_reference(reference: ReferenceMarkers, jig: JigConfig, where:
     points = reference.xyz_mm
     ids = identify_markers(points, nominal, max_lateral_mm=jig.markers.pitch_mm / 2.0).ids
     known = ids >= 0
-    # a quarter of the rig's markers at least: an image of noise triangulates a dozen points, most of
-    # them within half a pitch of some marker (laterally), and too scattered for the dent check to flag
-    needed = max(jig.sensing.min_points, MIN_DENT_MARKERS + 3, -(-len(nominal.xyz_mm) // MIN_REFERENCE_SHARE))
-    if known.sum() < needed:
+    if known.sum() < min_matched_markers(jig, len(nominal.xyz_mm)):
         raise InputError(
             f"{where}: only {int(known.sum())} of its {len(points)} markers lie within half a pitch of one "
             f"of the rig's {len(nominal)}: is it a pair of the unloaded jig, taken by the cameras of this "

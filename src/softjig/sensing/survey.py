@@ -237,6 +237,19 @@ def _profile_table(points_J: np.ndarray, jig: JigConfig) -> tuple[tuple[float, .
     return tuple(float(v) for v in np.array(radii)[keep]), tuple(float(max(v, 0.0)) for v in fitted[keep])
 
 
+#: An unloaded frame must match at least 1/MIN_MATCHED_SHARE of the rig's markers (a real unloaded pair
+#: of the simulated rig matches ~3/4 of them; a pair of noise images ~1/30).
+MIN_MATCHED_SHARE = 4
+
+
+def min_matched_markers(jig: JigConfig, n_nominal: int) -> int:
+    """The fewest markers of an unloaded frame that must lie within half a pitch of one of the rig's
+    ``n_nominal``: enough for the dent check and the fit (``sensing.min_points``), and a quarter of the
+    rig's (:data:`MIN_MATCHED_SHARE`): an image of noise triangulates a dozen points, most of them within
+    half a pitch of some marker laterally, and too scattered for the dent check to flag."""
+    return max(jig.sensing.min_points, MIN_DENT_MARKERS + 3, -(-n_nominal // MIN_MATCHED_SHARE))
+
+
 def _matched(points_J: np.ndarray, nominal: JigConfig, nominal_xyz: np.ndarray, where: str):
     """A frame's finite points above the plate matched to the nominal markers: (points, nominal indices,
     unmatched). A point on or below the plate's top face (``z <= 0``) is not on the membrane (a fiducial's
@@ -249,7 +262,7 @@ def _matched(points_J: np.ndarray, nominal: JigConfig, nominal_xyz: np.ndarray, 
         points, ReferenceMarkers(nominal_xyz, "rest shape"), max_lateral_mm=nominal.markers.pitch_mm / 2.0
     ).ids
     known = ids >= 0
-    if known.sum() < max(nominal.sensing.min_points, MIN_DENT_MARKERS + 3):
+    if known.sum() < min_matched_markers(nominal, len(nominal_xyz)):
         raise InputError(
             f"{where}only {int(known.sum())} triangulated markers lie within half a pitch of a nominal "
             "marker: is this a pair of the unloaded jig, and the right rig.toml?"
