@@ -141,3 +141,52 @@ def test_nan_and_inf_are_refused_in_every_number_option(tmp_path):
         result = runner.invoke(app, [*args, "--out", str(tmp_path / "out.json")])
         assert result.exit_code == 2, (args, result.output)
         assert not (tmp_path / "out.json").exists()
+
+
+def test_a_signal_raised_inside_a_compiled_kernels_callback_ends_the_command_as_the_signal():
+    """A SIGTERM handler's exception raised while a Numba kernel calls back into Python reaches the command
+    as a SystemError caused by it (seen: a study's SIGTERM exited 1 with a traceback instead of 143)."""
+    program = """
+from softjig.cli.app import handle_errors
+from softjig.io.workers import Terminated
+
+@handle_errors
+def command():
+    try:
+        raise Terminated(15)
+    except Terminated as exc:
+        raise SystemError("returned a result with an exception set") from exc
+
+command()
+"""
+    done = subprocess.run([sys.executable, "-c", program], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 143, done.stderr
+    assert "terminated by SIGTERM" in done.stderr and "Traceback" not in done.stderr
+
+
+def test_a_ctrl_c_inside_a_compiled_kernels_callback_is_an_interruption():
+    import typer
+
+    from softjig.cli.app import EXIT_INTERRUPTED, handle_errors
+
+    @handle_errors
+    def command():
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as exc:
+            raise SystemError("returned a result with an exception set") from exc
+
+    with pytest.raises(typer.Exit) as exited:
+        command()
+    assert exited.value.exit_code == EXIT_INTERRUPTED
+
+
+def test_a_system_error_of_no_signal_is_not_taken_for_one():
+    from softjig.cli.app import handle_errors
+
+    @handle_errors
+    def command():
+        raise SystemError("a bug")
+
+    with pytest.raises(SystemError, match="a bug"):
+        command()

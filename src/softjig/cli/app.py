@@ -297,8 +297,24 @@ def handle_errors(func: _F) -> _F:
             _exit_after_signal(str(exc), exc.exit_code)
         except KeyboardInterrupt:
             error("interrupted", EXIT_INTERRUPTED)
+        except SystemError as exc:
+            _exit_if_interrupted(exc)
+            raise
 
     return wrapper  # type: ignore[return-value]
+
+
+def _exit_if_interrupted(exc: BaseException) -> None:
+    """End the command as its signal would if ``exc`` was caused by one: a signal handler's exception
+    raised while a compiled kernel called back into Python (Numba's ``_numba_unpickle``) reaches us as a
+    ``SystemError`` whose cause is the :class:`~softjig.io.workers.Terminated` or ``KeyboardInterrupt``."""
+    seen = exc
+    while seen is not None:
+        if isinstance(seen, Terminated):
+            _exit_after_signal(str(seen), seen.exit_code)
+        if isinstance(seen, KeyboardInterrupt):
+            error("interrupted", EXIT_INTERRUPTED)
+        seen = seen.__cause__ or seen.__context__
 
 
 def parse_numbers(text: str, option: str) -> list[float]:
