@@ -303,7 +303,7 @@ def accuracy_table(rows: Sequence[Row]) -> list[str]:
         "|---|---|---|---|---|---|---|---|",
     ]
     for way in ("size+reference", "no size+reference"):
-        for source in ("fiducials", "config"):
+        for source in ("fiducials", "membrane", "config"):
             for lo, hi in itertools.pairwise((0, 20, 40, 80, 100_000)):
                 sel = [
                     r

@@ -154,8 +154,9 @@ def survey_cmd(
         if path is not None:
             check_output(path, option, images, datasets=[dataset] if len(inputs) == 1 else [])
     estimator = Estimator(nominal)
+    references = [estimator.reference_from_pair(left, right) for left, right in pairs]
     survey = survey_markers(
-        [estimator.reference_from_pair(left, right) for left, right in pairs],
+        references,
         nominal,
         fit_profile=not keep_profile,
         smooth=not raw_heights,
@@ -173,12 +174,23 @@ def survey_cmd(
         )
     else:
         _print_report(survey, source)
-    if frame_source != "fiducials":
+    level = survey.head_level
+    if level is not None:
+        shift = ", ".join(f"{v:+.2f}" for v in level.shift_mm)
         warn(
-            "the fiducials were not seen, so the cameras' poses come from the config: the markers are "
-            "measured in the cameras' nominal pose and the offsets above include the stereo head's own "
-            "placement error (a head tilted by 1 deg reads as a membrane shifted by a few mm). The surveyed "
-            "rig is consistent with these cameras for the estimator; to measure the membrane in the jig "
-            "frame itself, make the fiducials visible to both cameras"
+            "the fiducials were not seen, so the stereo head was levelled on the unloaded membrane: it "
+            f"sits rotated by {level.rotation_deg:.2f} deg and shifted by ({shift}) mm from the config's "
+            f"poses (uncertainty {level.tilt_sigma_deg:.3f} deg), and the surveyed rig's cameras are the "
+            "levelled ones. The level takes the rest shape's tilt and centre to be the config's; to "
+            "measure the membrane in the jig frame itself, make the fiducials visible to both cameras"
+        )
+    elif frame_source != "fiducials":
+        why = references[0].level_note or "sensing.extrinsics is 'config'"
+        warn(
+            f"the fiducials were not seen and {why}, so the cameras' poses come from the config: the "
+            "markers are measured in the cameras' nominal pose and the offsets above include the stereo "
+            "head's own placement error (a head tilted by 1 deg reads as a membrane shifted by a few mm). "
+            "The surveyed rig is consistent with these cameras for the estimator; to measure the membrane "
+            "in the jig frame itself, make the fiducials visible to both cameras"
         )
     typer.echo(f"wrote the surveyed rig to {out}", err=True)

@@ -34,6 +34,8 @@ from softjig.sensing.detect import (
 from softjig.sensing.fiducials import gray_to_u8
 from softjig.sensing.fitting import ContactPlaneFitter, PaperPlaneFitter
 from softjig.sensing.identities import ReferenceMarkers
+from softjig.sensing.jigframe import JigFrame, levelled_frame
+from softjig.sensing.levelling import HeadLevel, level_head
 from softjig.sensing.rectify import rectify_images
 from softjig.sensing.results import Observation, Refusal, SensingResult
 from softjig.sensing.setup import JigModel, ReferenceModel
@@ -76,18 +78,26 @@ class Composition:
     triangulator : ``model -> Triangulator``.
     fitter : ``(model, reference, calibration) -> PlaneFitter``.
     needs_part_size : whether the method needs the part's base diameter.
+    uses_reference : whether the method measures against a reference frame (and takes the camera poses
+        its reference levelled: :mod:`softjig.sensing.levelling`).
     """
 
     triangulator: Callable[[JigModel], Triangulator]
     fitter: Callable[[JigModel, ReferenceModel, TiltCalibration | None], PlaneFitter]
     needs_part_size: bool
+    uses_reference: bool
 
 
 COMPOSITIONS: Mapping[str, Composition] = MappingProxyType(
     {
-        "refractive": Composition(RefractedTriangulator, ContactPlaneFitter, needs_part_size=False),
+        "refractive": Composition(
+            RefractedTriangulator, ContactPlaneFitter, needs_part_size=False, uses_reference=True
+        ),
         "paper": Composition(
-            PinholeTriangulator, lambda model, _, calibration: PaperPlaneFitter(model, calibration), True
+            PinholeTriangulator,
+            lambda model, _, calibration: PaperPlaneFitter(model, calibration),
+            needs_part_size=True,
+            uses_reference=False,
         ),
     }
 )
@@ -103,7 +113,8 @@ class Estimator:
         rectified once here, and each pair with them.
     method : ``"refractive"`` (the default: ours) or ``"paper"`` (exactly as published).
     reference : the unloaded jig's markers (:meth:`reference_from_pair`), for ``"refractive"``; the
-        nominal rest shape when ``None``.
+        nominal rest shape when ``None``. When it levelled the head (``reference.head_level``), frames
+        without fiducials use the levelled camera poses (``frame_source`` ``"membrane"``).
     calibration : the paper's tilt calibration to apply, if any (fitted to this method's estimates).
     model : the :class:`JigModel` of ``jig`` when already built (another estimator's ``model``).
     detector, frame_finder, matcher, triangulator : stages to use instead of the jig's and the method's
@@ -147,8 +158,18 @@ class Estimator:
         self.reference = ReferenceModel.build(
             reference if reference is not None else self.model.rest_shape, used
         )
+        levels = reference is not None and composition.uses_reference
+        self.head_level = reference.head_level if levels else None
+        self._level_note = reference.level_note if levels else None
+        fallback = (
+            None
+            if self.head_level is None
+            else levelled_frame(used, self.model.frame.config_frame, self.head_level.T_correction)
+        )
         self.detector = detector if detector is not None else detector_for(self.model)
-        self.frame_finder = frame_finder if frame_finder is not None else FiducialFrameFinder(self.model)
+        self.frame_finder = (
+            frame_finder if frame_finder is not None else FiducialFrameFinder(self.model, fallback)
+        )
         self.matcher = matcher if matcher is not None else RowMatcher(self.model)
         self.triangulator = triangulator if triangulator is not None else composition.triangulator(self.model)
         self.fitter = composition.fitter(self.model, self.reference, calibration)
@@ -224,6 +245,8 @@ class Estimator:
         clock.lap("checks")
         frame, warnings = self.frame_finder.find(gray_to_u8(gray_left), gray_to_u8(gray_right))
         warnings = [*image_warnings, *warnings]
+        if frame.source == "config" and self._level_note is not None:
+            warnings.append(self._level_note)
         clock.lap("frame")
         markers_left = self.detector.detect(gray_left, on_fiducials(frame.fiducial_quads_left_px))
         markers_right = self.detector.detect(gray_right, on_fiducials(frame.fiducial_quads_right_px))
@@ -243,20 +266,42 @@ class Estimator:
         """Triangulate a stereo pair of the unloaded jig (through the layers, whatever the method) into the
         reference for indentations and identities.
 
+        When the fiducials are not found and ``sensing.extrinsics`` is ``"auto"``, the stereo head is
+        levelled on the pair (:func:`~softjig.sensing.levelling.level_head`: the config's camera poses
+        corrected so the markers lie on the rest markers) and the markers are triangulated with the
+        levelled poses; the reference then carries the level, which estimators built with it use.
+
         Raises
         ------
         EstimationError
             Fewer markers than ``sensing.min_points`` were matched.
         """
         observation = self.observe(left, right)
-        points = RefractedTriangulator(self.model).triangulate(
-            observation.left_xy_px, observation.right_xy_px, observation.frame
-        )
+        triangulator = RefractedTriangulator(self.model)
+
+        def triangulate(frame: JigFrame) -> np.ndarray:
+            return triangulator.triangulate(observation.left_xy_px, observation.right_xy_px, frame)
+
+        frame, level, note = observation.frame, None, None
+        if frame.source != "fiducials" and self.jig.sensing.extrinsics == "auto":
+            config = self.model.frame.config_frame
+            measured = level_head(
+                lambda T: triangulate(levelled_frame(self.jig, config, T)),
+                self.model.rest_shape.xyz_mm,
+                pitch_mm=self.jig.markers.pitch_mm,
+                tolerance_deg=self.jig.tolerances.camera_rotation_deg,
+            )
+            if isinstance(measured, HeadLevel):
+                level, frame = measured, levelled_frame(self.jig, config, measured.T_correction)
+            else:
+                frame = config
+                note = f"the stereo head could not be levelled on the reference frame: {measured}"
+        points = triangulate(frame)
         if len(points) < self.jig.sensing.min_points:
             raise EstimationError(
                 f"the reference pair gave only {len(points)} markers: is it a pair of the unloaded jig?"
             )
-        return ReferenceMarkers(points, "reference frame")
+        return ReferenceMarkers(points, "reference frame", head_level=level, level_note=note)
 
     def with_reference(self, reference: ReferenceMarkers | None) -> Estimator:
         """This estimator with another reference (the jig's model shared, not rebuilt)."""

@@ -830,7 +830,9 @@ class ContactPlaneFitter:
     ) -> NormalUncertainty:
         """With the config's camera poses (not measured) and no calibration, the stereo head's rotation
         error (its tolerance per axis, ``tolerances.camera_rotation_deg``) tilts the normal about x and y
-        by that much times the oil's index (an angle floor of ``sqrt(2) n_oil`` tolerances).
+        by that much times the oil's index (an angle floor of ``sqrt(2) n_oil`` tolerances). With the
+        poses levelled on the reference frame (``"membrane"``), the level's own tilt uncertainty takes
+        the tolerance's place.
 
         Why the index: the cameras see the markers at their apparent depth (compressed by about
         ``1 / n_oil`` in the oil, paraxially), and a rotated head rotates that apparent scene; the
@@ -842,11 +844,16 @@ class ContactPlaneFitter:
         frame); with it, 64 % of the 228 such estimates of the full zoo (50 designs x 20 frames, with the
         part's size and the reference frame).
         """
-        if observation.frame.source == "fiducials" or self._calibration is not None:
+        source = observation.frame.source
+        if source == "fiducials" or self._calibration is not None:
             return uncertainty
         jig = self._jig
-        head_rad = np.radians(jig.tolerances.camera_rotation_deg) * jig.medium.oil_refractive_index
-        return with_angle_floor(uncertainty, plane.normal, math.sqrt(2.0) * head_rad)
+        level = self._reference.markers.head_level
+        if source == "membrane" and level is not None:  # the head levelled on the reference frame
+            head_rad = np.radians(level.tilt_sigma_deg)  # already both axes' (root-sum-square)
+        else:
+            head_rad = math.sqrt(2.0) * np.radians(jig.tolerances.camera_rotation_deg)
+        return with_angle_floor(uncertainty, plane.normal, head_rad * jig.medium.oil_refractive_index)
 
     def _estimate(
         self,

@@ -19,6 +19,7 @@ from softjig.config import JigConfig
 from softjig.errors import InputError
 from softjig.jig_shape import rest_marker_points_mm
 from softjig.sensing._identities_kernels import one_to_one_nearest
+from softjig.sensing.levelling import HeadLevel
 
 
 @dataclass(frozen=True)
@@ -30,10 +31,17 @@ class ReferenceMarkers:
     xyz_mm : (K, 3) each reference marker's position (mm); not to be modified once made (its sort by
         ``x``, for :func:`identify_markers`, is made with it).
     source : ``"reference frame"`` or ``"rest shape"``.
+    head_level : for a reference frame whose cameras' pose came from the config, the stereo head's pose
+        error measured on it (:mod:`softjig.sensing.levelling`; its markers are then triangulated in the
+        levelled frame); ``None`` otherwise.
+    level_note : why a reference frame of the config's poses could not level the head (``None`` when it
+        did, or when it did not need to).
     """
 
     xyz_mm: np.ndarray
     source: str
+    head_level: HeadLevel | None = None
+    level_note: str | None = None
     _sorted_x: tuple[np.ndarray, np.ndarray, np.ndarray] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:

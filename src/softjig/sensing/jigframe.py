@@ -23,6 +23,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from types import MappingProxyType
 
 import cv2
 import numpy as np
@@ -54,9 +55,11 @@ class JigFrame:
     Attributes
     ----------
     T_J_left, T_J_right : (4, 4) the cameras' poses in J (mm).
-    source : ``"fiducials"`` (measured in these images) or ``"config"`` (fixed extrinsics).
-    reprojection_rms_px : RMS reprojection error of the fiducial corners (``nan`` for ``"config"``).
-    fiducial_ids : ids found in both images (empty for ``"config"``).
+    source : ``"fiducials"`` (measured in these images), ``"membrane"`` (the config's extrinsics levelled
+        on the unloaded reference frame: :mod:`softjig.sensing.levelling`) or ``"config"`` (fixed
+        extrinsics).
+    reprojection_rms_px : RMS reprojection error of the fiducial corners (``nan`` unless ``"fiducials"``).
+    fiducial_ids : ids found in both images (empty unless ``"fiducials"``).
     fiducial_quads_left_px, fiducial_quads_right_px : (M, 4, 2) where each fiducial is in each image
         (found, or projected from the config's poses): markers detected there are not membrane markers.
     """
@@ -229,6 +232,31 @@ def _jig_frame_fast(
     return JigFrame(
         T_J_left, T_J_left @ k.T_left_right, "fiducials", rms, k.sorted_ids, corners[0], corners[1]
     )
+
+
+def levelled_frame(jig: JigConfig, config_frame: JigFrame, T_correction: np.ndarray) -> JigFrame:
+    """The config's frame with both cameras moved by the head's measured error ``T_correction`` (4, 4, in
+    J: :class:`softjig.sensing.levelling.HeadLevel`), its fiducial quads projected from there; source
+    ``"membrane"``. Arrays read-only."""
+    left, right = T_correction @ config_frame.T_J_left, T_correction @ config_frame.T_J_right
+    arrays = [
+        left,
+        right,
+        _projected_quads(jig, jig.cameras.left, left),
+        _projected_quads(jig, jig.cameras.right, right),
+    ]
+    for array in arrays:
+        array.flags.writeable = False
+    return JigFrame(arrays[0], arrays[1], "membrane", float("nan"), (), arrays[2], arrays[3])
+
+
+#: How a fallback frame is named in the warning that fiducials were not found.
+FALLBACK_NAMES = MappingProxyType(
+    {
+        "config": "the camera poses in the config",
+        "membrane": "the camera poses in the config levelled on the unloaded reference frame",
+    }
+)
 
 
 @dataclass(frozen=True)
@@ -441,12 +469,13 @@ def resolve_jig_frame(
     *,
     constants: FrameConstants | None = None,
     memory: FiducialMemory | None = None,
+    fallback: JigFrame | None = None,
 ) -> tuple[JigFrame, list[str]]:
     """The jig frame as ``sensing.extrinsics`` asks, with any warning to report.
 
     ``"fiducials"`` requires them; ``"config"`` uses the fixed extrinsics; ``"auto"`` measures them when
-    found and falls back to the config with a warning. See :func:`jig_frame_from_fiducials`, which also
-    says what ``constants`` and ``memory`` are.
+    found and falls back to ``fallback`` (default: the config's frame) with a warning. See
+    :func:`jig_frame_from_fiducials`, which also says what ``constants`` and ``memory`` are.
 
     Raises
     ------
@@ -469,4 +498,5 @@ def resolve_jig_frame(
             f"{message} and sensing.extrinsics is 'fiducials': make them visible, or set "
             "sensing.extrinsics = 'config' to use the calibrated camera poses in the config"
         )
-    return k.config_frame, [f"{message}: used the camera poses in the config instead"]
+    used = fallback if fallback is not None else k.config_frame
+    return used, [f"{message}: used {FALLBACK_NAMES[used.source]} instead"]

@@ -34,7 +34,8 @@ class Estimate:
     push_depth_mm : how far the fitted plane lies below the rest membrane on the jig axis (mm).
     n_points : markers used in the plane fit.
     rms_residual_mm : RMS distance of those markers to the plane (mm).
-    frame_source : ``"fiducials"`` or ``"config"``: where the cameras' pose in J came from.
+    frame_source : ``"fiducials"``, ``"membrane"`` (the config's, levelled on the unloaded reference
+        frame) or ``"config"``: where the cameras' pose in J came from.
     warnings : things a user should know about this estimate.
     method : ``"refractive"`` or ``"paper"``.
     calibrated : whether a tilt calibration was applied.

@@ -151,16 +151,26 @@ def detector_for(model: JigModel) -> MarkerDetector:
 class FiducialFrameFinder:
     """The cameras' pose as ``sensing.extrinsics`` asks (:func:`~softjig.sensing.jigframe.resolve_jig_frame`),
     remembering where the general path found the fiducials for the next frames (its own
-    :class:`~softjig.sensing.jigframe.FiducialMemory`).
+    :class:`~softjig.sensing.jigframe.FiducialMemory`); ``fallback`` is the frame used when the fiducials
+    are not found (default: the config's; an estimator with a levelled reference passes its levelled
+    frame).
     """
 
-    def __init__(self, model: JigModel) -> None:
+    def __init__(self, model: JigModel, fallback: JigFrame | None = None) -> None:
         self._jig = model.jig
         self._constants = model.frame
         self._memory = FiducialMemory()
+        self._fallback = fallback
 
     def find(self, left_u8: np.ndarray, right_u8: np.ndarray) -> tuple[JigFrame, list[str]]:
-        return resolve_jig_frame(left_u8, right_u8, self._jig, constants=self._constants, memory=self._memory)
+        return resolve_jig_frame(
+            left_u8,
+            right_u8,
+            self._jig,
+            constants=self._constants,
+            memory=self._memory,
+            fallback=self._fallback,
+        )
 
 
 class RowMatcher:

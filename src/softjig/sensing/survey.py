@@ -6,7 +6,8 @@ visible marker really is. :func:`survey_markers` turns those points into a rig w
 explicit layout at the measured ``(x, y)`` with the measured inner-face heights (``markers.centers_z_mm``,
 which the estimator's rest-shape reference then uses, :func:`softjig.jig_shape.rest_marker_points_mm`),
 and whose dome is a measured ``(r, h)`` table fitted to them, and reports how far the nominal rig was off
-at each marker.
+at each marker. When the fiducials were not seen, the frames were triangulated with the stereo head
+levelled on them (:mod:`softjig.sensing.levelling`), and the surveyed rig's cameras are the levelled ones.
 
 Pure: points in, a config and a report out (the images are triangulated by the caller, e.g.
 :func:`softjig.sensing.pipeline.reference_from_pair`).
@@ -38,6 +39,7 @@ from softjig.config import JigConfig, with_explicit_markers
 from softjig.errors import InputError
 from softjig.jig_shape import rest_marker_points_mm
 from softjig.sensing.identities import ReferenceMarkers, identify_markers
+from softjig.sensing.levelling import HeadLevel, levelled_jig
 
 DENT_SIGMAS = 5.0
 MIN_DENT_MM = 0.5  # below this a departure is within what a bag's settling does between two fills
@@ -84,6 +86,8 @@ class Survey:
     n_unmatched : triangulated points with no nominal marker within half a pitch (left out), in all.
     dent : the loaded-frame check (of the first frame).
     n_frames : how many unloaded frames were combined.
+    head_level : the stereo head's error measured on the first frame when its fiducials were not seen
+        (:mod:`softjig.sensing.levelling`): the surveyed rig's cameras are then the levelled ones.
     """
 
     jig: JigConfig
@@ -94,6 +98,7 @@ class Survey:
     n_unmatched: int
     dent: DentCheck
     n_frames: int = 1
+    head_level: HeadLevel | None = None
 
     @property
     def offset_mm(self) -> np.ndarray:
@@ -119,6 +124,15 @@ class Survey:
             "offset_max_mm": float(total.max()),
             "noise_mm": self.dent.sigma_mm,
             "frames": self.n_frames,
+            **(
+                {}
+                if self.head_level is None
+                else {
+                    "head_rotation_deg": self.head_level.rotation_deg,
+                    "head_shift_mm": [float(v) for v in self.head_level.shift_mm],
+                    "head_level_sigma_deg": self.head_level.tilt_sigma_deg,
+                }
+            ),
         }
 
     def to_dict(self) -> dict:
@@ -336,6 +350,9 @@ def survey_markers(
     if smooth:
         measured = np.column_stack([measured[:, :2], smoothed_heights(measured, nominal.markers.pitch_mm)])
     jig = with_explicit_markers(nominal, measured[:, :2], measured[:, 2])
+    level = getattr(frames[0], "head_level", None)
+    if level is not None:  # the markers were triangulated in the levelled poses: so are the cameras
+        jig = levelled_jig(jig, level)
     if fit_profile:
         r, h = _profile_table(measured, jig)
         membrane = replace(
@@ -351,4 +368,5 @@ def survey_markers(
         n_unmatched=unmatched,
         dent=dents[0],
         n_frames=len(frames),
+        head_level=level,
     )

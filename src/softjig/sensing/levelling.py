@@ -1,0 +1,247 @@
+"""The stereo head levelled on the unloaded membrane: the cameras' pose in J measured without fiducials.
+
+When the fiducials are out of view, the cameras' pose in J comes from the config, and the head is never
+mounted exactly as drawn (a few tenths of a degree). A tilted head tilts every triangulated point, and
+through the oil the error of the part's normal is about the oil's index times the head's tilt: no plane
+fit can remove it (``benchmarks/RESULTS.md``, "where the accuracy goal stands").
+
+The unloaded jig is itself a calibration target: its markers lie on the rest membrane, whose shape and
+marker layout the config describes (drawn, or surveyed). Triangulated with the config's poses, the
+reference frame's markers are the rest markers moved by the head's error: a rigid motion ``C`` of J, to
+first order (the head's rotation about its own centre, and its shift, map every point the same way). So
+``C`` is measured as the rigid motion that takes the triangulated markers onto the rest markers (nearest
+neighbours in ``(x, y)``, a trimmed least-squares rigid fit, iterated as ICP), and the cameras' poses are
+corrected to ``C @ T_J_cam``. Because the refraction at the plate depends on the cameras' pose relative to
+it, the markers are triangulated again with the corrected poses and the fit repeated until the correction
+is below its own uncertainty (two or three rounds).
+
+What it measures: the tilt comes from the rest markers' heights across the membrane (a tilted head sees
+one side of the dome higher than the other), the shift and the spin from the layout. A membrane whose
+rest shape departs from the config symmetrically (a dome a little higher or lower) does not tilt the
+level; an asymmetric departure does, by its slope across the membrane, as it would tilt any survey. The
+fit's covariance (from its residuals) gives the level's own uncertainty, and a level less certain than
+the head's mounting tolerance, or found with too few markers, is not used.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+
+import numpy as np
+from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
+
+from softjig.config import CameraConfig, JigConfig
+from softjig.geometry import pose_from_rotation_translation
+
+#: Fewest rest markers a level is fitted to (six unknowns; a spread of markers over the membrane).
+MIN_LEVEL_MARKERS = 12
+#: Nearest-neighbour pairs farther apart than this share of the marker pitch are not the same marker.
+MATCH_REACH_PITCHES = 0.5
+#: Pairs whose residual exceeds this many times the median residual are dropped from the rigid fit.
+TRIM_MEDIAN_FACTOR = 3.0
+#: A fit whose markers lie farther than this share of the pitch (RMS) from the rest markers is refused.
+MAX_RMS_PITCHES = 0.25
+ICP_MAX_STEPS = 20
+LEVEL_MAX_ROUNDS = 4
+#: A round's correction below this (rad, and mm) ends the rounds: far below any level's uncertainty.
+LEVEL_TOLERANCE = 1e-6
+
+
+@dataclass(frozen=True)
+class HeadLevel:
+    """The stereo head's pose error measured on the unloaded membrane.
+
+    Attributes
+    ----------
+    T_correction : (4, 4) the rigid motion of J taking the config's camera poses to the measured ones:
+        ``T_J_cam (measured) = T_correction @ T_J_cam (config)`` (read-only).
+    n_markers : rest markers the last fit used.
+    rms_residual_mm : RMS distance of those markers from the rest markers after the fit (mm): the layout's
+        and the rest shape's own departures from the config, plus the triangulation's noise.
+    tilt_sigma_deg : 1-sigma uncertainty of the level's tilt (its rotation about x and y, root-sum-square),
+        from the fit's covariance (deg).
+    """
+
+    T_correction: np.ndarray
+    n_markers: int
+    rms_residual_mm: float
+    tilt_sigma_deg: float
+
+    @property
+    def rotation_deg(self) -> float:
+        """The angle of the head's rotation error (deg)."""
+        cos = (np.trace(self.T_correction[:3, :3]) - 1.0) / 2.0
+        return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+
+    @property
+    def shift_mm(self) -> np.ndarray:
+        """``(3,)`` the correction's translation (mm): near J's axis, how far it moves the markers."""
+        return self.T_correction[:3, 3].copy()
+
+
+@dataclass(frozen=True)
+class _RigidFit:
+    T: np.ndarray  # (4, 4): rest ~ T @ points
+    n: int
+    rms_mm: float
+    covariance: np.ndarray  # (6, 6) of (rotation vector, translation) about the fitted points' centroid
+
+
+def rigid_fit(points: np.ndarray, targets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The rotation ``R`` and translation ``t`` minimising ``sum |R p_i + t - q_i|^2`` (Kabsch's SVD).
+
+    Parameters
+    ----------
+    points, targets : (N, 3) corresponding points (mm), ``N >= 3`` not all on a line.
+    """
+    p_mean, q_mean = points.mean(axis=0), targets.mean(axis=0)
+    h = (points - p_mean).T @ (targets - q_mean)
+    u, _, vt = np.linalg.svd(h)
+    d = np.sign(np.linalg.det(vt.T @ u.T))
+    rotation = vt.T @ np.diag([1.0, 1.0, d]) @ u.T
+    return rotation, q_mean - rotation @ p_mean
+
+
+def _fit_covariance(fitted: np.ndarray, residuals: np.ndarray) -> np.ndarray:
+    """Covariance of a rigid fit's six parameters (small rotation vector about the centroid, translation),
+    from its residuals: ``s^2 (J^T J)^-1`` with ``J_i = [-[p_i]_x, I]`` and ``s^2`` the residuals' variance
+    per coordinate (``3N - 6`` degrees of freedom)."""
+    x, y, z = (fitted - fitted.mean(axis=0)).T
+    zero, one = np.zeros_like(x), np.ones_like(x)
+    # rows d(residual_k)/d(omega, t) of every point, stacked: (3N, 6)
+    jacobian = np.stack(
+        [
+            np.column_stack([zero, z, -y, one, zero, zero]),
+            np.column_stack([-z, zero, x, zero, one, zero]),
+            np.column_stack([y, -x, zero, zero, zero, one]),
+        ],
+        axis=1,
+    ).reshape(-1, 6)
+    jtj = jacobian.T @ jacobian
+    dof = max(3 * len(fitted) - 6, 1)
+    s2 = float(np.sum(residuals**2)) / dof
+    return s2 * np.linalg.pinv(jtj)
+
+
+def _icp(
+    points: np.ndarray, rest: cKDTree, rest_xyz: np.ndarray, reach_mm: float, start_xy_mm=(0.0, 0.0)
+) -> _RigidFit | None:
+    """Rigid motion taking ``points`` onto the rest markers: nearest neighbours in ``(x, y)`` within
+    ``reach_mm``, the pairs beyond ``TRIM_MEDIAN_FACTOR`` median residuals dropped, refitted until the
+    pairs no longer change; from a shift of ``start_xy_mm``."""
+    T = pose_from_rotation_translation(np.eye(3), np.array([*start_xy_mm, 0.0]))
+    previous: tuple[np.ndarray, np.ndarray] | None = None
+    for _ in range(ICP_MAX_STEPS):
+        moved = points @ T[:3, :3].T + T[:3, 3]
+        distance, index = rest.query(moved[:, :2], distance_upper_bound=reach_mm)
+        paired = np.isfinite(distance)
+        residual = np.linalg.norm(moved[paired] - rest_xyz[index[paired]], axis=1)
+        if paired.sum() < MIN_LEVEL_MARKERS:
+            return None
+        keep = np.flatnonzero(paired)[residual <= TRIM_MEDIAN_FACTOR * np.median(residual)]
+        pairs = (keep, index[keep])
+        if len(keep) < MIN_LEVEL_MARKERS:
+            return None
+        if (
+            previous is not None
+            and np.array_equal(pairs[0], previous[0])
+            and np.array_equal(pairs[1], previous[1])
+        ):
+            break
+        previous = pairs
+        rotation, translation = rigid_fit(points[keep], rest_xyz[index[keep]])
+        T = pose_from_rotation_translation(rotation, translation)
+    fitted = points[keep] @ T[:3, :3].T + T[:3, 3]
+    residuals = fitted - rest_xyz[index[keep]]
+    rms = float(np.sqrt(np.mean(np.sum(residuals**2, axis=1))))
+    return _RigidFit(T, len(keep), rms, _fit_covariance(fitted, residuals))
+
+
+def _first_fit(points: np.ndarray, rest: cKDTree, rest_xyz: np.ndarray, reach_mm: float) -> _RigidFit | None:
+    """The first round's fit: ICP from the config's poses and from shifts of half a pitch around them
+    (``reach_mm`` each way; a head tilted by a degree 150 mm below the membrane shifts it by 2.6 mm, more
+    than half a fine pitch), the one that pairs the most markers (within 5 %) with the smallest RMS."""
+    fits = [
+        fit
+        for dx in (-reach_mm, 0.0, reach_mm)
+        for dy in (-reach_mm, 0.0, reach_mm)
+        if (fit := _icp(points, rest, rest_xyz, reach_mm, (dx, dy))) is not None
+    ]
+    if not fits:
+        return None
+    most = max(fit.n for fit in fits)
+    return min((fit for fit in fits if fit.n >= 0.95 * most), key=lambda fit: fit.rms_mm)
+
+
+def level_head(
+    triangulate: Callable[[np.ndarray], np.ndarray],
+    rest_xyz_mm: np.ndarray,
+    *,
+    pitch_mm: float,
+    tolerance_deg: float,
+) -> HeadLevel | str:
+    """Measure the head's pose error on an unloaded frame (see the module docstring).
+
+    Parameters
+    ----------
+    triangulate : ``T_correction -> (M, 3)``: the frame's matched markers triangulated in J with the
+        config's camera poses corrected by ``T_correction`` (4, 4).
+    rest_xyz_mm : (N, 3) the rest markers in J (mm): the config's layout on its rest shape.
+    pitch_mm : the marker pitch (mm): pairs are matched within half of it.
+    tolerance_deg : the head's mounting tolerance per axis (deg): a level less certain than this is not
+        used.
+
+    Returns
+    -------
+    HeadLevel
+        The level, or a ``str`` saying why none could be measured.
+    """
+    rest_xyz = np.asarray(rest_xyz_mm, dtype=float)
+    rest = cKDTree(rest_xyz[:, :2])
+    reach = MATCH_REACH_PITCHES * pitch_mm
+    fit = _first_fit(triangulate(np.eye(4)), rest, rest_xyz, reach)
+    if fit is None:
+        return (
+            f"fewer than {MIN_LEVEL_MARKERS} of the reference frame's markers lie within half a pitch of "
+            "the config's rest markers, however the head is shifted"
+        )
+    correction = fit.T
+    for _ in range(LEVEL_MAX_ROUNDS - 1):  # the refraction moves with the poses: triangulate again
+        fit = _icp(triangulate(correction), rest, rest_xyz, reach)
+        if fit is None:
+            return "the level did not converge: the markers left the rest markers when the head was moved"
+        correction = fit.T @ correction
+        if max(np.linalg.norm(fit.T[:3, :3] - np.eye(3)), np.linalg.norm(fit.T[:3, 3])) < LEVEL_TOLERANCE:
+            break
+    if fit.rms_mm > MAX_RMS_PITCHES * pitch_mm:
+        return (
+            f"the markers lie {fit.rms_mm:.2f} mm (RMS) from the config's rest markers after the best rigid "
+            f"fit, more than {MAX_RMS_PITCHES} pitch: the config's layout or rest shape is not this jig's"
+        )
+    tilt_sigma_deg = float(np.degrees(np.sqrt(fit.covariance[0, 0] + fit.covariance[1, 1])))
+    if tilt_sigma_deg >= tolerance_deg:
+        return (
+            f"the level's own uncertainty ({tilt_sigma_deg:.2f} deg) is no better than the head's mounting "
+            f"tolerance ({tolerance_deg:.2f} deg)"
+        )
+    correction.flags.writeable = False
+    return HeadLevel(correction, fit.n, fit.rms_mm, tilt_sigma_deg)
+
+
+def levelled_jig(jig: JigConfig, level: HeadLevel) -> JigConfig:
+    """``jig`` with both cameras at their levelled poses (``level.T_correction @ T_J_cam``), the rest as
+    it is: what ``softjig survey`` writes when the head was levelled."""
+
+    def moved(camera: CameraConfig) -> CameraConfig:
+        T = level.T_correction @ camera.T_J_cam
+        rotvec_deg = np.degrees(Rotation.from_matrix(T[:3, :3]).as_rotvec())
+        return replace(
+            camera,
+            position_mm=tuple(float(v) for v in T[:3, 3]),
+            rotation_deg=tuple(float(v) for v in rotvec_deg),
+        )
+
+    cameras = jig.cameras
+    return jig.replace(cameras=replace(cameras, left=moved(cameras.left), right=moved(cameras.right)))

@@ -1,0 +1,216 @@
+"""The stereo head levelled on the unloaded membrane (issue 13: the cameras' pose when no fiducial is seen).
+
+Unit tests of :func:`softjig.sensing.levelling.level_head` on synthetic markers (a known rigid error of the
+head, noise, shifts beyond half a pitch, layouts that are not the jig's), then the estimator on rendered
+pairs of the default jig with its fiducials out of view: the reference frame measures the head's error,
+and the estimates that use it are closer to the truth than those in the config's poses.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from scenes import render_scene
+from softjig.config import default_jig
+from softjig.geometry import pose_from_rotvec_translation, transform_points
+from softjig.jig_shape import rest_marker_points_mm
+from softjig.sensing.estimator import Estimator
+from softjig.sensing.identities import ReferenceMarkers
+from softjig.sensing.levelling import HeadLevel, level_head, rigid_fit
+from softjig.sim.scenarios import frame_truth
+
+JIG = default_jig()
+PITCH = JIG.markers.pitch_mm
+REST = rest_marker_points_mm(JIG)
+
+
+def _motion(rotvec_deg, shift_mm) -> np.ndarray:
+    return pose_from_rotvec_translation(np.radians(rotvec_deg), np.asarray(shift_mm, dtype=float))
+
+
+def _rotation_error_deg(T_a: np.ndarray, T_b: np.ndarray) -> float:
+    return float(np.degrees(np.linalg.norm(Rotation.from_matrix(T_a[:3, :3] @ T_b[:3, :3].T).as_rotvec())))
+
+
+def _seen_through(C_true: np.ndarray, rest: np.ndarray, noise_mm: float, seed: int = 0):
+    """``triangulate(T)`` of a head whose true pose is ``C_true @ config``: the config's poses see each
+    marker at ``inv(C_true) p``; corrected by ``T``, at ``T inv(C_true) p`` (plus fixed noise)."""
+    noisy = rest + np.random.default_rng(seed).normal(0.0, noise_mm, rest.shape)
+    return lambda T: transform_points(T @ np.linalg.inv(C_true), noisy)
+
+
+# -- the fit ------------------------------------------------------------------------------------------
+
+
+def test_rigid_fit_recovers_a_known_motion_exactly():
+    T = _motion((0.7, -0.4, 2.0), (1.5, -0.8, 0.3))
+    rotation, translation = rigid_fit(REST, transform_points(T, REST))
+    np.testing.assert_allclose(rotation, T[:3, :3], atol=1e-12)
+    np.testing.assert_allclose(translation, T[:3, 3], atol=1e-9)
+
+
+@pytest.mark.parametrize(
+    ("rotvec_deg", "shift_mm"),
+    [((0.4, -0.6, 0.3), (0.8, -0.5, 0.3)), ((-1.2, 0.9, -0.5), (1.0, 0.6, -0.4))],
+)
+def test_the_level_is_the_heads_error_within_its_own_uncertainty(rotvec_deg, shift_mm):
+    C_true = _motion(rotvec_deg, shift_mm)
+    level = level_head(_seen_through(C_true, REST, 0.15), REST, pitch_mm=PITCH, tolerance_deg=0.5)
+    assert isinstance(level, HeadLevel)
+    error = _rotation_error_deg(level.T_correction, C_true)
+    assert error < 4.0 * level.tilt_sigma_deg
+    assert level.tilt_sigma_deg < 0.05
+    np.testing.assert_allclose(level.shift_mm, C_true[:3, 3], atol=0.1)
+    assert level.n_markers > 0.9 * len(REST)
+    assert 0.1 < level.rms_residual_mm < 0.4  # the noise's sqrt(3) * 0.15 mm
+
+
+def test_a_shift_beyond_half_a_pitch_is_still_found():
+    """A head tilted by a degree 150 mm under the membrane moves it by 2.6 mm: more than half a fine
+    pitch, where the nearest rest marker of each marker is its neighbour's."""
+    C_true = _motion((0.2, 0.1, 0.0), (0.7 * PITCH, -0.6 * PITCH, 0.0))
+    level = level_head(_seen_through(C_true, REST, 0.1), REST, pitch_mm=PITCH, tolerance_deg=0.5)
+    assert isinstance(level, HeadLevel)
+    np.testing.assert_allclose(level.shift_mm, C_true[:3, 3], atol=0.1)
+
+
+def test_too_few_markers_give_a_reason_not_a_level():
+    reason = level_head(lambda T: transform_points(T, REST[:8]), REST, pitch_mm=PITCH, tolerance_deg=0.5)
+    assert isinstance(reason, str) and "fewer than" in reason
+
+
+def test_an_exact_head_is_never_levelled():
+    """With a zero mounting tolerance the config is exact: a level cannot be better than it."""
+    reason = level_head(_seen_through(np.eye(4), REST, 0.1), REST, pitch_mm=PITCH, tolerance_deg=0.0)
+    assert isinstance(reason, str) and "tolerance" in reason
+
+
+def test_a_layout_that_is_not_the_jigs_is_refused():
+    """Markers of a grid turned by 45 deg pair with rest markers only here and there, and not rigidly."""
+    turned = transform_points(_motion((0.0, 0.0, 45.0), (0.0, 0.0, 0.0)), REST)
+    turned[:, 2] = REST[:, 2]
+    reason = level_head(lambda T: transform_points(T, turned), REST, pitch_mm=PITCH, tolerance_deg=0.5)
+    assert isinstance(reason, str)
+
+
+# -- the estimator, on rendered pairs ------------------------------------------------------------------
+
+HIDDEN = replace(
+    JIG,
+    fiducials=replace(
+        JIG.fiducials, centers_mm=((-300.0, -300.0), (300.0, -300.0), (300.0, 300.0), (-300.0, 300.0))
+    ),
+)
+AS_BUILT_SEEDS = (1, 3)  # heads rotated by 0.47 and 1.65 deg
+
+
+def _angle_deg(a, b) -> float:
+    return math.degrees(math.acos(min(1.0, float(np.dot(a, b)))))
+
+
+@pytest.fixture(scope="module", params=AS_BUILT_SEEDS)
+def hidden_scenes(request):
+    unloaded = render_scene(HIDDEN, part=None, pose=None, seed=99, as_built_seed=request.param)
+    loaded = render_scene(HIDDEN, seed=0, as_built_seed=request.param)
+    return unloaded, loaded
+
+
+def test_a_reference_frame_without_fiducials_levels_the_head(hidden_scenes):
+    unloaded, _ = hidden_scenes
+    reference = Estimator(HIDDEN).reference_from_pair(unloaded.left, unloaded.right)
+    assert reference.head_level is not None and reference.level_note is None
+    C_true = unloaded.as_built.jig.cameras.left.T_J_cam @ np.linalg.inv(HIDDEN.cameras.left.T_J_cam)
+    assert _rotation_error_deg(reference.head_level.T_correction, C_true) < 0.1
+    assert _rotation_error_deg(np.eye(4), C_true) > 0.4  # there was an error to find
+
+
+def test_the_levelled_estimate_is_closer_to_the_truth(hidden_scenes):
+    unloaded, loaded = hidden_scenes
+    estimator = Estimator(HIDDEN)
+    reference = estimator.reference_from_pair(unloaded.left, unloaded.right)
+    truth = frame_truth(loaded.as_built.jig, loaded.pose)["normal"]
+    config = estimator.estimate(loaded.left, loaded.right, part_diameter_mm=50.0).estimate
+    levelled = estimator.with_reference(reference).estimate(loaded.left, loaded.right, part_diameter_mm=50.0)
+    assert config.frame_source == "config"
+    assert levelled.estimate.frame_source == "membrane"
+    assert any("levelled on the unloaded reference frame" in w for w in levelled.estimate.warnings)
+    error = _angle_deg(levelled.estimate.normal, truth)
+    assert error < 0.5
+    assert error < _angle_deg(config.normal, truth)
+    assert levelled.estimate.tilt_sigma_deg < config.tilt_sigma_deg  # the tolerance's floor is gone
+
+
+def test_the_papers_method_keeps_the_configs_poses(hidden_scenes):
+    unloaded, loaded = hidden_scenes
+    reference = Estimator(HIDDEN).reference_from_pair(unloaded.left, unloaded.right)
+    plain = Estimator(HIDDEN, method="paper").estimate(loaded.left, loaded.right, part_diameter_mm=50.0)
+    given = Estimator(HIDDEN, method="paper", reference=reference).estimate(
+        loaded.left, loaded.right, part_diameter_mm=50.0
+    )
+    assert given.estimate.frame_source == "config"
+    np.testing.assert_array_equal(given.estimate.normal, plain.estimate.normal)
+
+
+def test_calibrated_extrinsics_are_not_levelled():
+    """``sensing.extrinsics = "config"`` says the poses were calibrated: they are taken as they are."""
+    jig = replace(HIDDEN, sensing=replace(HIDDEN.sensing, extrinsics="config"))
+    unloaded = render_scene(jig, part=None, pose=None, seed=99, as_built_seed=AS_BUILT_SEEDS[0])
+    reference = Estimator(jig).reference_from_pair(unloaded.left, unloaded.right)
+    assert reference.head_level is None and reference.level_note is None
+
+
+def test_fiducials_in_view_need_no_level(unloaded_scene):
+    reference = Estimator(unloaded_scene.jig).reference_from_pair(unloaded_scene.left, unloaded_scene.right)
+    assert reference.head_level is None and reference.level_note is None
+
+
+def test_why_a_head_was_not_levelled_reaches_every_estimate_in_the_configs_poses(hidden_scenes):
+    unloaded, loaded = hidden_scenes
+    measured = Estimator(HIDDEN).reference_from_pair(unloaded.left, unloaded.right)
+    note = "the stereo head could not be levelled on the reference frame: (a reason)"
+    reference = ReferenceMarkers(measured.xyz_mm, "reference frame", level_note=note)
+    result = Estimator(HIDDEN, reference=reference).estimate(loaded.left, loaded.right, part_diameter_mm=50.0)
+    assert result.estimate.frame_source == "config"
+    assert note in result.estimate.warnings
+
+
+def test_a_survey_without_fiducials_writes_the_levelled_cameras(hidden_scenes, tmp_path):
+    """``softjig survey LEFT RIGHT`` of a jig whose fiducials are out of view: the report gives the head's
+    measured error, and the surveyed rig's cameras are the levelled ones, so even its rest-shape
+    estimates (no reference frame) are in the head's measured pose."""
+    import json
+
+    import cv2
+    from typer.testing import CliRunner
+
+    from softjig.cli import app
+    from softjig.config import dumps_jig, load_jig
+
+    unloaded, loaded = hidden_scenes
+    rig = tmp_path / "rig.toml"
+    rig.write_text(dumps_jig(HIDDEN))
+    left, right = tmp_path / "left.png", tmp_path / "right.png"
+    for path, image in ((left, unloaded.left), (right, unloaded.right)):
+        cv2.imwrite(str(path), cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_RGB2BGR))
+    out = tmp_path / "surveyed.toml"
+    result = CliRunner().invoke(
+        app, ["survey", str(left), str(right), "--config", str(rig), "--out", str(out), "--json"]
+    )
+    assert result.exit_code == 0, result.output
+    summary = json.loads(result.stdout)["summary"]
+    C_true = unloaded.as_built.jig.cameras.left.T_J_cam @ np.linalg.inv(HIDDEN.cameras.left.T_J_cam)
+    assert abs(summary["head_rotation_deg"] - _rotation_error_deg(np.eye(4), C_true)) < 0.1
+    assert "levelled on the unloaded membrane" in result.stderr
+    surveyed = load_jig(out)
+    assert (
+        _rotation_error_deg(surveyed.cameras.left.T_J_cam, unloaded.as_built.jig.cameras.left.T_J_cam) < 0.1
+    )
+    truth = frame_truth(loaded.as_built.jig, loaded.pose)["normal"]
+    nominal = Estimator(HIDDEN).estimate(loaded.left, loaded.right, part_diameter_mm=50.0).estimate
+    rest = Estimator(surveyed).estimate(loaded.left, loaded.right, part_diameter_mm=50.0).estimate
+    assert _angle_deg(rest.normal, truth) < _angle_deg(nominal.normal, truth)
