@@ -35,7 +35,7 @@ from softjig.sensing.fiducials import gray_to_u8
 from softjig.sensing.fitting import ContactPlaneFitter, PaperPlaneFitter
 from softjig.sensing.identities import ReferenceMarkers
 from softjig.sensing.jigframe import JigFrame, levelled_frame
-from softjig.sensing.levelling import HeadLevel, level_head
+from softjig.sensing.levelling import HeadLevel, HeadPrior, level_head
 from softjig.sensing.rectify import rectify_images
 from softjig.sensing.results import Observation, Refusal, SensingResult
 from softjig.sensing.setup import JigModel, ReferenceModel
@@ -289,7 +289,7 @@ class Estimator:
                 lambda T: triangulate(levelled_frame(self.jig, config, T)),
                 self.model.rest_shape.xyz_mm,
                 pitch_mm=self.jig.markers.pitch_mm,
-                tolerance_deg=self.jig.tolerances.camera_rotation_deg,
+                prior=HeadPrior.of(self.jig),
             )
             if isinstance(measured, HeadLevel):
                 level, frame = measured, levelled_frame(self.jig, config, measured.T_correction)

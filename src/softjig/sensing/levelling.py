@@ -43,6 +43,8 @@ MATCH_REACH_PITCHES = 0.5
 TRIM_MEDIAN_FACTOR = 3.0
 #: A fit whose markers lie farther than this share of the pitch (RMS) from the rest markers is refused.
 MAX_RMS_PITCHES = 0.25
+#: Two alignments whose -2 log posteriors differ by less than this are as probable (odds below e^5).
+AMBIGUITY = 10.0
 ICP_MAX_STEPS = 20
 LEVEL_MAX_ROUNDS = 4
 #: A round's correction below this (rad, and mm) ends the rounds: far below any level's uncertainty.
@@ -159,20 +161,76 @@ def _icp(
     return _RigidFit(T, len(keep), rms, _fit_covariance(fitted, residuals))
 
 
-def _first_fit(points: np.ndarray, rest: cKDTree, rest_xyz: np.ndarray, reach_mm: float) -> _RigidFit | None:
-    """The first round's fit: ICP from the config's poses and from shifts of half a pitch around them
-    (``reach_mm`` each way; a head tilted by a degree 150 mm below the membrane shifts it by 2.6 mm, more
-    than half a fine pitch), the one that pairs the most markers (within 5 %) with the smallest RMS."""
-    fits = [
-        fit
-        for dx in (-reach_mm, 0.0, reach_mm)
-        for dy in (-reach_mm, 0.0, reach_mm)
-        if (fit := _icp(points, rest, rest_xyz, reach_mm, (dx, dy))) is not None
-    ]
-    if not fits:
-        return None
-    most = max(fit.n for fit in fits)
-    return min((fit for fit in fits if fit.n >= 0.95 * most), key=lambda fit: fit.rms_mm)
+@dataclass(frozen=True)
+class HeadPrior:
+    """What the config says of the stereo head's mounting: where it is and how far it may be off.
+
+    Attributes
+    ----------
+    centre_mm : (3,) the head's centre in J, midway between the config's cameras (mm).
+    rotation_deg : its rotation error's standard deviation per axis (``tolerances.camera_rotation_deg``).
+    position_mm : its placement error's standard deviation per axis (``tolerances.camera_position_mm``).
+    """
+
+    centre_mm: tuple[float, float, float]
+    rotation_deg: float
+    position_mm: float
+
+    @classmethod
+    def of(cls, jig: JigConfig) -> HeadPrior:
+        """The prior of ``jig``'s head (its cameras and ``tolerances``)."""
+        left, right = jig.cameras.left.position_mm, jig.cameras.right.position_mm
+        centre = tuple(float((a + b) / 2.0) for a, b in zip(left, right, strict=True))
+        tol = jig.tolerances
+        return cls(centre, float(tol.camera_rotation_deg), float(tol.camera_position_mm))  # type: ignore[arg-type]
+
+    def mahalanobis2(self, T_correction: np.ndarray) -> float:
+        """The squared Mahalanobis distance of a correction from no error: its rotation, and how far it
+        moves the head's centre, each against its tolerance (a zero tolerance: infinite)."""
+        rotvec_deg = np.degrees(Rotation.from_matrix(T_correction[:3, :3]).as_rotvec())
+        centre = np.asarray(self.centre_mm)
+        moved = T_correction[:3, :3] @ centre + T_correction[:3, 3] - centre
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rotation = np.sum(rotvec_deg**2) / np.float64(self.rotation_deg) ** 2
+            position = np.sum(moved**2) / np.float64(self.position_mm) ** 2
+        return float(np.nan_to_num(rotation + position, nan=np.inf))
+
+
+def _candidates(points: np.ndarray, rest: cKDTree, rest_xyz: np.ndarray, reach_mm: float) -> list[_RigidFit]:
+    """ICP from the config's poses and from shifts of half a pitch around them (``reach_mm`` each way: a
+    head tilted by a degree 150 mm below the membrane shifts it by 2.6 mm, more than half a fine pitch),
+    the distinct alignments they reach (a tenth of the reach apart)."""
+    fits: list[_RigidFit] = []
+    for dx in (-reach_mm, 0.0, reach_mm):
+        for dy in (-reach_mm, 0.0, reach_mm):
+            fit = _icp(points, rest, rest_xyz, reach_mm, (dx, dy))
+            if fit is not None and all(
+                np.linalg.norm(fit.T[:3, 3] - other.T[:3, 3]) > 0.1 * reach_mm for other in fits
+            ):
+                fits.append(fit)
+    return fits
+
+
+def _scores(
+    fits: list[_RigidFit],
+    points: np.ndarray,
+    rest: cKDTree,
+    rest_xyz: np.ndarray,
+    reach_mm: float,
+    prior: HeadPrior,
+) -> np.ndarray:
+    """Each alignment's ``-2 log`` posterior, up to a constant: every marker's squared distance from its
+    nearest rest marker (capped at the reach: a marker no rest marker explains), against the best
+    alignment's own residual variance, plus the prior's Mahalanobis distance. The same markers for every
+    alignment, so ones that pair fewer markers are not favoured."""
+    variance = min(fit.rms_mm for fit in fits) ** 2 / 3.0  # per coordinate
+    scores = []
+    for fit in fits:
+        moved = points @ fit.T[:3, :3].T + fit.T[:3, 3]
+        _, index = rest.query(moved[:, :2])
+        distance2 = np.minimum(np.sum((moved - rest_xyz[index]) ** 2, axis=1), reach_mm**2)
+        scores.append(float(np.sum(distance2)) / variance + prior.mahalanobis2(fit.T))
+    return np.asarray(scores)
 
 
 def level_head(
@@ -180,7 +238,7 @@ def level_head(
     rest_xyz_mm: np.ndarray,
     *,
     pitch_mm: float,
-    tolerance_deg: float,
+    prior: HeadPrior,
 ) -> HeadLevel | str:
     """Measure the head's pose error on an unloaded frame (see the module docstring).
 
@@ -190,23 +248,36 @@ def level_head(
         config's camera poses corrected by ``T_correction`` (4, 4).
     rest_xyz_mm : (N, 3) the rest markers in J (mm): the config's layout on its rest shape.
     pitch_mm : the marker pitch (mm): pairs are matched within half of it.
-    tolerance_deg : the head's mounting tolerance per axis (deg): a level less certain than this is not
-        used.
+    prior : the head's mounting tolerances: the first alignment is the most probable one given them, a
+        level as probable in two places is not used (a small patch of a grid in view fits shifted by a
+        pitch and tilted), nor one less certain than the tolerance.
 
     Returns
     -------
     HeadLevel
         The level, or a ``str`` saying why none could be measured.
     """
+    if not prior.rotation_deg > 0:
+        return "the config's tolerances say the head is mounted exactly (tolerances.camera_rotation_deg = 0)"
     rest_xyz = np.asarray(rest_xyz_mm, dtype=float)
     rest = cKDTree(rest_xyz[:, :2])
     reach = MATCH_REACH_PITCHES * pitch_mm
-    fit = _first_fit(triangulate(np.eye(4)), rest, rest_xyz, reach)
-    if fit is None:
+    points = triangulate(np.eye(4))
+    fits = _candidates(points, rest, rest_xyz, reach)
+    if not fits:
         return (
             f"fewer than {MIN_LEVEL_MARKERS} of the reference frame's markers lie within half a pitch of "
             "the config's rest markers, however the head is shifted"
         )
+    scores = _scores(fits, points, rest, rest_xyz, reach, prior)
+    order = np.argsort(scores)
+    if len(fits) > 1 and scores[order[1]] - scores[order[0]] < AMBIGUITY:
+        apart = np.linalg.norm(fits[order[1]].T[:3, 3] - fits[order[0]].T[:3, 3])
+        return (
+            f"the markers in view fit the rest markers about as well in two places {apart:.1f} mm apart "
+            "(too few markers, or too regular a patch of them, to tell)"
+        )
+    fit = fits[order[0]]
     correction = fit.T
     for _ in range(LEVEL_MAX_ROUNDS - 1):  # the refraction moves with the poses: triangulate again
         fit = _icp(triangulate(correction), rest, rest_xyz, reach)
@@ -221,10 +292,10 @@ def level_head(
             f"fit, more than {MAX_RMS_PITCHES} pitch: the config's layout or rest shape is not this jig's"
         )
     tilt_sigma_deg = float(np.degrees(np.sqrt(fit.covariance[0, 0] + fit.covariance[1, 1])))
-    if tilt_sigma_deg >= tolerance_deg:
+    if tilt_sigma_deg >= prior.rotation_deg:
         return (
             f"the level's own uncertainty ({tilt_sigma_deg:.2f} deg) is no better than the head's mounting "
-            f"tolerance ({tolerance_deg:.2f} deg)"
+            f"tolerance ({prior.rotation_deg:.2f} deg)"
         )
     correction.flags.writeable = False
     return HeadLevel(correction, fit.n, fit.rms_mm, tilt_sigma_deg)
