@@ -9,9 +9,10 @@ in ``mono8``, ``mono16``, ``rgb8``, ``bgr8``; ``sensor_msgs/msg/CompressedImage`
 by their header stamps within a tolerance (:class:`~softjig.io.cameras.FramePairer`).
 
 Writing (:class:`BagWriter`) goes through the `mcap <https://mcap.dev>`_ library, which gives control over
-the chunks: messages are CDR-serialised with the rosbags type store (ROS 2 Humble definitions, which
-later distributions read), collected in chunks of :data:`CHUNK_BYTES`, each compressed with zstd and
-written (and flushed) as soon as it is full; the summary and the footer are written at close. A bag
+the chunks (:class:`~softjig.io.mcap_chunks.ChunkWriter`, the mcap library's records at zstd level 1):
+messages are CDR-serialised with the rosbags type store (ROS 2 Humble definitions, which later
+distributions read), collected in chunks of :data:`CHUNK_BYTES`, each compressed with zstd and written
+(and flushed) as soon as it is full; the summary and the footer are written at close. A bag
 folder holds ``metadata.yaml`` (rosbag2 version 5, the newest Humble reads; written at open and again at
 close) and ``NAME_0.mcap``.
 
@@ -145,8 +146,9 @@ INSTALL_HINT = "ROS 2 bag support needs the ros extra: pip install 'softjig[ros]
 def require_bag_support() -> None:
     """Raise an :class:`~softjig.errors.InputError` saying how to install rosbags and mcap if missing."""
     try:
-        import mcap.writer  # noqa: F401
+        import mcap.records  # noqa: F401
         import rosbags.highlevel  # noqa: F401
+        import zstandard  # noqa: F401
     except ImportError as exc:
         raise InputError(f"{INSTALL_HINT}; missing: {exc.name}") from None
 
@@ -1028,7 +1030,7 @@ class BagWriter:
     # -- lifecycle
     def open(self) -> BagWriter:
         require_bag_support()
-        from mcap.writer import CompressionType, Writer
+        from softjig.io.mcap_chunks import ChunkWriter
 
         if self._writer is not None:
             return self
@@ -1066,7 +1068,7 @@ class BagWriter:
                 f"cannot write the bag {root}: {exc.strerror or exc}; choose another path"
             ) from None
         self._store = _typestore()
-        self._writer = Writer(self._fh, chunk_size=self.chunk_bytes, compression=CompressionType.ZSTD)
+        self._writer = ChunkWriter(self._fh, chunk_bytes=self.chunk_bytes)
         self._writer.start(profile="ros2", library="softjig")
         self._writer.add_metadata(
             PROVENANCE_RECORD, {"provenance": SIMULATION if self.simulated else RECORDING}
@@ -1329,9 +1331,8 @@ def repair_bag(src: str | os.PathLike[str], dst: str | os.PathLike[str]) -> int:
         ``src`` is not an MCAP bag, or ``dst`` exists and is not empty.
     """
     require_bag_support()
-    from mcap.writer import CompressionType, Writer
-
     from softjig.files import write_text_atomic
+    from softjig.io.mcap_chunks import ChunkWriter
 
     src, dst = Path(src), Path(dst)
     mcap_file = BagReader._mcap_file(src) if src.exists() else None
@@ -1349,7 +1350,7 @@ def repair_bag(src: str | os.PathLike[str], dst: str | os.PathLike[str]) -> int:
     channel_ids: dict[int, int] = {}
     tmp = out.with_name(out.name + ".part")
     with open(tmp, "wb") as fh:
-        writer = Writer(fh, chunk_size=CHUNK_BYTES, compression=CompressionType.ZSTD)
+        writer = ChunkWriter(fh, chunk_bytes=CHUNK_BYTES)
         writer.start(profile="ros2", library="softjig repair")
         for kind, record in _stream_records(mcap_file, with_messages=True, validate_crcs=True):
             if kind == "schema" and record.id not in schema_ids:
