@@ -85,3 +85,62 @@ def test_a_bag_writers_chunks_are_level_1(tmp_path):
     for chunk in chunks:
         raw = zstandard.decompress(chunk.data, chunk.uncompressed_size)
         assert chunk.data == zstandard.ZstdCompressor(level=1).compress(raw)
+
+
+def _pairs_bag(path, n=3, shape=(120, 160), **options):
+    rng = np.random.default_rng(4)
+    part = {"kind": "cylinder", "diameter_mm": 50.0}
+    with BagWriter(path, default_jig(), **options) as writer:
+        for i in range(n):
+            pair = [rng.integers(0, 50, shape, dtype=np.uint8) for _ in range(2)]
+            meta = {"index": i, "part": part, "reference": i == 0}
+            writer.add_pair(*pair, 1_700_000_000_000_000_000 + i * 33_000_000, meta=meta)
+    return writer
+
+
+def test_the_zstd_level_is_an_option_and_a_bad_one_is_refused_before_any_file(tmp_path):
+    from mcap.records import Chunk
+    from mcap.stream_reader import StreamReader
+
+    from softjig.errors import InputError
+
+    writer = _pairs_bag(tmp_path / "fast", zstd_level=-1)
+    with open(writer.mcap_path, "rb") as fh:
+        chunks = [r for r in StreamReader(fh, emit_chunks=True).records if isinstance(r, Chunk)]
+    raw = zstandard.decompress(chunks[0].data, chunks[0].uncompressed_size)
+    assert chunks[0].data == zstandard.ZstdCompressor(level=-1).compress(raw)
+    for bad in (23, -8, 1.5, True, "1"):
+        with pytest.raises(InputError, match="zstd level"):
+            BagWriter(tmp_path / f"bad{bad}", default_jig(), zstd_level=bad)
+        assert not (tmp_path / f"bad{bad}").exists()
+    with pytest.raises(InputError, match="chunk size"):
+        BagWriter(tmp_path / "bad", default_jig(), chunk_bytes=0)
+
+
+def test_a_1280x720_pair_is_one_chunk(tmp_path):
+    """The default chunk closes with the pair's right image: a killed recorder loses at most one pair, and
+    a reader decompresses one pair at a time."""
+    from mcap.records import Chunk
+    from mcap.stream_reader import StreamReader
+
+    writer = _pairs_bag(tmp_path / "bag", n=3, shape=(720, 1280))
+    with open(writer.mcap_path, "rb") as fh:
+        chunks = [r for r in StreamReader(fh, emit_chunks=True).records if isinstance(r, Chunk)]
+    assert len(chunks) == 3
+    assert all(2 * 1280 * 720 < c.uncompressed_size < 2 * 1280 * 720 + 20_000 for c in chunks)
+
+
+def test_a_stream_parses_each_distinct_part_once(tmp_path, monkeypatch):
+    """A recording's frames name the same part: parsing it (a pydantic adapter, ~0.5 ms) once a stream."""
+    import softjig.config
+    from softjig.io.rosbag import BagReader
+
+    writer = _pairs_bag(tmp_path / "bag", n=4)
+    calls = []
+    parse = softjig.config.part_from_dict
+    monkeypatch.setattr(softjig.config, "part_from_dict", lambda obj: calls.append(obj) or parse(obj))
+    with BagReader(writer.root) as reader:
+        pairs = list(reader.pairs(reader.choose_topics()))
+    assert [p.index for p in pairs] == [0, 1, 2, 3] and [p.reference for p in pairs] == [True] + [False] * 3
+    assert len(calls) == 1
+    assert all(p.part == parse({"kind": "cylinder", "diameter_mm": 50.0}) for p in pairs)

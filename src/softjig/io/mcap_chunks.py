@@ -22,11 +22,22 @@ import zlib
 from collections import defaultdict
 from typing import IO, Any
 
-__all__ = ["ZSTD_LEVEL", "ChunkWriter"]
+from softjig.errors import InputError
+
+__all__ = ["ZSTD_LEVEL", "ChunkWriter", "check_options"]
 
 #: The zstd level of softjig's chunks (see the module docstring).
 ZSTD_LEVEL = 1
 _MAGIC = b"\x89MCAP0\r\n"  # the MCAP specification's, at both ends of the file
+
+
+def check_options(chunk_bytes: Any, level: Any) -> None:
+    """Raise :class:`~softjig.errors.InputError` unless ``chunk_bytes`` is a positive integer and
+    ``level`` an integer zstd level from -7 to 22 (zstd's fast levels to its strongest)."""
+    if isinstance(level, bool) or not isinstance(level, int) or not -7 <= level <= 22:
+        raise InputError(f"the bag's zstd level must be an integer from -7 to 22, got {level!r}")
+    if isinstance(chunk_bytes, bool) or not isinstance(chunk_bytes, int) or chunk_bytes < 1:
+        raise InputError(f"the bag's chunk size must be a positive number of bytes, got {chunk_bytes!r}")
 
 
 class ChunkWriter:
@@ -36,7 +47,12 @@ class ChunkWriter:
     ----------
     stream : a binary file open for writing (not closed here).
     chunk_bytes : uncompressed bytes of records after which a chunk is compressed and written.
-    level : the zstd level of the chunks.
+    level : the zstd level of the chunks (-7 to 22: zstd's fast levels to its strongest).
+
+    Raises
+    ------
+    InputError
+        A level or chunk size out of range.
 
     Notes
     -----
@@ -48,8 +64,9 @@ class ChunkWriter:
         from mcap.data_stream import RecordBuilder
         from mcap.records import Statistics
 
+        check_options(chunk_bytes, level)
         self._stream = stream
-        self._chunk_bytes = int(chunk_bytes)
+        self._chunk_bytes = chunk_bytes
         self._compressor = zstandard.ZstdCompressor(level=level)
         self._out = RecordBuilder()  # top-level records on their way to the stream
         self._chunk = RecordBuilder()  # the chunk in progress, uncompressed
