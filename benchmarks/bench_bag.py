@@ -11,9 +11,9 @@ level 3, 1 MiB chunks, no softjig topics), then for each source times, per frame
 
 One warm-up pass first (Numba caches, per-jig tables), then one timed run. Each figure is given as the
 median over the loaded frames and as their mean (the total over the frames after the first, which pays
-for opening the source, divided by the loaded frames): a bag's zstd chunk holds about two 1280x720 pairs,
-so one frame in two or three pays for decompressing it and the median leaves that out; the mean is what
-a recording costs. Target (issue 15): a bag's ``read + estimate`` at most 6 ms a frame.
+for opening the source, divided by the loaded frames): where a bag's zstd chunk holds several pairs
+(softjig's 4 MiB chunks until December 2026 held ~2.4), only one frame in two or three pays for
+decompressing it and the median leaves that out; the mean is what a recording costs. Target (issue 15): a bag's ``read + estimate`` at most 6 ms a frame.
 
 ``--src OLD/src NEW/src`` measures each source tree in its own process (``PYTHONPATH`` = that tree),
 ``--rounds`` times, alternating the order: each tree writes its own bag (its own writer) and reads the
