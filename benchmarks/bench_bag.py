@@ -9,15 +9,17 @@ level 3, 1 MiB chunks, no softjig topics), then for each source times, per frame
 * ``read + estimate``: that and one :class:`~softjig.sensing.estimator.Estimator`'s ``estimate`` (refractive
   method, against the reference frame), what ``softjig estimate --workers 1`` spends per frame.
 
-One warm-up pass first (Numba caches, per-jig tables), then one timed run. Each figure is given as the
-median over the loaded frames and as their mean (the total over the frames after the first, which pays
-for opening the source, divided by the loaded frames): where a bag's zstd chunk holds several pairs
-(softjig's 4 MiB chunks until December 2026 held ~2.4), only one frame in two or three pays for
-decompressing it and the median leaves that out; the mean is what a recording costs. Target (issue 15): a bag's ``read + estimate`` at most 6 ms a frame.
+One warm-up pass first (Numba caches, per-jig tables), then ``--rounds`` timed passes. Each figure is
+given as the median over the loaded frames and as their mean (the total over the frames after the first,
+which pays for opening the source, divided by the loaded frames): where a bag's zstd chunk holds several
+pairs (softjig's 4 MiB chunks until December 2026 held ~2.4), only one frame in two or three pays for
+decompressing it and the median leaves that out; the mean is what a recording costs. Target (issue 15):
+a bag's ``read + estimate`` at most 6 ms a frame.
 
-``--src OLD/src NEW/src`` measures each source tree in its own process (``PYTHONPATH`` = that tree),
-``--rounds`` times, alternating the order: each tree writes its own bag (its own writer) and reads the
-same other-library bag; the table gives each figure's median over the rounds, tree beside tree.
+``--src OLD/src NEW/src`` measures each source tree in its own warm worker process (``PYTHONPATH`` = that
+tree): each writes its own bag (its own writer) and reads the same other-library bag; the workers take
+turns, ``--rounds`` passes each, the order alternating, and the table gives each figure's median over the
+rounds, tree beside tree (one pass, ~3 s a tree, is short enough for the load to stay alike).
 
 Run: ``python benchmarks/bench_bag.py [--frames-per-alpha 12] [--out DIR] [--src A B --rounds 3]``. The
 numbers depend on the machine's load (the shared development machine runs several sessions at once):
@@ -107,9 +109,9 @@ def write_foreign_bag(dataset, path: Path) -> None:
     tmp.replace(path)
 
 
-def measure(data: Path, bag: Path) -> dict[str, list[float]]:
-    """Each source's figures (ms a frame): read wall / CPU median / CPU mean, read + estimate likewise,
-    and the frames; the dataset and the other-library bag are in ``data``, softjig's bag goes to ``bag``."""
+def sources(data: Path, bag: Path) -> tuple[dict, object, object]:
+    """``({name: frames maker}, jig, reference)``: the dataset, softjig's bag (written to ``bag`` afresh by
+    this tree's writer) and the other library's bag in ``data``; warmed up (Numba, tables, page cache)."""
     import cv2
 
     cv2.setNumThreads(1)
@@ -120,8 +122,7 @@ def measure(data: Path, bag: Path) -> dict[str, list[float]]:
 
     dataset = Dataset.open(data / "dataset")
     jig = dataset.jig
-    if not (bag / "metadata.yaml").exists():
-        dataset_to_bag(dataset, bag, estimate=False, start_unix_s=1.7e9)
+    dataset_to_bag(dataset, bag, estimate=False, start_unix_s=1.7e9, overwrite=True)  # this tree's writer
     reference = dataset_reference(dataset, jig)
 
     def bag_frames(path):
@@ -132,17 +133,32 @@ def measure(data: Path, bag: Path) -> dict[str, list[float]]:
         return frames
 
     makers = (lambda: dataset, bag_frames(bag), bag_frames(data / "foreign.mcap"))
-    sources = dict(zip(SOURCES, makers, strict=True))
-    for source in sources.values():  # warm-up: Numba, tables, page cache
+    made = dict(zip(SOURCES, makers, strict=True))
+    for source in made.values():
         _time_source(source(), jig, reference, estimate=True)
+    return made, jig, reference
+
+
+def measure(made: dict, jig, reference) -> dict[str, list[float]]:
+    """Each source's figures (ms a frame) of one pass: read wall / CPU median / CPU mean, read + estimate
+    likewise, and the frames."""
     results = {}
     med = statistics.median
-    for name, source in sources.items():
+    for name, source in made.items():
         read, read_cpu, read_mean = _time_source(source(), jig, reference, estimate=False)
         full, full_cpu, full_mean = _time_source(source(), jig, reference, estimate=True)
         figures = [med(read), med(read_cpu), read_mean, med(full), med(full_cpu), full_mean]
         results[name] = [1000 * x for x in figures] + [len(full)]
     return results
+
+
+def worker(data: Path, bag: Path) -> None:
+    """A warm tree: one JSON line of :func:`measure` for each ``time`` line on stdin."""
+    made, jig, reference = sources(data, bag)
+    print(json.dumps({"ready": True}), flush=True)
+    for line in sys.stdin:
+        if line.strip() == "time":
+            print(json.dumps(measure(made, jig, reference)), flush=True)
 
 
 def prepare(root: Path, frames_per_alpha: int) -> None:
@@ -185,40 +201,62 @@ def _table(trees: list[dict[str, list[list[float]]]], labels: list[str]) -> None
             )
 
 
+def _rounds(srcs: list[str | None], root: Path, bags: list[Path], rounds: int) -> list[dict]:
+    """Each tree's figures, round by round (the trees take turns, the order alternating)."""
+    trees: list[dict[str, list[list[float]]]] = [{} for _ in srcs]
+    if srcs == [None]:
+        made = sources(root, bags[0])
+        for _ in range(rounds):
+            for name, figures in measure(*made).items():
+                trees[0].setdefault(name, []).append(figures)
+        return trees
+    procs = []
+    for src, bag in zip(srcs, bags, strict=True):
+        env = {**os.environ, "PYTHONPATH": str(src)}
+        argv = [sys.executable, __file__, "--out", str(root), "--child", str(bag)]
+        procs.append(
+            subprocess.Popen(argv, env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+        )
+    for proc in procs:
+        assert proc.stdout is not None and json.loads(proc.stdout.readline())["ready"]
+    for r in range(rounds):
+        for i in range(len(procs)) if r % 2 == 0 else reversed(range(len(procs))):
+            stdin, stdout = procs[i].stdin, procs[i].stdout
+            assert stdin is not None and stdout is not None
+            stdin.write("time\n")
+            stdin.flush()
+            for name, figures in json.loads(stdout.readline()).items():
+                trees[i].setdefault(name, []).append(figures)
+    for proc in procs:
+        assert proc.stdin is not None
+        proc.stdin.close()
+        proc.wait()
+    return trees
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames-per-alpha", type=int, default=12, help="theta steps per tilt (4 tilts)")
     parser.add_argument("--out", type=Path, default=None, help="keep the dataset and bags here")
     parser.add_argument("--src", nargs="*", default=None, help="source trees to compare (PYTHONPATH)")
-    parser.add_argument("--rounds", type=int, default=1, help="runs per tree with --src")
+    parser.add_argument("--rounds", type=int, default=1, help="timed passes per tree")
     parser.add_argument("--child", type=Path, default=None, help=argparse.SUPPRESS)
     args = parser.parse_args()
     root = args.out or Path(tempfile.mkdtemp(prefix="bench_bag_"))
     if args.child is not None:
-        print(json.dumps(measure(root, args.child)))
+        worker(root, args.child)
         return
     prepare(root, args.frames_per_alpha)
     srcs = [str(Path(s).resolve()) for s in args.src] if args.src else [None]
     bags = [root / f"bag{i}" for i in range(len(srcs))]
-    trees: list[dict[str, list[list[float]]]] = [{} for _ in srcs]
-    for r in range(args.rounds if args.src else 1):
-        for i in range(len(srcs)) if r % 2 == 0 else reversed(range(len(srcs))):
-            if srcs[i] is None:
-                results = measure(root, bags[i])
-            else:
-                env = {**os.environ, "PYTHONPATH": srcs[i]}
-                argv = [sys.executable, __file__, "--out", str(root), "--child", str(bags[i])]
-                results = json.loads(subprocess.run(argv, env=env, check=True, capture_output=True,
-                                                    text=True).stdout.splitlines()[-1])  # fmt: skip
-            for name, figures in results.items():
-                trees[i].setdefault(name, []).append(figures)
+    trees = _rounds(srcs, root, bags, max(1, args.rounds))
     print(f"1280x720 mono8, one worker, one OpenCV thread; {_sizes(root, bags)} (zstd chunks)")
     labels = [f"t{i}" for i in range(len(srcs))]
     _table(trees, labels)
     for label, src in zip(labels, srcs, strict=True):
         print(f"{label}: {src or 'this interpreter'}")
     print(
-        f"medians over {args.rounds if args.src else 1} round(s); wall times suffer from the shared "
+        f"medians over {max(1, args.rounds)} round(s); wall times suffer from the shared "
         "machine's load (CPU time, this process only, less so); load average now "
         f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs"
     )
