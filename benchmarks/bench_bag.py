@@ -64,19 +64,21 @@ def timed_frames(frames, estimator, *, estimate: bool):
 def _time_source(frames, jig, reference, *, estimate: bool) -> tuple[list[float], list[float], float]:
     """Wall and CPU seconds per loaded frame: from asking for the frame to having its images (and its
     estimate), and the mean CPU seconds a loaded frame. The source's opening (a bag's metadata and type
-    definitions, ~0.1-0.3 s once) falls on the first frame, which the medians ignore and the mean leaves
-    out; the reference frame's read counts towards the mean."""
+    definitions, ~0.1-0.3 s once) falls on the first frame (a dataset's or softjig bag's reference
+    frame, which the medians leave out), which the mean leaves out: the mean is the CPU of the frames
+    after the first over their number."""
     from softjig.sensing.estimator import Estimator
 
     estimator = Estimator(jig, reference=reference, method="refractive")  # once, as estimate_dataset does
     wall, cpu = [], []
-    total = 0.0
+    total, after_first = 0.0, 0
     for k, (is_reference, spent_wall, spent) in enumerate(timed_frames(frames, estimator, estimate=estimate)):
-        total += 0.0 if k == 0 else spent
+        if k > 0:
+            total, after_first = total + spent, after_first + 1
         if not is_reference:
             wall.append(spent_wall)
             cpu.append(spent)
-    return wall, cpu, total / max(len(cpu) - 1, 1)
+    return wall, cpu, total / max(after_first, 1)
 
 
 FOREIGN_LEFT, FOREIGN_RIGHT = "/camera/left/image_raw", "/camera/right/image_raw"
