@@ -1,28 +1,40 @@
 """Estimating a ROS 2 bag of mono8 pairs against the same frames as a PNG dataset, on one worker.
 
 Simulates a paper sweep (1280x720 mono8, the default jig), converts it to a bag (``softjig convert``'s
-:func:`~softjig.io.bag_convert.dataset_to_bag`, zstd chunks), then for each source times, per frame:
+:func:`~softjig.io.bag_convert.dataset_to_bag`, zstd chunks: softjig's writer), and writes its loaded
+frames into a second bag with another library's writer (mcap-ros2-support: mcap's ``Writer``, zstd
+level 3, 1 MiB chunks, no softjig topics), then for each source times, per frame:
 
 * ``read``: getting the pair's two images into memory (PNG decode; bag: zstd chunk, CDR, pairing),
 * ``read + estimate``: that and one :class:`~softjig.sensing.estimator.Estimator`'s ``estimate`` (refractive
   method, against the reference frame), what ``softjig estimate --workers 1`` spends per frame.
 
-One warm-up pass first (Numba caches, per-jig tables), then one timed run. Each figure is given as the
-median over the loaded frames and as their mean (the total over the frames after the first, which pays
-for opening the source, divided by the loaded frames): a bag's zstd chunk holds about two 1280x720 pairs,
-so one frame in two or three pays for decompressing it and the median leaves that out; the mean is what
-a recording costs. Target (issue 15): a bag's ``read + estimate`` at most 6 ms a frame.
+One warm-up pass first (Numba caches, per-jig tables), then ``--rounds`` timed passes. Each figure is
+given as the median over the loaded frames and as their mean (the total over the frames after the first,
+which pays for opening the source, divided by the loaded frames): where a bag's zstd chunk holds several
+pairs (softjig's 4 MiB chunks until December 2026 held ~2.4), only one frame in two or three pays for
+decompressing it and the median leaves that out; the mean is what a recording costs. Target (issue 15):
+a bag's ``read + estimate`` at most 6 ms a frame.
 
-Run: ``python benchmarks/bench_bag.py [--frames-per-alpha 12] [--out DIR]``. The numbers depend on the
-machine's load (the shared development machine runs several sessions at once): quote medians and say so.
+``--src OLD/src NEW/src`` measures each source tree in its own warm worker process (``PYTHONPATH`` = that
+tree): each writes its own bag (its own writer) and reads the same other-library bag; the workers take
+turns, ``--rounds`` passes each, the order alternating, and the table gives each figure's median over the
+rounds, tree beside tree (one pass, ~3 s a tree, is short enough for the load to stay alike).
+
+Run: ``python benchmarks/bench_bag.py [--frames-per-alpha 12] [--out DIR] [--src A B --rounds 3]``. The
+numbers depend on the machine's load (the shared development machine runs several sessions at once):
+quote medians and say so.
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
+import json
 import os
 import statistics
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -52,76 +64,203 @@ def timed_frames(frames, estimator, *, estimate: bool):
 def _time_source(frames, jig, reference, *, estimate: bool) -> tuple[list[float], list[float], float]:
     """Wall and CPU seconds per loaded frame: from asking for the frame to having its images (and its
     estimate), and the mean CPU seconds a loaded frame. The source's opening (a bag's metadata and type
-    definitions, ~0.1-0.3 s once) falls on the first frame, which the medians ignore and the mean leaves
-    out; the reference frame's read counts towards the mean."""
+    definitions, ~0.1-0.3 s once) falls on the first frame (a dataset's or softjig bag's reference
+    frame, which the medians leave out), which the mean leaves out: the mean is the CPU of the frames
+    after the first over their number."""
     from softjig.sensing.estimator import Estimator
 
     estimator = Estimator(jig, reference=reference, method="refractive")  # once, as estimate_dataset does
     wall, cpu = [], []
-    total = 0.0
+    total, after_first = 0.0, 0
     for k, (is_reference, spent_wall, spent) in enumerate(timed_frames(frames, estimator, estimate=estimate)):
-        total += 0.0 if k == 0 else spent
+        if k > 0:
+            total, after_first = total + spent, after_first + 1
         if not is_reference:
             wall.append(spent_wall)
             cpu.append(spent)
-    return wall, cpu, total / max(len(cpu) - 1, 1)
+    return wall, cpu, total / max(after_first, 1)
+
+
+FOREIGN_LEFT, FOREIGN_RIGHT = "/camera/left/image_raw", "/camera/right/image_raw"
+SOURCES = ("PNG dataset", "bag, softjig's writer", "bag, mcap-ros2-support")
+
+
+def write_foreign_bag(dataset, path: Path) -> None:
+    """The dataset's loaded pairs as a single ``.mcap`` written by mcap-ros2-support (mcap's ``Writer``
+    defaults: zstd level 3, 1 MiB chunks), mono8 ``sensor_msgs/msg/Image`` on two camera topics."""
+    from mcap_ros2.writer import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    msgdef, _ = get_typestore(Stores.ROS2_HUMBLE).generate_msgdef("sensor_msgs/msg/Image", ros_version=2)
+    tmp = path.with_name(path.name + ".part")
+    with open(tmp, "wb") as fh:
+        writer = Writer(fh)
+        schema = writer.register_msgdef("sensor_msgs/msg/Image", msgdef)
+        stamp = 1_700_000_000_000_000_000
+        for frame in dataset:
+            if frame.reference:
+                continue
+            stamp += 33_333_333
+            for topic, image in ((FOREIGN_LEFT, frame.load_left()), (FOREIGN_RIGHT, frame.load_right())):
+                header = {"stamp": {"sec": stamp // 10**9, "nanosec": stamp % 10**9}, "frame_id": "cam"}
+                msg = {"header": header, "height": image.shape[0], "width": image.shape[1],
+                       "encoding": "mono8", "is_bigendian": 0, "step": image.shape[1],
+                       "data": image.tobytes()}  # fmt: skip
+                writer.write_message(topic, schema, msg, log_time=stamp)
+        writer.finish()
+    tmp.replace(path)
+
+
+def sources(data: Path, bag: Path) -> tuple[dict, object, object]:
+    """``({name: frames maker}, jig, reference)``: the dataset, softjig's bag (written to ``bag`` afresh by
+    this tree's writer) and the other library's bag in ``data``; warmed up (Numba, tables, page cache)."""
+    import cv2
+
+    cv2.setNumThreads(1)
+    from softjig.io.bag_convert import dataset_to_bag
+    from softjig.io.batch import dataset_reference
+    from softjig.io.dataset import Dataset
+    from softjig.io.rosbag import BagReader
+
+    dataset = Dataset.open(data / "dataset")
+    jig = dataset.jig
+    dataset_to_bag(dataset, bag, estimate=False, start_unix_s=1.7e9, overwrite=True)  # this tree's writer
+    reference = dataset_reference(dataset, jig)
+
+    def bag_frames(path):
+        def frames():
+            with BagReader(path) as reader:
+                yield from reader.pairs(reader.choose_topics())
+
+        return frames
+
+    makers = (lambda: dataset, bag_frames(bag), bag_frames(data / "foreign.mcap"))
+    made = dict(zip(SOURCES, makers, strict=True))
+    for source in made.values():
+        _time_source(source(), jig, reference, estimate=True)
+    return made, jig, reference
+
+
+def measure(made: dict, jig, reference) -> dict[str, list[float]]:
+    """Each source's figures (ms a frame) of one pass: read wall / CPU median / CPU mean, read + estimate
+    likewise, and the frames."""
+    results = {}
+    med = statistics.median
+    for name, source in made.items():
+        read, read_cpu, read_mean = _time_source(source(), jig, reference, estimate=False)
+        full, full_cpu, full_mean = _time_source(source(), jig, reference, estimate=True)
+        figures = [med(read), med(read_cpu), read_mean, med(full), med(full_cpu), full_mean]
+        results[name] = [1000 * x for x in figures] + [len(full)]
+    return results
+
+
+def worker(data: Path, bag: Path) -> None:
+    """A warm tree: one JSON line of :func:`measure` for each ``time`` line on stdin."""
+    made, jig, reference = sources(data, bag)
+    print(json.dumps({"ready": True}), flush=True)
+    for line in sys.stdin:
+        if line.strip() == "time":
+            print(json.dumps(measure(made, jig, reference)), flush=True)
+
+
+def prepare(root: Path, frames_per_alpha: int) -> None:
+    """The simulated dataset and the other-library bag in ``root`` (kept between runs)."""
+    from softjig.config import default_jig
+    from softjig.io.dataset import Dataset
+    from softjig.io.simulated import simulate_dataset
+    from softjig.sim.scenarios import paper_sweep
+
+    ds_path = root / "dataset"
+    if not (ds_path / "frames.jsonl").exists():
+        step = 360.0 / frames_per_alpha
+        specs = list(paper_sweep(diameters_mm=(50,), alphas_deg=(5, 10, 15, 20), theta_step_deg=step))
+        simulate_dataset(ds_path, specs, default_jig(), seed=7, workers=os.cpu_count(), progress=False)
+    if not (root / "foreign.mcap").exists():
+        write_foreign_bag(Dataset.open(ds_path), root / "foreign.mcap")
+
+
+def _sizes(root: Path, bags: list[Path]) -> str:
+    png = sum(p.stat().st_size for p in (root / "dataset" / "left").iterdir()) * 2 / 2**20
+    ours = [sum(p.stat().st_size for p in b.glob("*.mcap")) / 2**20 for b in bags]
+    foreign = (root / "foreign.mcap").stat().st_size / 2**20
+    ours_mb = " / ".join(f"{m:.0f}" for m in ours)
+    return f"PNG {png:.0f} MiB, softjig's bag {ours_mb} MiB, other library's {foreign:.0f} MiB"
+
+
+def _table(trees: list[dict[str, list[list[float]]]], labels: list[str]) -> None:
+    """Medians over the rounds, each tree's row beside the other's."""
+    print(f"{'source':<24} {'tree':<6} {'read ms/frame':>24} {'read+estimate ms/frame':>26} {'frames':>7}")
+    print(f"{'':<24} {'':<6} {'wall / CPU / CPU mean':>24} {'wall / CPU / CPU mean':>26}")
+    for name in SOURCES:
+        for label, tree in zip(labels, trees, strict=True):
+            rounds = tree.get(name)
+            if not rounds:
+                continue
+            v = [statistics.median(r[i] for r in rounds) for i in range(7)]
+            print(
+                f"{name:<24} {label:<6} {v[0]:>8.2f} / {v[1]:>5.2f} / {v[2]:>5.2f} "
+                f"{v[3]:>10.2f} / {v[4]:>5.2f} / {v[5]:>5.2f} {int(v[6]):>7}"
+            )
+
+
+def _rounds(srcs: list[str | None], root: Path, bags: list[Path], rounds: int) -> list[dict]:
+    """Each tree's figures, round by round (the trees take turns, the order alternating)."""
+    trees: list[dict[str, list[list[float]]]] = [{} for _ in srcs]
+    if srcs == [None]:
+        made = sources(root, bags[0])
+        for _ in range(rounds):
+            for name, figures in measure(*made).items():
+                trees[0].setdefault(name, []).append(figures)
+        return trees
+    procs = []
+    for src, bag in zip(srcs, bags, strict=True):
+        env = {**os.environ, "PYTHONPATH": str(src)}
+        argv = [sys.executable, __file__, "--out", str(root), "--child", str(bag)]
+        procs.append(
+            subprocess.Popen(argv, env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+        )
+    for proc in procs:
+        assert proc.stdout is not None and json.loads(proc.stdout.readline())["ready"]
+    for r in range(rounds):
+        for i in range(len(procs)) if r % 2 == 0 else reversed(range(len(procs))):
+            stdin, stdout = procs[i].stdin, procs[i].stdout
+            assert stdin is not None and stdout is not None
+            stdin.write("time\n")
+            stdin.flush()
+            for name, figures in json.loads(stdout.readline()).items():
+                trees[i].setdefault(name, []).append(figures)
+    for proc in procs:
+        assert proc.stdin is not None
+        proc.stdin.close()
+        proc.wait()
+    return trees
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames-per-alpha", type=int, default=12, help="theta steps per tilt (4 tilts)")
-    parser.add_argument("--out", type=Path, default=None, help="keep the dataset and bag here")
+    parser.add_argument("--out", type=Path, default=None, help="keep the dataset and bags here")
+    parser.add_argument("--src", nargs="*", default=None, help="source trees to compare (PYTHONPATH)")
+    parser.add_argument("--rounds", type=int, default=1, help="timed passes per tree")
+    parser.add_argument("--child", type=Path, default=None, help=argparse.SUPPRESS)
     args = parser.parse_args()
-
-    import cv2
-
-    cv2.setNumThreads(1)
-    from softjig.config import default_jig
-    from softjig.io.bag_convert import dataset_to_bag
-    from softjig.io.batch import dataset_reference
-    from softjig.io.dataset import Dataset
-    from softjig.io.rosbag import BagReader
-    from softjig.io.simulated import simulate_dataset
-    from softjig.sim.scenarios import paper_sweep
-
     root = args.out or Path(tempfile.mkdtemp(prefix="bench_bag_"))
-    ds_path, bag_path = root / "dataset", root / "bag"
-    step = 360.0 / args.frames_per_alpha
-    if not (ds_path / "frames.jsonl").exists():
-        specs = list(paper_sweep(diameters_mm=(50,), alphas_deg=(5, 10, 15, 20), theta_step_deg=step))
-        simulate_dataset(ds_path, specs, default_jig(), seed=7, workers=os.cpu_count(), progress=False)
-    dataset = Dataset.open(ds_path)
-    jig = dataset.jig
-    if not (bag_path / "metadata.yaml").exists():
-        dataset_to_bag(dataset, bag_path, estimate=False, start_unix_s=1.7e9)
-    reference = dataset_reference(dataset, jig)
-    png_mb = sum(p.stat().st_size for p in (ds_path / "left").iterdir()) * 2 / 2**20
-    bag_mb = sum(p.stat().st_size for p in bag_path.glob("*.mcap")) / 2**20
-
-    def bag_frames():
-        with BagReader(bag_path) as reader:
-            yield from reader.pairs(reader.choose_topics())
-
-    _time_source(dataset, jig, reference, estimate=True)  # warm-up: Numba, tables, page cache
-    _time_source(bag_frames(), jig, reference, estimate=True)
-    results = {}
-    for name, source in (("PNG dataset", lambda: dataset), ("ROS 2 bag", bag_frames)):
-        read, read_cpu, read_mean = _time_source(source(), jig, reference, estimate=False)
-        full, full_cpu, full_mean = _time_source(source(), jig, reference, estimate=True)
-        med = statistics.median
-        results[name] = (med(read), med(read_cpu), read_mean, med(full), med(full_cpu), full_mean, len(full))
-    print(f"{len(dataset)} frames, 1280x720 mono8, one worker, one OpenCV thread; PNG {png_mb:.0f} MiB, "
-          f"bag {bag_mb:.0f} MiB (zstd chunks)")  # fmt: skip
-    print(f"{'source':<12} {'read ms/frame':>28} {'read+estimate ms/frame':>30} {'frames':>7}")
-    print(f"{'':<12} {'wall / CPU / CPU mean':>28} {'wall / CPU / CPU mean':>30}")
-    for name, (read, read_cpu, read_mean, full, full_cpu, full_mean, n) in results.items():
-        print(
-            f"{name:<12} {1000 * read:>10.2f} / {1000 * read_cpu:>6.2f} / {1000 * read_mean:>6.2f} "
-            f"{1000 * full:>12.2f} / {1000 * full_cpu:>6.2f} / {1000 * full_mean:>6.2f} {n:>7}"
-        )
+    if args.child is not None:
+        worker(root, args.child)
+        return
+    prepare(root, args.frames_per_alpha)
+    srcs = [str(Path(s).resolve()) for s in args.src] if args.src else [None]
+    bags = [root / f"bag{i}" for i in range(len(srcs))]
+    trees = _rounds(srcs, root, bags, max(1, args.rounds))
+    print(f"1280x720 mono8, one worker, one OpenCV thread; {_sizes(root, bags)} (zstd chunks)")
+    labels = [f"t{i}" for i in range(len(srcs))]
+    _table(trees, labels)
+    for label, src in zip(labels, srcs, strict=True):
+        print(f"{label}: {src or 'this interpreter'}")
     print(
-        "medians (and CPU means) of one run; wall times suffer from the shared machine's load (CPU time, "
-        f"this process only, less so); load average now {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs"
+        f"medians over {max(1, args.rounds)} round(s); wall times suffer from the shared "
+        "machine's load (CPU time, this process only, less so); load average now "
+        f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs"
     )
 
 

@@ -10,9 +10,9 @@ and each round reports, in CPU ms a frame (``time.process_time``, one thread):
   frame) on pairs already in memory, and its stages (``checks`` = rectification and image checks,
   ``frame``, ``detect``, ``match``, ``triangulate``, ``fit``);
 * ``bag read`` and ``bag read+estimate``: the whole bag, as ``softjig estimate BAG --workers 1`` reads it,
-  as the mean over the frames (total CPU / frames, what a recording costs: a zstd chunk holds about
-  two pairs, so one frame in two or three pays for decompressing it) and the median (the figure
-  ``bench_bag.py`` prints, which leaves the chunks out).
+  as the mean over the frames (total CPU / frames, what a recording costs: where a zstd chunk holds
+  several pairs, only some frames pay for decompressing it) and the median (which then leaves the
+  chunks out).
 
 The printed figures are medians over the rounds. Then the trees' results are compared, field by field:
 the estimates of every bench frame (from the PNG dataset) and of the default pair of

@@ -9,9 +9,10 @@ in ``mono8``, ``mono16``, ``rgb8``, ``bgr8``; ``sensor_msgs/msg/CompressedImage`
 by their header stamps within a tolerance (:class:`~softjig.io.cameras.FramePairer`).
 
 Writing (:class:`BagWriter`) goes through the `mcap <https://mcap.dev>`_ library, which gives control over
-the chunks: messages are CDR-serialised with the rosbags type store (ROS 2 Humble definitions, which
-later distributions read), collected in chunks of :data:`CHUNK_BYTES`, each compressed with zstd and
-written (and flushed) as soon as it is full; the summary and the footer are written at close. A bag
+the chunks (:class:`~softjig.io.mcap_chunks.ChunkWriter`, the mcap library's records at zstd level 1):
+messages are CDR-serialised with the rosbags type store (ROS 2 Humble definitions, which later
+distributions read), collected in chunks of :data:`CHUNK_BYTES`, each compressed with zstd and written
+(and flushed) as soon as it is full; the summary and the footer are written at close. A bag
 folder holds ``metadata.yaml`` (rosbag2 version 5, the newest Humble reads; written at open and again at
 close) and ``NAME_0.mcap``.
 
@@ -117,9 +118,11 @@ IMAGE_TYPES = (IMAGE, COMPRESSED_IMAGE)
 IMAGE_ENCODINGS = ("mono8", "mono16", "rgb8", "bgr8")
 _ENCODING_ALIASES = {"8UC1": "mono8", "16UC1": "mono16", "8UC3": "bgr8"}
 
-#: Uncompressed bytes collected before a chunk is compressed and written (a killed recorder loses at most
-#: the chunk in progress: about one 1280x720 pair).
-CHUNK_BYTES = 4 * 2**20
+#: Uncompressed bytes collected before a chunk is compressed and written: a chunk closes with the message
+#: that takes it past this, so a 1280x720 mono8 pair (1.8 MB) is one chunk. A killed recorder loses at most
+#: the chunk in progress (one such pair), and a reader decompresses one pair at a time, whose bytes are
+#: still in the CPU's caches when they are estimated (less CPU a frame than 4 MiB chunks of ~2.4 pairs).
+CHUNK_BYTES = 2**20
 #: rosbag2 metadata version written (Humble's; Iron, Jazzy and later read it too).
 METADATA_VERSION = 5
 MCAP_MAGIC = b"\x89MCAP0\r\n"
@@ -145,8 +148,9 @@ INSTALL_HINT = "ROS 2 bag support needs the ros extra: pip install 'softjig[ros]
 def require_bag_support() -> None:
     """Raise an :class:`~softjig.errors.InputError` saying how to install rosbags and mcap if missing."""
     try:
-        import mcap.writer  # noqa: F401
+        import mcap.records  # noqa: F401
         import rosbags.highlevel  # noqa: F401
+        import zstandard  # noqa: F401
     except ImportError as exc:
         raise InputError(f"{INSTALL_HINT}; missing: {exc.name}") from None
 
@@ -613,6 +617,7 @@ class PairStream:
         last = {"left": None, "right": None}
         shape: tuple | None = None
         seen = 0
+        parts: dict[str, Part | None] = {}  # a part's canonical JSON -> the part: parsed once a stream
         for topic, msgtype, log_time, raw in reader._messages(want):
             if topic == TOPIC_FRAME:
                 obj = _frame_meta(reader.deserialize(raw, msgtype).data)
@@ -645,7 +650,7 @@ class PairStream:
                             "one stereo pair; name the right ones with --left-topic and --right-topic"
                         )
                 meta = frame_meta.get(sl) or frame_meta.get(sr) or {}
-                yield _pair(self.n_pairs, sl, sr, left, right, meta)
+                yield _pair(self.n_pairs, sl, sr, left, right, meta, parts)
                 self.n_pairs += 1
         self.unpaired = seen - 2 * self.n_pairs
 
@@ -663,17 +668,30 @@ def _frame_meta(text: str) -> dict | None:
     return obj if isinstance(obj, dict) else None
 
 
-def _pair(position: int, sl: int, sr: int, left: np.ndarray, right: np.ndarray, meta: dict) -> BagPair:
-    from softjig.config import part_from_dict
-    from softjig.errors import ConfigError
-
+def _pair(
+    position: int, sl: int, sr: int, left: np.ndarray, right: np.ndarray, meta: dict, parts: dict
+) -> BagPair:
+    """The pair, its index and part from ``meta``; ``parts`` holds the parts already parsed (keyed by
+    their canonical JSON: a recording's frames name the same few parts, and parsing one costs ~0.5 ms)."""
     index = meta.get("index")
     index = index if isinstance(index, int) and not isinstance(index, bool) and index >= 0 else position
     part = None
     if isinstance(meta.get("part"), dict):
-        with contextlib.suppress(ConfigError, InputError, TypeError, ValueError):
-            part = part_from_dict(meta["part"])
+        key = json.dumps(meta["part"], sort_keys=True, default=str)
+        if key not in parts:
+            parts[key] = _part(meta["part"])
+        part = parts[key]
     return BagPair(index, sl, sr, left, right, meta, part, meta.get("reference") is True)
+
+
+def _part(obj: dict) -> Part | None:
+    """A frame's part, ``None`` if it does not parse (the frame is still estimated, without it)."""
+    from softjig.config import part_from_dict
+    from softjig.errors import ConfigError
+
+    with contextlib.suppress(ConfigError, InputError, TypeError, ValueError):
+        return part_from_dict(obj)
+    return None
 
 
 # --------------------------------------------------------------------------------- MCAP record stream
@@ -752,10 +770,11 @@ def _stream_records(
 
     schemas: dict[int, Schema] = {}
     channels: dict[int, Channel] = {}
+    decompressors: dict[str, Any] = {}  # one zstd context for the file's chunks
 
     def records_of(record: Any) -> Iterable[Any]:
         if isinstance(record, Chunk):
-            return _chunk_records(record, validate_crc=validate_crcs)
+            return _chunk_records(record, validate_crc=validate_crcs, decompressors=decompressors)
         return (record,)
 
     with open(path, "rb") as fh:
@@ -808,7 +827,9 @@ _RECORD_PREFIX = struct.Struct("<BQ")
 _MESSAGE_HEADER = struct.Struct("<HIQQ")
 
 
-def _chunk_records(chunk: Any, *, validate_crc: bool) -> Iterator[Any]:
+def _chunk_records(
+    chunk: Any, *, validate_crc: bool, decompressors: dict[str, Any] | None = None
+) -> Iterator[Any]:
     """The records of an MCAP chunk, as ``mcap.stream_reader.breakup_chunk`` gives them, except that a
     message's ``data`` is a ``memoryview`` of the decompressed chunk instead of a copy.
 
@@ -817,7 +838,7 @@ def _chunk_records(chunk: Any, *, validate_crc: bool) -> Iterator[Any]:
     a ``memoryview`` uncopied (``numpy.frombuffer`` of it). Without those two copies of each image a
     1280x720 mono8 bag reads in 0.8-1.1 ms a frame less CPU (4.7 instead of 5.6 ms, mean of a frame,
     ``benchmarks/bench_frame.py`` on a loaded machine). Schemas and channels (small) are parsed by the
-    mcap library.
+    mcap library. ``decompressors`` keeps the zstd context of a file's chunks from one chunk to the next.
     """
     import zlib
 
@@ -829,7 +850,10 @@ def _chunk_records(chunk: Any, *, validate_crc: bool) -> Iterator[Any]:
     if chunk.compression == "zstd":
         import zstandard
 
-        data = zstandard.decompress(chunk.data, chunk.uncompressed_size)
+        decompressors = {} if decompressors is None else decompressors
+        if "zstd" not in decompressors:
+            decompressors["zstd"] = zstandard.ZstdDecompressor()
+        data = decompressors["zstd"].decompress(chunk.data, max_output_size=chunk.uncompressed_size)
     elif chunk.compression == "lz4":
         import lz4.frame
 
@@ -983,6 +1007,9 @@ class BagWriter:
     overwrite : replace an existing bag in ``path``, only one converted from a simulation
         (:func:`is_simulated_bag`): never a recording, nor a bag softjig did not write.
     chunk_bytes : uncompressed bytes per MCAP chunk.
+    zstd_level : the chunks' zstd level (:data:`~softjig.io.mcap_chunks.ZSTD_LEVEL`, 1, by default; a
+        negative level stores the images' bytes nearly as they are: a reader decompresses them several
+        times faster, in a bag about 1.6 times larger for camera images).
     durable : fsync the file after each chunk (a recording survives a power cut).
     simulated : the pairs come from a simulated dataset (the bag's provenance record says so, and a
         later ``overwrite`` may replace it); ``False``: a recording.
@@ -999,6 +1026,7 @@ class BagWriter:
         *,
         overwrite: bool = False,
         chunk_bytes: int = CHUNK_BYTES,
+        zstd_level: int | None = None,
         durable: bool = True,
         simulated: bool = False,
     ) -> None:
@@ -1006,7 +1034,11 @@ class BagWriter:
         self.simulated = simulated
         self.jig = jig
         self.overwrite = overwrite
-        self.chunk_bytes = int(chunk_bytes)
+        from softjig.io.mcap_chunks import ZSTD_LEVEL, check_options
+
+        check_options(chunk_bytes, ZSTD_LEVEL if zstd_level is None else zstd_level)  # before any file
+        self.chunk_bytes = chunk_bytes
+        self.zstd_level = zstd_level
         self.durable = durable
         self.n_pairs = 0
         self._store: Any = None
@@ -1028,7 +1060,7 @@ class BagWriter:
     # -- lifecycle
     def open(self) -> BagWriter:
         require_bag_support()
-        from mcap.writer import CompressionType, Writer
+        from softjig.io.mcap_chunks import ChunkWriter
 
         if self._writer is not None:
             return self
@@ -1066,7 +1098,8 @@ class BagWriter:
                 f"cannot write the bag {root}: {exc.strerror or exc}; choose another path"
             ) from None
         self._store = _typestore()
-        self._writer = Writer(self._fh, chunk_size=self.chunk_bytes, compression=CompressionType.ZSTD)
+        level = {} if self.zstd_level is None else {"level": self.zstd_level}
+        self._writer = ChunkWriter(self._fh, chunk_bytes=self.chunk_bytes, **level)
         self._writer.start(profile="ros2", library="softjig")
         self._writer.add_metadata(
             PROVENANCE_RECORD, {"provenance": SIMULATION if self.simulated else RECORDING}
@@ -1329,9 +1362,8 @@ def repair_bag(src: str | os.PathLike[str], dst: str | os.PathLike[str]) -> int:
         ``src`` is not an MCAP bag, or ``dst`` exists and is not empty.
     """
     require_bag_support()
-    from mcap.writer import CompressionType, Writer
-
     from softjig.files import write_text_atomic
+    from softjig.io.mcap_chunks import ChunkWriter
 
     src, dst = Path(src), Path(dst)
     mcap_file = BagReader._mcap_file(src) if src.exists() else None
@@ -1349,7 +1381,7 @@ def repair_bag(src: str | os.PathLike[str], dst: str | os.PathLike[str]) -> int:
     channel_ids: dict[int, int] = {}
     tmp = out.with_name(out.name + ".part")
     with open(tmp, "wb") as fh:
-        writer = Writer(fh, chunk_size=CHUNK_BYTES, compression=CompressionType.ZSTD)
+        writer = ChunkWriter(fh, chunk_bytes=CHUNK_BYTES)
         writer.start(profile="ros2", library="softjig repair")
         for kind, record in _stream_records(mcap_file, with_messages=True, validate_crcs=True):
             if kind == "schema" and record.id not in schema_ids:
