@@ -175,7 +175,7 @@ def survey_cmd(
     else:
         _print_report(survey, source)
     level = survey.head_level
-    if level is not None:
+    if level is not None and level.source == "membrane":
         shift = ", ".join(f"{v:+.2f}" for v in level.shift_mm)
         warn(
             "the fiducials were not seen, so the stereo head was levelled on the unloaded membrane: it "

@@ -35,7 +35,7 @@ from softjig.sensing.fiducials import gray_to_u8
 from softjig.sensing.fitting import ContactPlaneFitter, PaperPlaneFitter
 from softjig.sensing.identities import ReferenceMarkers
 from softjig.sensing.jigframe import JigFrame, levelled_frame
-from softjig.sensing.levelling import HeadLevel, HeadPrior, level_head
+from softjig.sensing.levelling import HeadLevel, HeadPrior, from_fiducials, level_head
 from softjig.sensing.rectify import rectify_images
 from softjig.sensing.results import Observation, Refusal, SensingResult
 from softjig.sensing.setup import JigModel, ReferenceModel
@@ -164,7 +164,9 @@ class Estimator:
         fallback = (
             None
             if self.head_level is None
-            else levelled_frame(used, self.model.frame.config_frame, self.head_level.T_correction)
+            else levelled_frame(
+                used, self.model.frame.config_frame, self.head_level.T_correction, self.head_level.source
+            )
         )
         self.detector = detector if detector is not None else detector_for(self.model)
         self.frame_finder = (
@@ -269,7 +271,9 @@ class Estimator:
         When the fiducials are not found and ``sensing.extrinsics`` is ``"auto"``, the stereo head is
         levelled on the pair (:func:`~softjig.sensing.levelling.level_head`: the config's camera poses
         corrected so the markers lie on the rest markers) and the markers are triangulated with the
-        levelled poses; the reference then carries the level, which estimators built with it use.
+        levelled poses. When they are found, their pose is kept. Either way the reference carries the
+        head's measured pose (``head_level``), which estimators built with it use for the frames whose
+        fiducials are not found.
 
         Raises
         ------
@@ -283,8 +287,10 @@ class Estimator:
             return triangulator.triangulate(observation.left_xy_px, observation.right_xy_px, frame)
 
         frame, level, note = observation.frame, None, None
-        if frame.source != "fiducials" and self.jig.sensing.extrinsics == "auto":
-            config = self.model.frame.config_frame
+        config = self.model.frame.config_frame
+        if frame.source == "fiducials":  # kept for the frames that lose them
+            level = from_fiducials(frame.T_J_left, config.T_J_left)
+        elif self.jig.sensing.extrinsics == "auto":
             measured = level_head(
                 lambda T: triangulate(levelled_frame(self.jig, config, T)),
                 self.model.rest_shape.xyz_mm,

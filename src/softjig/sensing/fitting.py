@@ -831,8 +831,8 @@ class ContactPlaneFitter:
         """With the config's camera poses (not measured) and no calibration, the stereo head's rotation
         error (its tolerance per axis, ``tolerances.camera_rotation_deg``) tilts the normal about x and y
         by that much times the oil's index (an angle floor of ``sqrt(2) n_oil`` tolerances). With the
-        poses levelled on the reference frame (``"membrane"``), the level's own tilt uncertainty takes
-        the tolerance's place.
+        poses measured on the reference frame (``"membrane"``, ``"reference fiducials"``), the
+        measurement's own tilt uncertainty takes the tolerance's place.
 
         Why the index: the cameras see the markers at their apparent depth (compressed by about
         ``1 / n_oil`` in the oil, paraxially), and a rotated head rotates that apparent scene; the
@@ -849,7 +849,7 @@ class ContactPlaneFitter:
             return uncertainty
         jig = self._jig
         level = self._reference.markers.head_level
-        if source == "membrane" and level is not None:  # the head levelled on the reference frame
+        if source != "config" and level is not None:  # the head's pose measured on the reference frame
             head_rad = np.radians(level.tilt_sigma_deg)  # already both axes' (root-sum-square)
         else:
             head_rad = math.sqrt(2.0) * np.radians(jig.tolerances.camera_rotation_deg)

@@ -31,9 +31,10 @@ class ReferenceMarkers:
     xyz_mm : (K, 3) each reference marker's position (mm); not to be modified once made (its sort by
         ``x``, for :func:`identify_markers`, is made with it).
     source : ``"reference frame"`` or ``"rest shape"``.
-    head_level : for a reference frame whose cameras' pose came from the config, the stereo head's pose
-        error measured on it (:mod:`softjig.sensing.levelling`; its markers are then triangulated in the
-        levelled frame); ``None`` otherwise.
+    head_level : for a reference frame, the stereo head's pose error measured on it: by its fiducials,
+        or levelled on its membrane when they were not seen (:mod:`softjig.sensing.levelling`; its
+        markers are then triangulated in the levelled frame); ``None`` for the rest shape, or when the
+        head could not be levelled.
     level_note : why a reference frame of the config's poses could not level the head (``None`` when it
         did, or when it did not need to).
     """

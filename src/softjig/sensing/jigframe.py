@@ -56,7 +56,8 @@ class JigFrame:
     ----------
     T_J_left, T_J_right : (4, 4) the cameras' poses in J (mm).
     source : ``"fiducials"`` (measured in these images), ``"membrane"`` (the config's extrinsics levelled
-        on the unloaded reference frame: :mod:`softjig.sensing.levelling`) or ``"config"`` (fixed
+        on the unloaded reference frame: :mod:`softjig.sensing.levelling`), ``"reference fiducials"``
+        (measured by the reference frame's fiducials, for a frame that lost them) or ``"config"`` (fixed
         extrinsics).
     reprojection_rms_px : RMS reprojection error of the fiducial corners (``nan`` unless ``"fiducials"``).
     fiducial_ids : ids found in both images (empty unless ``"fiducials"``).
@@ -234,10 +235,12 @@ def _jig_frame_fast(
     )
 
 
-def levelled_frame(jig: JigConfig, config_frame: JigFrame, T_correction: np.ndarray) -> JigFrame:
+def levelled_frame(
+    jig: JigConfig, config_frame: JigFrame, T_correction: np.ndarray, source: str = "membrane"
+) -> JigFrame:
     """The config's frame with both cameras moved by the head's measured error ``T_correction`` (4, 4, in
-    J: :class:`softjig.sensing.levelling.HeadLevel`), its fiducial quads projected from there; source
-    ``"membrane"``. Arrays read-only."""
+    J: :class:`softjig.sensing.levelling.HeadLevel`), its fiducial quads projected from there, named
+    ``source`` (how the error was measured: a key of :data:`FALLBACK_NAMES`). Arrays read-only."""
     left, right = T_correction @ config_frame.T_J_left, T_correction @ config_frame.T_J_right
     arrays = [
         left,
@@ -247,7 +250,7 @@ def levelled_frame(jig: JigConfig, config_frame: JigFrame, T_correction: np.ndar
     ]
     for array in arrays:
         array.flags.writeable = False
-    return JigFrame(arrays[0], arrays[1], "membrane", float("nan"), (), arrays[2], arrays[3])
+    return JigFrame(arrays[0], arrays[1], source, float("nan"), (), arrays[2], arrays[3])
 
 
 #: How a fallback frame is named in the warning that fiducials were not found.
@@ -255,6 +258,7 @@ FALLBACK_NAMES = MappingProxyType(
     {
         "config": "the camera poses in the config",
         "membrane": "the camera poses in the config levelled on the unloaded reference frame",
+        "reference fiducials": "the camera poses the reference frame's fiducials measured",
     }
 )
 

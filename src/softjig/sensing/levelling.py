@@ -53,23 +53,28 @@ LEVEL_TOLERANCE = 1e-6
 
 @dataclass(frozen=True)
 class HeadLevel:
-    """The stereo head's pose error measured on the unloaded membrane.
+    """The stereo head's pose error measured on the unloaded reference frame.
 
     Attributes
     ----------
     T_correction : (4, 4) the rigid motion of J taking the config's camera poses to the measured ones:
         ``T_J_cam (measured) = T_correction @ T_J_cam (config)`` (read-only).
-    n_markers : rest markers the last fit used.
+    n_markers : rest markers the last fit used (0 when measured by the fiducials).
     rms_residual_mm : RMS distance of those markers from the rest markers after the fit (mm): the layout's
-        and the rest shape's own departures from the config, plus the triangulation's noise.
+        and the rest shape's own departures from the config, plus the triangulation's noise (``nan`` when
+        measured by the fiducials).
     tilt_sigma_deg : 1-sigma uncertainty of the level's tilt (its rotation about x and y, root-sum-square),
-        from the fit's covariance (deg).
+        from the fit's covariance (deg; 0 when measured by the fiducials, whose poses carry none either).
+    source : ``"membrane"`` (levelled on the unloaded membrane: :func:`level_head`) or ``"reference
+        fiducials"`` (the pose the reference frame's fiducials gave, kept for frames that lose them:
+        :func:`from_fiducials`).
     """
 
     T_correction: np.ndarray
     n_markers: int
     rms_residual_mm: float
     tilt_sigma_deg: float
+    source: str = "membrane"
 
     @property
     def rotation_deg(self) -> float:
@@ -231,6 +236,15 @@ def _scores(
         distance2 = np.minimum(np.sum((moved - rest_xyz[index]) ** 2, axis=1), reach_mm**2)
         scores.append(float(np.sum(distance2)) / variance + prior.mahalanobis2(fit.T))
     return np.asarray(scores)
+
+
+def from_fiducials(T_J_left_measured: np.ndarray, T_J_left_config: np.ndarray) -> HeadLevel:
+    """The head's pose error a reference frame's fiducials measured (its left camera's pose against the
+    config's: the right one is held at its configured pose relative to it), source ``"reference
+    fiducials"``."""
+    correction = T_J_left_measured @ np.linalg.inv(T_J_left_config)
+    correction.flags.writeable = False
+    return HeadLevel(correction, 0, float("nan"), 0.0, "reference fiducials")
 
 
 def level_head(

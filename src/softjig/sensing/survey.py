@@ -6,8 +6,8 @@ visible marker really is. :func:`survey_markers` turns those points into a rig w
 explicit layout at the measured ``(x, y)`` with the measured inner-face heights (``markers.centers_z_mm``,
 which the estimator's rest-shape reference then uses, :func:`softjig.jig_shape.rest_marker_points_mm`),
 and whose dome is a measured ``(r, h)`` table fitted to them, and reports how far the nominal rig was off
-at each marker. When the fiducials were not seen, the frames were triangulated with the stereo head
-levelled on them (:mod:`softjig.sensing.levelling`), and the surveyed rig's cameras are the levelled ones.
+at each marker. The surveyed rig's cameras are at the pose measured on the first frame: by its
+fiducials, or, when they were not seen, levelled on its membrane (:mod:`softjig.sensing.levelling`).
 
 Pure: points in, a config and a report out (the images are triangulated by the caller, e.g.
 :func:`softjig.sensing.pipeline.reference_from_pair`).
@@ -86,8 +86,9 @@ class Survey:
     n_unmatched : triangulated points with no nominal marker within half a pitch (left out), in all.
     dent : the loaded-frame check (of the first frame).
     n_frames : how many unloaded frames were combined.
-    head_level : the stereo head's error measured on the first frame when its fiducials were not seen
-        (:mod:`softjig.sensing.levelling`): the surveyed rig's cameras are then the levelled ones.
+    head_level : the stereo head's error measured on the first frame, by its fiducials or levelled on its
+        membrane when they were not seen (:mod:`softjig.sensing.levelling`): the surveyed rig's cameras
+        are then the measured ones.
     """
 
     jig: JigConfig
@@ -351,7 +352,7 @@ def survey_markers(
         measured = np.column_stack([measured[:, :2], smoothed_heights(measured, nominal.markers.pitch_mm)])
     jig = with_explicit_markers(nominal, measured[:, :2], measured[:, 2])
     level = getattr(frames[0], "head_level", None)
-    if level is not None:  # the markers were triangulated in the levelled poses: so are the cameras
+    if level is not None:  # the markers were triangulated in the measured poses: so are the cameras
         jig = levelled_jig(jig, level)
     if fit_profile:
         r, h = _profile_table(measured, jig)
