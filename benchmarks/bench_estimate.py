@@ -278,7 +278,8 @@ def _worker(pairs_path: Path, method: str) -> None:
         if kind == "estimates":
             answer = [_summary(call(left, right)) for call in (one_shot, reused) for left, right in pairs]
         elif kind == "stages":
-            answer = _stage_times(estimator if Estimator is not None else None, jig, pairs, int(calls), method)
+            reusable = estimator if Estimator is not None else None
+            answer = _stage_times(reusable, jig, pairs, int(calls), method)
         else:
             call = one_shot if kind == "one-shot" else reused
             answer = []
