@@ -45,6 +45,8 @@ STAGES = ("checks", "frame", "detect", "match", "triangulate", "fit")
 PART_DIAMETER_MM = 50.0
 #: How many pairs (part at 10 deg, azimuths 36 deg apart, render seeds 0-4).
 N_PAIRS = 5
+#: Side by side: each round's median is printed for at most this many rounds (their quartiles beyond).
+SHOWN_ROUNDS = 12
 #: A worker's reply lines start with this (anything else a tree prints is ignored).
 REPLY = "@@bench "
 
@@ -169,7 +171,11 @@ def _side_by_side(args: argparse.Namespace) -> None:
         first = [float(np.median(times)) * 1e3 for times in rows[(sources[0], kind)]]
         for src in sources:
             medians = [float(np.median(times)) * 1e3 for times in rows[(src, kind)]]
-            shown = " / ".join(f"{m:.2f}" for m in medians)
+            shown = (
+                " / ".join(f"{m:.2f}" for m in medians)
+                if len(medians) <= SHOWN_ROUNDS
+                else "rounds' quartiles {:.2f} - {:.2f}".format(*np.percentile(medians, [25, 75]))
+            )
             ratio = f"x{np.median(np.divide(medians, first)):.3f}" if src != sources[0] else "      "
             print(f"  {kind:<9} {np.median(medians):6.2f} {ratio}  ({shown})   {src}")
     if args.stages:
