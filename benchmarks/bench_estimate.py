@@ -11,8 +11,12 @@ Side by side: ``python benchmarks/bench_estimate.py --src OLD/src src [--rounds 
 the five pairs once, starts one worker process per source tree (``PYTHONPATH=SRC``) and alternates them,
 round after round: each times ``--calls`` one-shot ``estimate_pair`` calls and as many calls of an
 Estimator built once (a tree without an Estimator calls ``estimate_pair`` for both), in thread CPU time.
-It prints each round's medians and the median over rounds, then compares the trees' estimates of the
-five pairs (one-shot and reused), two by two (bit-identical, or how far apart).
+It prints each round's medians, the median over rounds and, for every tree after the first, the median of
+the per-round ratios to the first tree (the figure to quote: a round's trees ran under the same load), then
+compares the trees' estimates of the five pairs (one-shot and reused), two by two (bit-identical, or how
+far apart). ``--stages`` adds each stage's thread CPU time of the reused Estimator, tree beside tree (the
+stage clock of every tree reads ``time.perf_counter``, which the worker points at ``time.thread_time``
+while it times the stages).
 """
 
 from __future__ import annotations
@@ -41,6 +45,8 @@ STAGES = ("checks", "frame", "detect", "match", "triangulate", "fit")
 PART_DIAMETER_MM = 50.0
 #: How many pairs (part at 10 deg, azimuths 36 deg apart, render seeds 0-4).
 N_PAIRS = 5
+#: Side by side: each round's median is printed for at most this many rounds (their quartiles beyond).
+SHOWN_ROUNDS = 12
 #: A worker's reply lines start with this (anything else a tree prints is ignored).
 REPLY = "@@bench "
 
@@ -69,6 +75,7 @@ def main() -> None:
     parser.add_argument("--src", nargs="+", metavar="SRC", help="source trees to run side by side")
     parser.add_argument("--rounds", type=int, default=5, help="side by side: alternations")
     parser.add_argument("--calls", type=int, default=20, help="side by side: calls of each kind a round")
+    parser.add_argument("--stages", action="store_true", help="side by side: per-stage CPU time too")
     parser.add_argument("--worker", metavar="PAIRS_NPZ", help=argparse.SUPPRESS)
     args = parser.parse_args()
     cv2.setNumThreads(1)
@@ -143,11 +150,12 @@ def _side_by_side(args: argparse.Namespace) -> None:
         np.savez(path, **arrays)
         workers = [_start_worker(src, path, args.method) for src in sources]
         try:
-            rows = {(src, kind): [] for src in sources for kind in ("one-shot", "reused")}
+            kinds = ("one-shot", "reused", "stages") if args.stages else ("one-shot", "reused")
+            rows = {(src, kind): [] for src in sources for kind in kinds}
             for r in range(args.rounds):
                 order = list(range(len(sources)))
                 order = order if r % 2 == 0 else order[::-1]
-                for kind in ("one-shot", "reused"):
+                for kind in kinds:
                     for i in order:
                         rows[(sources[i], kind)].append(_ask(workers[i], f"{kind} {args.calls}"))
             estimates = [_ask(worker, "estimates 0") for worker in workers]
@@ -159,14 +167,38 @@ def _side_by_side(args: argparse.Namespace) -> None:
         f"estimate_pair ({args.method}) side by side: {len(pairs)} default pairs, {args.calls} calls of each "
         f"kind a round, {args.rounds} rounds alternated, thread CPU ms (median a round)"
     )
-    for (src, kind), rounds in rows.items():
-        medians = [float(np.median(times)) * 1e3 for times in rounds]
-        shown = " / ".join(f"{m:.2f}" for m in medians)
-        print(f"  {kind:<9} {np.median(medians):6.2f}   ({shown})   {src}")
+    for kind in ("one-shot", "reused"):
+        first = [float(np.median(times)) * 1e3 for times in rows[(sources[0], kind)]]
+        for src in sources:
+            medians = [float(np.median(times)) * 1e3 for times in rows[(src, kind)]]
+            shown = (
+                " / ".join(f"{m:.2f}" for m in medians)
+                if len(medians) <= SHOWN_ROUNDS
+                else "rounds' quartiles {:.2f} - {:.2f}".format(*np.percentile(medians, [25, 75]))
+            )
+            ratio = f"x{np.median(np.divide(medians, first)):.3f}" if src != sources[0] else "      "
+            print(f"  {kind:<9} {np.median(medians):6.2f} {ratio}  ({shown})   {src}")
+    if args.stages:
+        _print_stages(rows, sources)
     for j in range(1, len(sources)):
         for i in range(j):
             difference = _difference(estimates[i], estimates[j])
             print(f"estimates of {sources[j]} against {sources[i]}: {difference}")
+
+
+def _print_stages(rows: dict, sources: list[str]) -> None:
+    """Each stage's median thread CPU time (ms) over every reused call of every round, tree beside tree."""
+    print("stages of the reused Estimator, thread CPU ms (median over all calls; trees as numbered above):")
+    print(f"  {'stage':<12}" + "".join(f" {f'tree {i}':>9}" for i in range(len(sources))))
+    for stage in (*STAGES, "total"):
+        cells = []
+        for src in sources:
+            calls = [call for rounds in rows[(src, "stages")] for call in rounds]
+            values = [sum(call.values()) if stage == "total" else call.get(stage, np.nan) for call in calls]
+            cells.append(f" {np.median(values) * 1e3:9.3f}")
+        print(f"  {stage:<12}" + "".join(cells))
+    for i, src in enumerate(sources):
+        print(f"  tree {i}: {src}")
 
 
 def _start_worker(src: str, pairs: Path, method: str) -> subprocess.Popen:
@@ -251,6 +283,9 @@ def _worker(pairs_path: Path, method: str) -> None:
         kind, calls = line.split()
         if kind == "estimates":
             answer = [_summary(call(left, right)) for call in (one_shot, reused) for left, right in pairs]
+        elif kind == "stages":
+            reusable = estimator if Estimator is not None else None
+            answer = _stage_times(reusable, jig, pairs, int(calls), method)
         else:
             call = one_shot if kind == "one-shot" else reused
             answer = []
@@ -260,6 +295,30 @@ def _worker(pairs_path: Path, method: str) -> None:
                 call(left, right)
                 answer.append(time.thread_time() - t0)
         print(REPLY + json.dumps(answer), flush=True)
+
+
+def _stage_times(estimator, jig, pairs: list, calls: int, method: str) -> list[dict[str, float]]:
+    """Each call's stage timings (s of thread CPU): the stage clock's ``time.perf_counter`` is pointed at
+    ``time.thread_time`` meanwhile (a tree without an Estimator times ``estimate_pair``'s stages)."""
+    from softjig.sensing.pipeline import estimate_pair
+
+    answer = []
+    wall = time.perf_counter
+    time.perf_counter = time.thread_time
+    try:
+        for k in range(calls):
+            left, right = pairs[k % len(pairs)]
+            timings: dict[str, float] = {}
+            if estimator is not None:
+                estimator.estimate(left, right, part_diameter_mm=PART_DIAMETER_MM, timings=timings)
+            else:
+                estimate_pair(
+                    left, right, jig, part_diameter_mm=PART_DIAMETER_MM, method=method, timings=timings
+                )
+            answer.append(timings)
+    finally:
+        time.perf_counter = wall
+    return answer
 
 
 if __name__ == "__main__":

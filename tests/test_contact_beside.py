@@ -6,7 +6,13 @@ from __future__ import annotations
 import numpy as np
 
 from softjig.geometry import fit_plane_svd, normal_from_tilt_angles
-from softjig.sensing.contact import BESIDE_HOLE_THRESHOLDS, Indentation, contact_violations, holes_beside
+from softjig.sensing.contact import (
+    BESIDE_HOLE_THRESHOLDS,
+    Indentation,
+    contact_violations,
+    holes_beside,
+    just_outside,
+)
 
 PITCH = 8.0
 REST_Z = 30.0  # a flat unloaded membrane
@@ -88,3 +94,36 @@ def test_markers_below_a_plane_but_shallower_than_the_contact_are_no_holes():
     points = np.column_stack([xy, deeper])
     dent = Indentation(REST_Z - deeper, 0.0, 0.05)
     assert holes_beside(points, dent, contact, plane, threshold_mm=THRESHOLD, pitch_mm=PITCH).any()
+
+
+def _strip_beside_a_face():
+    """The wall strip of :func:`test_a_shallow_strip_beside_a_deeper_face_has_holes_beside`, its plane."""
+    points, dent, on_face = _membrane(alpha_deg=15.0, push_mm=10.0, radius_mm=20.0, wall_mm=20.0)
+    x, r = points[:, 0], np.hypot(*points[:, :2].T)
+    strip = ~on_face & (x <= -20.0) & (r <= 45.0) & (dent.depth_mm > 0.3)
+    return points, dent, strip, fit_plane_svd(points[strip])
+
+
+def test_violations_with_the_markers_just_outside_given_are_the_same():
+    """The caller's just-outside markers (the fit stage has them already) give the same count."""
+    points, dent, strip, plane = _strip_beside_a_face()
+    outside = just_outside(points[:, :2], strip, PITCH)
+    kwargs = {"threshold_mm": THRESHOLD, "pitch_mm": PITCH, "dent": dent, "beside_thresholds": 1.5}
+    given = contact_violations(points, strip, plane, outside=outside, **kwargs)
+    assert given == contact_violations(points, strip, plane, **kwargs) > 0
+
+
+def test_a_marker_of_unknown_indentation_is_no_hole_beside():
+    """NaN depths (no reference marker, no rest height) are deeper than nothing: such a marker is never a
+    hole, and the others are judged as before."""
+    points, dent, strip, plane = _strip_beside_a_face()
+    holes = holes_beside(points, dent, strip, plane, threshold_mm=THRESHOLD, pitch_mm=PITCH)
+    unknown = np.flatnonzero(holes)[0]
+    depth = dent.depth_mm.copy()
+    depth[unknown] = np.nan
+    with_nan = holes_beside(
+        points, Indentation(depth, 0.0, 0.05), strip, plane, threshold_mm=THRESHOLD, pitch_mm=PITCH
+    )
+    expected = holes.copy()
+    expected[unknown] = False
+    assert np.array_equal(with_nan, expected)

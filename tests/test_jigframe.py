@@ -11,7 +11,14 @@ from oracles.jigframe import jig_frame as oracle_jig_frame
 from softjig.config import default_jig
 from softjig.geometry import invert_pose
 from softjig.sensing import jigframe
-from softjig.sensing.fiducials import detect_fiducials, locate_fiducials_near
+from softjig.sensing.fiducials import (
+    CAPTURE_PX,
+    CAPTURE_SCANLINES,
+    CAPTURE_STEP_PX,
+    capture_table,
+    detect_fiducials,
+    locate_fiducials_near,
+)
 from softjig.sensing.jigframe import jig_frame_from_config, jig_frame_from_fiducials, resolve_jig_frame
 from softjig.sim.asbuilt import draw_as_built
 from softjig.sim.render import render_pair
@@ -155,3 +162,24 @@ def test_inside_fiducials_matches_the_straightforward_test():
     assert np.array_equal(inside, oracle_inside_fiducials(xy, quads))
     assert 0 < inside.sum() < len(xy)
     assert not jigframe.inside_fiducials(xy, np.empty((0, 4, 2))).any()
+
+
+@pytest.mark.agreement
+def test_capture_table_samples_the_straightforward_scanlines():
+    """Each sample's pixel: corner + t along the side + a step along the side's outward normal, rounded
+    (the sample grid as one (Q, 4, S, L, 2) array), for the expected quads moved about the image; none
+    when a scanline leaves it."""
+    quads = np.ascontiguousarray(EXPECTED.fiducial_quads_left_px, dtype=float)
+    shape = (JIG.cameras.left.height_px, JIG.cameras.left.width_px)
+    steps = np.arange(-CAPTURE_PX, CAPTURE_PX + 1, CAPTURE_STEP_PX, dtype=float)
+    scanlines = np.asarray(CAPTURE_SCANLINES)[None, None, :, None]
+    for shift in ([0.0, 0.0], [7.5, -3.25], [-12.0, 9.0]):
+        moved = quads + np.asarray(shift)
+        table = capture_table(moved.tobytes(), len(moved), shape)
+        assert table is not None
+        on_side = moved[:, :, None, :] + scanlines * (moved[:, [1, 2, 3, 0]] - moved)[:, :, None]
+        samples = on_side[..., None, :] + steps[:, None] * table.normals[:, :, None, None, :]
+        pix = np.rint(samples).astype(np.intp)
+        assert table.shape == pix.shape[:4]
+        assert np.array_equal(table.index, (pix[..., 1] * shape[1] + pix[..., 0]).ravel())
+    assert capture_table((quads - [5000.0, 0.0]).tobytes(), len(quads), shape) is None

@@ -233,7 +233,7 @@ def grow_contact(
     -------
     (used, plane) : (M,) the contact markers, and their plane.
     """
-    depth = np.nan_to_num(dent.depth_mm, nan=-np.inf)
+    depth = _nan_as_minus_inf(dent.depth_mm)
     deepest = float(np.percentile(depth[candidates], 90)) if candidates.any() else 0.0
     seeds: list[np.ndarray] = []
     for share in SEED_DEPTH_SHARES:
@@ -275,17 +275,19 @@ def contact_violations(
     max_tilt_rad: float = np.radians(MAX_TILT_DEG),
     dent: Indentation | None = None,
     beside_thresholds: float = HOLE_THRESHOLDS,
+    outside: np.ndarray | None = None,
 ) -> int:
     """How many markers contradict ``plane`` being the face of ``contact`` beyond the few that noise
     explains: penetrating it inside the contact's core, or holes far below it inside its hull
     (:func:`grow_contact`'s check, step 3), and, when the indentations ``dent`` are given, every hole
     beside the contact (:func:`holes_beside`, ``beside_thresholds`` inlier thresholds deep: the
     :data:`HOLE_THRESHOLDS` of the choice between contacts, or :data:`BESIDE_HOLE_THRESHOLDS` to check
-    the contact chosen); a plane steeper than ``max_tilt_rad`` counts as the worst."""
+    the contact chosen); a plane steeper than ``max_tilt_rad`` counts as the worst. ``outside``: the
+    markers just outside ``contact`` (:func:`just_outside`), when the caller has them."""
     if contact.sum() < 3:
         return 0
     return _violations(
-        points_J, contact, plane, threshold_mm, max_tilt_rad, pitch_mm, dent, beside_thresholds
+        points_J, contact, plane, threshold_mm, max_tilt_rad, pitch_mm, dent, beside_thresholds, outside
     )
 
 
@@ -330,16 +332,22 @@ def holes_beside(
 
 
 def _holes_beside(
-    points_J, dent, contact, plane, height, threshold_mm, pitch_mm, depth_thresholds
+    points_J, dent, contact, plane, height, threshold_mm, pitch_mm, depth_thresholds, outside=None
 ) -> np.ndarray:
-    """:func:`holes_beside` with the markers' heights above the plane (mm) already computed."""
+    """:func:`holes_beside` with the markers' heights above the plane (mm) already computed, and the
+    markers just outside the contact (:func:`just_outside`) when they are. Only the markers deep below
+    the plane are looked at further (usually none or a few)."""
     out = np.zeros(len(points_J), dtype=bool)
-    below = height < -depth_thresholds * threshold_mm
-    if not below.any() or not contact.any():
+    below = np.flatnonzero(height < -depth_thresholds * threshold_mm)
+    if not len(below) or not contact.any():
         return out
-    depth = np.nan_to_num(dent.depth_mm, nan=-np.inf)
-    pressing = depth + height / plane.normal[2] > threshold_mm  # face_depth_mm, from the heights
-    candidates = np.flatnonzero(below & pressing & just_outside(points_J[:, :2], contact, pitch_mm))
+    depth = _nan_as_minus_inf(dent.depth_mm)
+    pressing = depth[below] + height[below] / plane.normal[2] > threshold_mm  # face_depth_mm, from heights
+    below = below[pressing]
+    if not len(below):
+        return out
+    outside = just_outside(points_J[:, :2], contact, pitch_mm) if outside is None else outside
+    candidates = below[outside[below]]
     if not len(candidates):
         return out
     members = np.flatnonzero(contact)
@@ -352,6 +360,13 @@ def _holes_beside(
     return out
 
 
+def _nan_as_minus_inf(values: np.ndarray) -> np.ndarray:
+    """``np.nan_to_num(values, nan=-np.inf)`` (NaN to ``-inf``, infinities to the largest finite floats),
+    returning ``values`` itself when all are finite (the usual case: the conversion costs more than the
+    test)."""
+    return values if np.isfinite(values).all() else np.nan_to_num(values, nan=-np.inf)
+
+
 def _violations(
     points_J: np.ndarray,
     contact: np.ndarray,
@@ -361,6 +376,7 @@ def _violations(
     pitch_mm: float,
     dent: Indentation | None = None,
     beside_thresholds: float = HOLE_THRESHOLDS,
+    outside: np.ndarray | None = None,
 ) -> int:
     """Markers that contradict ``plane`` being the face of ``contact`` (penetrating it, or holes in it,
     and with ``dent`` the holes beside it, ``beside_thresholds`` inlier thresholds deep), beyond the few
@@ -389,7 +405,7 @@ def _violations(
         if dent is None
         else int(
             _holes_beside(
-                points_J, dent, contact, plane, height, threshold_mm, pitch_mm, beside_thresholds
+                points_J, dent, contact, plane, height, threshold_mm, pitch_mm, beside_thresholds, outside
             ).sum()
         )
     )

@@ -241,14 +241,17 @@ def capture_table(quads_bytes: bytes, n_quads: int, image_shape: tuple[int, int]
     steps = np.arange(-CAPTURE_PX, CAPTURE_PX + 1, CAPTURE_STEP_PX, dtype=float)
     t = np.asarray(CAPTURE_SCANLINES)
     on_side = quads[:, :, None, :] + t[None, None, :, None] * along[:, :, None, :]  # (Q, 4, S, 2)
-    samples = on_side[..., None, :] + steps[:, None] * normal[:, :, None, None, :]  # (Q, 4, S, L, 2)
-    pix = np.rint(samples).astype(np.intp)
+    # The samples (Q, 4, S, L) of each coordinate on its own: a trailing axis of 2 would make every
+    # broadcast loop two elements long.
+    u, v = (
+        np.rint(on_side[..., c, None] + steps * normal[:, :, None, None, c]).astype(np.intp) for c in (0, 1)
+    )
     h, w = image_shape
-    if pix.min() < 0 or pix[..., 0].max() >= w or pix[..., 1].max() >= h:
+    if min(u.min(), v.min()) < 0 or u.max() >= w or v.max() >= h:
         return None
     table = CaptureTable(
-        index=(pix[..., 1] * w + pix[..., 0]).ravel(),
-        shape=pix.shape[:4],
+        index=(v * w + u).ravel(),
+        shape=u.shape,
         midpoints=(steps[:-1] + steps[1:]) / 2,
         normals=normal,
         offsets=np.einsum("qki,qki->qk", normal, quads),

@@ -147,7 +147,7 @@ def _common_fields(
     """The :class:`Estimate` fields both methods fill alike."""
     raw_ax, raw_ay, ax, ay, normal = _calibrated(plane, calibration)
     return {
-        "normal": tuple(float(v) for v in normal),
+        "normal": tuple(np.asarray(normal, dtype=float).tolist()),
         "tilt_x_deg": float(np.degrees(ax)),
         "tilt_y_deg": float(np.degrees(ay)),
         "n_points": n_used,
@@ -329,6 +329,12 @@ def canonical_order(ids: np.ndarray, points_J: np.ndarray) -> np.ndarray:
     return np.lexsort((points_J[:, 1], points_J[:, 0], np.where(ids >= 0, ids, np.iinfo(np.intp).max)))
 
 
+def _mean_xy(points_J: np.ndarray, selection: np.ndarray) -> np.ndarray:
+    """The mean ``(x, y)`` of the selected markers (not none), as ``points_J[selection, :2].mean(axis=0)``
+    computes it (a sum over the rows, divided by their count) without NumPy's ``mean`` wrapper."""
+    return points_J[selection, :2].sum(axis=0) / np.count_nonzero(selection)
+
+
 def _within(points_J: np.ndarray, centre_xy: np.ndarray, radius_mm: float) -> np.ndarray:
     return np.hypot(points_J[:, 0] - centre_xy[0], points_J[:, 1] - centre_xy[1]) < radius_mm
 
@@ -423,7 +429,7 @@ class ContactPlaneFitter:
             part_diameter_mm=part_diameter_mm,
             edge_face_depth_mm=plane_depth[outside],
         )
-        violations = self._violations_of_chosen(points_J, used, plane, ordered.threshold_mm, dent)
+        violations = self._violations_of_chosen(points_J, used, plane, ordered.threshold_mm, dent, outside)
         estimate = self._estimate(
             observation,
             points_J,
@@ -454,7 +460,13 @@ class ContactPlaneFitter:
         )
 
     def _violations_of_chosen(
-        self, points_J: np.ndarray, used: np.ndarray, plane: PlaneFit, threshold_mm: float, dent: Indentation
+        self,
+        points_J: np.ndarray,
+        used: np.ndarray,
+        plane: PlaneFit,
+        threshold_mm: float,
+        dent: Indentation,
+        outside: np.ndarray,
     ) -> int:
         """The markers that contradict the contact chosen
         (:func:`~softjig.sensing.contact.contact_violations`), with the holes beside it at
@@ -468,6 +480,7 @@ class ContactPlaneFitter:
             pitch_mm=self._pitch,
             dent=dent,
             beside_thresholds=BESIDE_HOLE_THRESHOLDS,
+            outside=outside,
         )
 
     def _indentation(self, points_J: np.ndarray, ids: np.ndarray) -> tuple[Indentation, Indentation | None]:
@@ -556,7 +569,7 @@ class ContactPlaneFitter:
           under :data:`OFF_AXIS_DENT_RADII` radii) is searched from its centroid too, as a rival only.
         """
         points_J, candidates = dent.points_J, dent.candidates
-        dent_centre = points_J[candidates, :2].mean(axis=0) if candidates.any() else np.zeros(2)
+        dent_centre = _mean_xy(points_J, candidates) if candidates.any() else np.zeros(2)
         starts = [None] if np.hypot(*dent_centre) < OFF_AXIS_DENT_RADII * radius_mm else [None, dent_centre]
         searches = [s for s in (self._search_face(dent, radius_mm, fit, start) for start in starts) if s]
         rival = None
@@ -727,7 +740,7 @@ class ContactPlaneFitter:
                 return Refusal(str(exc))
             if under is None:
                 if round_ == 0 and candidates.any():  # nothing under a centred face: start where the dent is
-                    centre = points_J[candidates, :2].mean(axis=0)
+                    centre = _mean_xy(points_J, candidates)
                     continue
                 break
             found = under
@@ -903,10 +916,10 @@ class ContactPlaneFitter:
             tilt_sigma_x_deg=float(np.degrees(uncertainty.tilt_sigma_x_rad)),
             tilt_sigma_y_deg=float(np.degrees(uncertainty.tilt_sigma_y_rad)),
             tilt_sigma_deg=float(np.degrees(uncertainty.tilt_sigma_rad)),
-            normal_covariance=tuple(tuple(float(v) for v in row) for row in uncertainty.covariance),
+            normal_covariance=tuple(map(tuple, np.asarray(uncertainty.covariance, dtype=float).tolist())),
             contact_area_mm2=contact.area_mm2,
             contact_centroid_xy_mm=contact.centroid_xy_mm,
-            contact_outline_xy_mm=tuple((float(x), float(y)) for x, y in contact.outline_xy_mm),
+            contact_outline_xy_mm=tuple(map(tuple, np.asarray(contact.outline_xy_mm, dtype=float).tolist())),
             contact_partial=contact.partial,
             part_centre_xy_mm=part_centre,
             lift_azimuth_deg=contact.lift_azimuth_deg,

@@ -201,7 +201,7 @@ def fit_plane_robust(
     need = max(3, int(min_inliers))
     if n < need:
         raise InputError(f"robust plane fit needs at least {need} points (min_inliers), got {n}.")
-    centred = pts - pts.mean(axis=0)  # work centred: offsets stay small, residuals precise
+    centred = pts - pts.sum(axis=0) / n  # work centred (pts.mean(axis=0)): offsets small, residuals precise
 
     draw = _triple_source(rng, n, int(max_iterations))
     normals, offsets, iterations = _hypotheses(centred, draw, threshold_mm, int(max_iterations))
@@ -267,7 +267,7 @@ def _check_points(points_mm) -> np.ndarray:
     pts = np.asarray(points_mm, dtype=float)
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise InputError(f"robust plane fit needs (N, 3) points, got shape {pts.shape}.")
-    if not np.all(np.isfinite(pts)):
+    if not np.isfinite(pts).all():
         raise InputError("robust plane fit got non-finite points (NaN or inf); drop them first.")
     if len(pts) < 3:
         raise InputError(f"robust plane fit needs at least 3 points, got {len(pts)}.")

@@ -194,7 +194,7 @@ def normal_uncertainty(
     s = max(s, floor)
 
     # The 2x2 eigenvalues and inverse in closed form (no eigvalsh and inv calls).
-    dx, dy = x - x.mean(), y - y.mean()  # X^T X of the centred (x, y)
+    dx, dy = x - x.sum() / n_pts, y - y.sum() / n_pts  # X^T X of the centred (x, y) (the means)
     sxx, sxy, syy = float(dx @ dx), float(dx @ dy), float(dy @ dy)
     half_trace, det = 0.5 * (sxx + syy), sxx * syy - sxy * sxy
     root = math.hypot(0.5 * (sxx - syy), sxy)
