@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import numpy as np
 import typer
@@ -12,6 +12,9 @@ import typer
 from softjig.cli.app import app, handle_errors, load_config, warn
 from softjig.cli.options import ConfigOption
 from softjig.errors import InputError
+
+if TYPE_CHECKING:
+    from softjig.sensing.survey import Survey
 
 
 def _same_file(a: Path, b: Path) -> bool:
@@ -61,6 +64,30 @@ def _print_report(survey, source: str) -> None:
         f"{s['offset_max_mm']:.3f} mm"
     )
     typer.echo(f"height noise of one frame: {s['noise_mm']:.3f} mm")
+
+
+def _warn_about_the_pose(survey: Survey, level_note: str | None, frame_source: str) -> None:
+    """Say where the cameras' pose came from when the fiducials were not seen: levelled on the membrane
+    (and how far the head was off), or the config's (and why it was not levelled)."""
+    level = survey.head_level
+    if level is not None and level.source == "membrane":
+        shift = ", ".join(f"{v:+.2f}" for v in level.shift_mm)
+        warn(
+            "the fiducials were not seen, so the stereo head was levelled on the unloaded membrane: it "
+            f"sits rotated by {level.rotation_deg:.2f} deg and shifted by ({shift}) mm from the config's "
+            f"poses (uncertainty {level.tilt_sigma_deg:.3f} deg), and the surveyed rig's cameras are the "
+            "levelled ones. The level takes the rest shape's tilt and centre to be the config's; to "
+            "measure the membrane in the jig frame itself, make the fiducials visible to both cameras"
+        )
+    elif frame_source != "fiducials":
+        why = level_note or "sensing.extrinsics is 'config'"
+        warn(
+            f"the fiducials were not seen and {why}, so the cameras' poses come from the config: the "
+            "markers are measured in the cameras' nominal pose and the offsets above include the stereo "
+            "head's own placement error (a head tilted by 1 deg reads as a membrane shifted by a few mm). "
+            "The surveyed rig is consistent with these cameras for the estimator; to measure the membrane "
+            "in the jig frame itself, make the fiducials visible to both cameras"
+        )
 
 
 @app.command("survey")
@@ -174,23 +201,5 @@ def survey_cmd(
         )
     else:
         _print_report(survey, source)
-    level = survey.head_level
-    if level is not None and level.source == "membrane":
-        shift = ", ".join(f"{v:+.2f}" for v in level.shift_mm)
-        warn(
-            "the fiducials were not seen, so the stereo head was levelled on the unloaded membrane: it "
-            f"sits rotated by {level.rotation_deg:.2f} deg and shifted by ({shift}) mm from the config's "
-            f"poses (uncertainty {level.tilt_sigma_deg:.3f} deg), and the surveyed rig's cameras are the "
-            "levelled ones. The level takes the rest shape's tilt and centre to be the config's; to "
-            "measure the membrane in the jig frame itself, make the fiducials visible to both cameras"
-        )
-    elif frame_source != "fiducials":
-        why = references[0].level_note or "sensing.extrinsics is 'config'"
-        warn(
-            f"the fiducials were not seen and {why}, so the cameras' poses come from the config: the "
-            "markers are measured in the cameras' nominal pose and the offsets above include the stereo "
-            "head's own placement error (a head tilted by 1 deg reads as a membrane shifted by a few mm). "
-            "The surveyed rig is consistent with these cameras for the estimator; to measure the membrane "
-            "in the jig frame itself, make the fiducials visible to both cameras"
-        )
+    _warn_about_the_pose(survey, references[0].level_note, frame_source)
     typer.echo(f"wrote the surveyed rig to {out}", err=True)
