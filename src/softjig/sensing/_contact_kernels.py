@@ -3,6 +3,10 @@ flood fill and violation counts, and the per-marker plane arithmetic (each one p
 
 Numba is confined to this module (issue 16); ``benchmarks/bench_kernels.py`` measures what each kernel
 gains a pair over its NumPy counterpart.
+
+Numba's cache keys a kernel on its own module's text: the code of the kernels it calls
+(:mod:`softjig._geometry_kernels`) is compiled into it, so a change there needs a change here too (the
+hand-written 3x3 solvers of ``plane_fit``, issue 14, came with this paragraph).
 """
 
 from __future__ import annotations
