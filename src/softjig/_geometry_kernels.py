@@ -1,5 +1,7 @@
 """Compiled kernels of :mod:`softjig.geometry`: the one least-squares plane fit (also run inside the robust
-fit's refinement, :mod:`softjig.sensing._robust_kernels`) and the convex-hull test of the contact."""
+fit's refinement, :mod:`softjig.sensing._robust_kernels`) and the convex-hull test of the contact; and the
+small solvers the other kernels share (3x3 eigen-decomposition and SVD, the median), written here rather
+than compiled in from NumPy (start-up, issue 14)."""
 
 from __future__ import annotations
 
@@ -42,7 +44,8 @@ def plane_fit(points: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndar
             m += 1
             for k in range(3):
                 centroid[k] += points[i, k]
-    centroid /= m
+    for k in range(3):  # loops, not array expressions: each compiled one brings its checks (issue 14)
+        centroid[k] /= m
     scatter = np.zeros((3, 3))
     for i in range(n):
         if mask[i]:
@@ -58,7 +61,9 @@ def plane_fit(points: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndar
     singular = np.empty(3)
     for k in range(3):
         singular[k] = np.sqrt(max(eigval[2 - k], 0.0))
-    normal = eigvec[:, 0].copy()
+    normal = np.empty(3)
+    for k in range(3):
+        normal[k] = eigvec[k, 0]
     if singular[0] > 0.0 and singular[1] <= SCATTER_PRECISE_RATIO * singular[0]:
         centred = np.empty((m, 3))
         row = 0
@@ -69,7 +74,8 @@ def plane_fit(points: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndar
                 row += 1
         singular, normal = right_singular_3(centred)
     if normal[2] < 0:
-        normal = -normal
+        for k in range(3):
+            normal[k] = -normal[k]
     total = 0.0
     for i in range(n):
         if mask[i]:
@@ -237,7 +243,10 @@ def inside_hull(members: np.ndarray, query: np.ndarray, tolerance: float) -> np.
     m = members.shape[0]
     if m < 3:
         return inside
-    order = np.argsort(members[:, 0], kind="mergesort")
+    xs = np.empty(m)
+    for i in range(m):
+        xs[i] = members[i, 0]
+    order = stable_argsort(xs)
     for i in range(1, m):  # ties in x by y (insertion: the order is nearly sorted)
         j = i
         while j > 0:
@@ -278,3 +287,90 @@ def inside_hull(members: np.ndarray, query: np.ndarray, tolerance: float) -> np.
                 break
         inside[q] = ok
     return inside
+
+
+@numba.njit(cache=True)
+def median_in_place(values: np.ndarray) -> float:
+    """The median of the finite 1-D ``values`` (at least one), as ``numpy.median``: the middle order
+    statistic, or the mean ``(a + b) / 2`` of the two middle ones; ``values`` is reordered.
+
+    Quickselect (a three-way partition about the median of three): the kernels that take a median (the
+    self-check's split, the contact's noise and zero) call this one instead of compiling NumPy's in,
+    whose copies and checks are symbols every new process loads (start-up, issue 14).
+    """
+    n = values.shape[0]
+    half = n // 2
+    if n % 2 == 1:
+        return _select_in_place(values, half)
+    low = _select_in_place(values, half - 1)
+    high = values[half]  # every value after the (half - 1)-th is at least it: the next is their least
+    for i in range(half + 1, n):
+        if values[i] < high:
+            high = values[i]
+    return (low + high) / 2
+
+
+@numba.njit(cache=True)
+def _select_in_place(values: np.ndarray, k: int) -> float:
+    """The ``k``-th smallest of ``values`` (0-based); on return it sits at index ``k``, every value before
+    it is at most it and every value after it at least it."""
+    left, right = 0, values.shape[0] - 1
+    while right > left:
+        a, b, c = values[left], values[(left + right) // 2], values[right]
+        pivot = max(min(a, b), min(max(a, b), c))  # the median of three
+        # Three-way partition of [left, right]: [left, lt) below, [lt, i) equal, (gt, right] above.
+        lt, i, gt = left, left, right
+        while i <= gt:
+            value = values[i]
+            if value < pivot:
+                values[i], values[lt] = values[lt], value
+                lt += 1
+                i += 1
+            elif value > pivot:
+                values[i], values[gt] = values[gt], value
+                gt -= 1
+            else:
+                i += 1
+        if k < lt:
+            right = lt - 1
+        elif k > gt:
+            left = gt + 1
+        else:
+            break
+    return values[k]
+
+
+@numba.njit(cache=True)
+def stable_argsort(values: np.ndarray) -> np.ndarray:
+    """The indices that sort the finite 1-D ``values`` ascending, equal values in their order, as
+    ``numpy.argsort(values, kind="stable")``: a bottom-up merge sort (insertion sort of runs of 16 first),
+    shared by the kernels instead of NumPy's compiled into each (start-up, issue 14)."""
+    n = values.shape[0]
+    order = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        order[i] = i
+    run = 16
+    for start in range(0, n, run):
+        for i in range(start + 1, min(start + run, n)):
+            item = order[i]
+            j = i
+            while j > start and values[order[j - 1]] > values[item]:
+                order[j] = order[j - 1]
+                j -= 1
+            order[j] = item
+    buffer = np.empty(n, dtype=np.int64)
+    width = run
+    while width < n:
+        for left in range(0, n, 2 * width):
+            middle, right = min(left + width, n), min(left + 2 * width, n)
+            a, b = left, middle
+            for out in range(left, right):  # the left run's item first among equals: stable
+                if a < middle and (b >= right or values[order[b]] >= values[order[a]]):
+                    buffer[out] = order[a]
+                    a += 1
+                else:
+                    buffer[out] = order[b]
+                    b += 1
+        order, buffer = buffer, order
+        width *= 2
+    return order
