@@ -95,7 +95,7 @@ SWEEPS_BEFORE_NEGLIGIBLE = 4
 MAX_SWEEPS = 50
 
 
-@numba.njit(cache=True)
+@numba.njit  # no cache of its own: compiled into its callers'
 def symmetric_eigen_3x3(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Eigenvalues (ascending, ``(3,)``) and unit eigenvectors (the columns of a ``(3, 3)`` rotation) of the
     symmetric 3x3 ``a``, as ``numpy.linalg.eigh``, by cyclic Jacobi rotations.
@@ -159,7 +159,7 @@ def symmetric_eigen_3x3(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return values, vectors
 
 
-@numba.njit(cache=True)
+@numba.njit  # no cache of its own: compiled into its callers'
 def right_singular_3(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The singular values (descending, ``(3,)``) of the ``(m, 3)`` ``a`` and the unit right singular
     vector of the smallest (``(3,)``), as ``numpy.linalg.svd`` (its last row of ``vt``, up to sign), by
@@ -217,7 +217,7 @@ def right_singular_3(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return singular, smallest
 
 
-@numba.njit(cache=True)
+@numba.njit  # no cache of its own: compiled into its callers'
 def _ascending_3(x0: float, x1: float, x2: float) -> tuple[int, int, int]:
     """The indices of three numbers in ascending order (the first of equals first)."""
     i, j, k = 0, 1, 2
@@ -289,7 +289,7 @@ def inside_hull(members: np.ndarray, query: np.ndarray, tolerance: float) -> np.
     return inside
 
 
-@numba.njit(cache=True)
+@numba.njit  # no cache of its own: compiled into its callers'
 def median_in_place(values: np.ndarray) -> float:
     """The median of the finite 1-D ``values`` (at least one), as ``numpy.median``: the middle order
     statistic, or the mean ``(a + b) / 2`` of the two middle ones; ``values`` is reordered.
@@ -310,7 +310,7 @@ def median_in_place(values: np.ndarray) -> float:
     return (low + high) / 2
 
 
-@numba.njit(cache=True)
+@numba.njit  # no cache of its own: compiled into its callers'
 def _select_in_place(values: np.ndarray, k: int) -> float:
     """The ``k``-th smallest of ``values`` (0-based); on return it sits at index ``k``, every value before
     it is at most it and every value after it at least it."""
@@ -340,7 +340,7 @@ def _select_in_place(values: np.ndarray, k: int) -> float:
     return values[k]
 
 
-@numba.njit(cache=True)
+@numba.njit  # no cache of its own: compiled into its callers'
 def stable_argsort(values: np.ndarray) -> np.ndarray:
     """The indices that sort the finite 1-D ``values`` ascending, equal values in their order, as
     ``numpy.argsort(values, kind="stable")``: a bottom-up merge sort (insertion sort of runs of 16 first),

@@ -49,14 +49,14 @@ DEGENERATE_AREA_MM2 = 1e-12
 NO_NOISE = -1.0
 
 
-@numba.njit(cache=True)
+@numba.njit  # no cache of its own: compiled into its callers'
 def x_window(xs: np.ndarray, x: float, radius: float) -> tuple[int, int]:
     """The slice of the ascending ``xs`` within ``radius`` (and a hair) of ``x``."""
     slack = radius * (1.0 + 1e-9)
     return np.searchsorted(xs, x - slack), np.searchsorted(xs, x + slack, side="right")
 
 
-@numba.njit(cache=True)
+@numba.njit  # no cache of its own: compiled into its callers'
 def grid_cells(xy: np.ndarray, radius: float):
     """Bin (N, 2) points into square cells of side ``radius`` (so each point's neighbours closer than
     ``radius`` lie in its own and the 8 adjacent cells): each point's cell ``(cx, cy)``, the grid's size
@@ -83,7 +83,7 @@ def grid_cells(xy: np.ndarray, radius: float):
     return cx, cy, nx, ny, start, members
 
 
-@numba.njit(cache=True)
+@numba.njit  # no cache of its own: compiled into its callers'
 def quadratic_residuals(xy: np.ndarray, raw: np.ndarray, radius: float) -> tuple[np.ndarray, int]:
     """For each point with enough others closer than ``radius`` (:data:`MIN_QUADRATIC_NEIGHBOURS`, around
     it well enough that the fit's prediction is no noisier than the point, :data:`MAX_PREDICTION_VARIANCE`):
@@ -176,7 +176,7 @@ def quadratic_residuals(xy: np.ndarray, raw: np.ndarray, radius: float) -> tuple
     return residual, count
 
 
-@numba.njit(cache=True)
+@numba.njit  # no cache of its own: compiled into its callers'
 def _cholesky_in_place(a: np.ndarray) -> bool:
     """Overwrite the lower triangle of the symmetric ``a`` (only its lower triangle is read) with its
     Cholesky factor ``L`` (``a = L L^T``); ``False`` if ``a`` is not positive definite (the neighbours do
@@ -197,7 +197,7 @@ def _cholesky_in_place(a: np.ndarray) -> bool:
     return True
 
 
-@numba.njit(cache=True)
+@numba.njit  # no cache of its own: compiled into its callers'
 def _cholesky_solve_in_place(factor: np.ndarray, x: np.ndarray) -> None:
     """Overwrite ``x`` (``b`` on entry) with the solution of ``L L^T x = b``, ``L`` the lower triangle of
     ``factor`` (:func:`_cholesky_in_place`)."""
@@ -212,7 +212,7 @@ def _cholesky_solve_in_place(factor: np.ndarray, x: np.ndarray) -> None:
         x[r] /= factor[r, r]
 
 
-@numba.njit(cache=True)
+@numba.njit  # no cache of its own: compiled into its callers'
 def settle_zero(raw: np.ndarray, noise: float, rounds: int) -> float:
     """The zero of :func:`~softjig.sensing.contact.indentation` for a known noise: from the median of all
     values, the median of the values within :data:`AT_REST_SIGMAS` noise sigmas of it, iterated until it
@@ -343,7 +343,7 @@ def violations(
     return count
 
 
-@numba.njit(cache=True)
+@numba.njit  # no cache of its own: compiled into its callers'
 def _rows(xy: np.ndarray, index: np.ndarray, count: int) -> np.ndarray:
     """``xy[index[:count]]`` as a new ``(count, 2)`` array."""
     out = np.empty((count, 2))
@@ -352,7 +352,7 @@ def _rows(xy: np.ndarray, index: np.ndarray, count: int) -> np.ndarray:
     return out
 
 
-@numba.njit(cache=True)
+@numba.njit  # no cache of its own: compiled into its callers'
 def _flagged_rows(xy: np.ndarray, flags: np.ndarray, count: int) -> np.ndarray:
     """``xy[flags]`` (``count`` of them) as a new ``(count, 2)`` array."""
     out = np.empty((count, 2))
@@ -364,7 +364,7 @@ def _flagged_rows(xy: np.ndarray, flags: np.ndarray, count: int) -> np.ndarray:
     return out
 
 
-@numba.njit(cache=True)
+@numba.njit  # no cache of its own: compiled into its callers'
 def _count_inside(hull_of: np.ndarray, query: np.ndarray) -> int:
     """How many of ``query`` lie inside the convex hull of ``hull_of`` (:func:`inside_hull`)."""
     inside = inside_hull(hull_of, query, HULL_TOLERANCE_MM)

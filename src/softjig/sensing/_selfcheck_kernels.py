@@ -65,7 +65,7 @@ def split_fits(
     return ok, normals, sigmas
 
 
-@numba.njit(cache=True)
+@numba.njit  # no cache of its own: compiled into its callers'
 def half_fits(
     points: np.ndarray, side: np.ndarray, sigma: float, min_points: int
 ) -> tuple[bool, np.ndarray, np.ndarray]:
@@ -81,7 +81,7 @@ def half_fits(
     return ok, normals, sigmas
 
 
-@numba.njit(cache=True)
+@numba.njit  # no cache of its own: compiled into its callers'
 def _half_fits_into(
     points: np.ndarray,
     side: np.ndarray,
