@@ -227,21 +227,30 @@ def best_candidate(
             selection += min(residuals[i] * residuals[i], t2)
             n_above += residuals[i] > t
         if one_sided and n_above > 0:
-            above = np.empty((n_above, 2))
-            inliers = np.empty((n_inliers, 2))
-            a, b = 0, 0
-            for i in range(n):
-                if residuals[i] > t:
-                    above[a, 0], above[a, 1] = points[i, 0], points[i, 1]
-                    a += 1
-                if mask[i]:
-                    inliers[b, 0], inliers[b, 1] = points[i, 0], points[i, 1]
-                    b += 1
-            inside = inside_hull(inliers, above, HULL_TOLERANCE_MM)
-            n_inside = 0
-            for i in range(n_above):
-                n_inside += inside[i]
-            selection += above_penalty * t2 * n_inside
+            selection += above_penalty * t2 * _above_inside(points, mask, residuals, t, n_above, n_inliers)
         if selection < best_cost:
             best_cost, best_mask, best_residuals = selection, mask, residuals
     return n_kept > 0, best_mask, best_residuals
+
+
+@numba.njit  # no cache of its own: compiled into its callers'
+def _above_inside(
+    points: np.ndarray, mask: np.ndarray, residuals: np.ndarray, t: float, n_above: int, n_inliers: int
+) -> int:
+    """How many of the ``n_above`` points more than ``t`` above the plane lie inside the ``(x, y)`` hull
+    of the ``n_inliers`` points of ``mask`` (:func:`best_candidate`'s one-sided penalty)."""
+    above = np.empty((n_above, 2))
+    inliers = np.empty((n_inliers, 2))
+    a, b = 0, 0
+    for i in range(points.shape[0]):
+        if residuals[i] > t:
+            above[a, 0], above[a, 1] = points[i, 0], points[i, 1]
+            a += 1
+        if mask[i]:
+            inliers[b, 0], inliers[b, 1] = points[i, 0], points[i, 1]
+            b += 1
+    inside = inside_hull(inliers, above, HULL_TOLERANCE_MM)
+    n_inside = 0
+    for i in range(n_above):
+        n_inside += inside[i]
+    return n_inside
