@@ -16,6 +16,12 @@ source, the estimate's Numba share in one process (medians of a few runs): ``imp
 kernel's load from the cache (which initialises Numba's CPU target), the other kernels' loads, the whole
 command in the process, and its ``finalisation``: the time from the end of its work and exit handlers until
 the process has ended (the interpreter's teardown, which ``softjig.cli.main`` skips).
+
+Byte-code: each source's modules are compiled once (``__pycache__``, written by the warm-up runs) and
+read in the timed ones, as an installed package's are (``pip`` compiles them at install). An environment
+with ``PYTHONDONTWRITEBYTECODE`` set would otherwise leave a source tree without them, and every run of it
+would compile softjig's ~50 modules from source (0.1 s of CPU, a quarter of the bare imports), a cost no
+installed copy pays; ``--keep-env`` keeps the environment's setting (the figures before 2 Dec 2026).
 """
 
 from __future__ import annotations
@@ -67,8 +73,10 @@ main()
 """
 
 
-def _env(src: str | None) -> dict[str, str]:
+def _env(src: str | None, keep_env: bool = False) -> dict[str, str]:
     env = dict(os.environ)
+    if not keep_env:  # byte-code written once and read after, as an installed package's (module docstring)
+        env.pop("PYTHONDONTWRITEBYTECODE", None)
     if src is not None:
         env["PYTHONPATH"] = str(Path(src).resolve())
     return env
@@ -118,6 +126,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=9, help="timed runs of each command")
     parser.add_argument("--src", nargs="*", default=[None], help="source folders to compare (PYTHONPATH)")
+    parser.add_argument(
+        "--keep-env", action="store_true", help="keep PYTHONDONTWRITEBYTECODE (modules compiled each run)"
+    )
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         data = Path(tmp) / "single"
@@ -126,22 +137,24 @@ def main() -> None:
         simulate += ["--theta", "60"]
         subprocess.run(
             [*SOFTJIG, *simulate, "--out", str(data), "--no-progress"],
-            env=_env(first),
+            env=_env(first, args.keep_env),
             check=True,
             stdout=subprocess.DEVNULL,
         )
         estimate = [*SOFTJIG, "estimate", str(data / "left/000000.png"), str(data / "right/000000.png")]
         estimate += ["--config", str(data / "rig.toml"), "--part-diameter", "50", "--json"]
         commands = {"softjig --help": [*SOFTJIG, "--help"], "single estimate": estimate}
-        envs = {src or "the installed package": _env(src) for src in args.src}
+        envs = {src or "the installed package": _env(src, args.keep_env) for src in args.src}
         print(f"python {sys.version.split()[0]}, {os.cpu_count()} CPUs, {args.runs} runs each (medians, s)")
+        no_bytecode = "PYTHONDONTWRITEBYTECODE" in next(iter(envs.values()))
+        print("  byte-code: " + ("not written, compiled each run" if no_bytecode else "written once, read"))
         for env in envs.values():  # warm-up: caches filled once per machine
             for argv in commands.values():
                 _run(argv, env)
         bare: list[tuple[float, float]] = []
         times = {(src, name): [] for src in envs for name in commands}
         for _ in range(args.runs):  # interleaved: a busy machine slows every command and source alike
-            bare.append(_run(BARE, _env(None)))
+            bare.append(_run(BARE, _env(None, args.keep_env)))
             for src, env in envs.items():
                 for name, argv in commands.items():
                     times[src, name].append(_run(argv, env))

@@ -40,6 +40,7 @@ import typer.core
 import typer.main
 
 from softjig import __version__
+from softjig.cli import coercion
 from softjig.errors import EstimationError, InputError, SoftjigError
 from softjig.io.workers import Terminated, terminate_raises
 
@@ -155,11 +156,13 @@ def _finite_numbers(command: Any) -> None:
 
 
 def _plain_command(command: Any, ctx: Any) -> Any:
-    """:func:`_plain_flags` and :func:`_finite_numbers` on a command, its help option and, for a group,
-    its subcommands."""
+    """:func:`_plain_flags`, :func:`_finite_numbers` and the plain values' coercion without pydantic
+    (:mod:`softjig.cli.coercion`) on a command, its help option and, for a group, its subcommands."""
     help_option = command.get_help_option(ctx)
-    _plain_flags([*command.params, *([help_option] if help_option is not None else [])])
+    params = [*command.params, *([help_option] if help_option is not None else [])]
+    _plain_flags(params)
     _finite_numbers(command)
+    coercion.install(params)
     for sub in getattr(command, "commands", {}).values():
         _plain_command(sub, ctx)
     return command
@@ -177,7 +180,9 @@ class LazyGroup(typer.core.TyperGroup):
         return [*COMMANDS, *(name for name in self.commands if name not in COMMANDS)]
 
     def get_params(self, ctx: Any) -> list:
-        return _plain_flags(super().get_params(ctx))
+        params = _plain_flags(super().get_params(ctx))
+        coercion.install(params)
+        return params
 
     def format_help(self, ctx: Any, formatter: Any) -> None:
         ctx.meta[_HELP_LISTING] = True

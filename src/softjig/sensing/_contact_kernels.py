@@ -3,6 +3,10 @@ flood fill and violation counts, and the per-marker plane arithmetic (each one p
 
 Numba is confined to this module (issue 16); ``benchmarks/bench_kernels.py`` measures what each kernel
 gains a pair over its NumPy counterpart.
+
+Numba's cache keys a kernel on its own module's text: the code of the kernels it calls
+(:mod:`softjig._geometry_kernels`) is compiled into it, so a change there needs a change here too (the
+hand-written 3x3 solvers of ``plane_fit``, issue 14, came with this paragraph).
 """
 
 from __future__ import annotations
@@ -10,7 +14,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from softjig._geometry_kernels import inside_hull
+from softjig._geometry_kernels import inside_hull, median_in_place, stable_argsort
 from softjig.geometry import HULL_TOLERANCE_MM
 
 #: The largest finite float: ``np.nan_to_num``'s stand-in for ``+inf``.
@@ -45,14 +49,14 @@ DEGENERATE_AREA_MM2 = 1e-12
 NO_NOISE = -1.0
 
 
-@numba.njit(cache=True)
+@numba.njit  # no cache of its own: compiled into its callers'
 def x_window(xs: np.ndarray, x: float, radius: float) -> tuple[int, int]:
     """The slice of the ascending ``xs`` within ``radius`` (and a hair) of ``x``."""
     slack = radius * (1.0 + 1e-9)
     return np.searchsorted(xs, x - slack), np.searchsorted(xs, x + slack, side="right")
 
 
-@numba.njit(cache=True)
+@numba.njit  # no cache of its own: compiled into its callers'
 def grid_cells(xy: np.ndarray, radius: float):
     """Bin (N, 2) points into square cells of side ``radius`` (so each point's neighbours closer than
     ``radius`` lie in its own and the 8 adjacent cells): each point's cell ``(cx, cy)``, the grid's size
@@ -79,7 +83,7 @@ def grid_cells(xy: np.ndarray, radius: float):
     return cx, cy, nx, ny, start, members
 
 
-@numba.njit(cache=True)
+@numba.njit  # no cache of its own: compiled into its callers'
 def quadratic_residuals(xy: np.ndarray, raw: np.ndarray, radius: float) -> tuple[np.ndarray, int]:
     """For each point with enough others closer than ``radius`` (:data:`MIN_QUADRATIC_NEIGHBOURS`, around
     it well enough that the fit's prediction is no noisier than the point, :data:`MAX_PREDICTION_VARIANCE`):
@@ -172,7 +176,7 @@ def quadratic_residuals(xy: np.ndarray, raw: np.ndarray, radius: float) -> tuple
     return residual, count
 
 
-@numba.njit(cache=True)
+@numba.njit  # no cache of its own: compiled into its callers'
 def _cholesky_in_place(a: np.ndarray) -> bool:
     """Overwrite the lower triangle of the symmetric ``a`` (only its lower triangle is read) with its
     Cholesky factor ``L`` (``a = L L^T``); ``False`` if ``a`` is not positive definite (the neighbours do
@@ -193,7 +197,7 @@ def _cholesky_in_place(a: np.ndarray) -> bool:
     return True
 
 
-@numba.njit(cache=True)
+@numba.njit  # no cache of its own: compiled into its callers'
 def _cholesky_solve_in_place(factor: np.ndarray, x: np.ndarray) -> None:
     """Overwrite ``x`` (``b`` on entry) with the solution of ``L L^T x = b``, ``L`` the lower triangle of
     ``factor`` (:func:`_cholesky_in_place`)."""
@@ -208,15 +212,24 @@ def _cholesky_solve_in_place(factor: np.ndarray, x: np.ndarray) -> None:
         x[r] /= factor[r, r]
 
 
-@numba.njit(cache=True)
+@numba.njit  # no cache of its own: compiled into its callers'
 def settle_zero(raw: np.ndarray, noise: float, rounds: int) -> float:
     """The zero of :func:`~softjig.sensing.contact.indentation` for a known noise: from the median of all
     values, the median of the values within :data:`AT_REST_SIGMAS` noise sigmas of it, iterated until it
-    moves by less than :data:`ZERO_TOLERANCE_SIGMAS` sigmas."""
-    zero = np.median(raw)
+    moves by less than :data:`ZERO_TOLERANCE_SIGMAS` sigmas (medians by
+    :func:`~softjig._geometry_kernels.median_in_place`, on a copy)."""
+    n = raw.shape[0]
+    scratch = np.empty(n)
+    for i in range(n):
+        scratch[i] = raw[i]
+    zero = median_in_place(scratch)
     for _ in range(rounds):
-        at_rest = raw[np.abs(raw - zero) < AT_REST_SIGMAS * noise]
-        new_zero = np.median(at_rest) if at_rest.shape[0] >= MIN_AT_REST else zero
+        count = 0
+        for i in range(n):
+            if abs(raw[i] - zero) < AT_REST_SIGMAS * noise:
+                scratch[count] = raw[i]
+                count += 1
+        new_zero = median_in_place(scratch[:count]) if count >= MIN_AT_REST else zero
         if abs(new_zero - zero) < ZERO_TOLERANCE_SIGMAS * noise:
             break
         zero = new_zero
@@ -242,7 +255,9 @@ def indentation(
             raw[i, f] = reference_z[i, f] - points[i, 2]
             finite[i] &= np.isfinite(raw[i, f])
         m += finite[i]
-    zero, noise = np.zeros(k), np.full(k, NO_NOISE)
+    zero, noise = np.zeros(k), np.empty(k)
+    for f in range(k):
+        noise[f] = NO_NOISE
     if m < MIN_NOISE_MARKERS:
         return raw, zero, noise
     xy = np.empty((m, 2))
@@ -251,14 +266,20 @@ def indentation(
     for i in range(n):
         if finite[i]:
             xy[q, 0], xy[q, 1] = points[i, 0], points[i, 1]
-            raw_finite[q] = raw[i]
+            for f in range(k):
+                raw_finite[q, f] = raw[i, f]
             q += 1
     residual, enough = quadratic_residuals(xy, raw_finite, radius)
     if enough < MIN_NOISE_MARKERS:
         return raw, zero, noise
+    column = np.empty(m)
     for f in range(k):
-        noise[f] = max(MAD_TO_SIGMA * np.median(np.abs(residual[:enough, f])), NOISE_FLOOR_MM)
-        zero[f] = settle_zero(np.ascontiguousarray(raw_finite[:, f]), noise[f], ZERO_ROUNDS)
+        for i in range(enough):
+            column[i] = abs(residual[i, f])
+        noise[f] = max(MAD_TO_SIGMA * median_in_place(column[:enough]), NOISE_FLOOR_MM)
+        for i in range(m):
+            column[i] = raw_finite[i, f]
+        zero[f] = settle_zero(column, noise[f], ZERO_ROUNDS)
         for i in range(n):
             raw[i, f] -= zero[f]
     return raw, zero, noise
@@ -268,8 +289,13 @@ def indentation(
 def count_within(query: np.ndarray, points: np.ndarray, radius: float, inclusive: bool) -> np.ndarray:
     """How many of ``points`` lie within ``radius`` of each ``query`` point (``<=`` when ``inclusive``,
     else ``<``, as a k-d tree's ``query_ball_point`` and ``distance_upper_bound``)."""
-    order = np.argsort(points[:, 0], kind="mergesort")
-    xs = points[order, 0]
+    n = points.shape[0]
+    xs = np.empty(n)
+    for i in range(n):
+        xs[i] = points[i, 0]
+    order = stable_argsort(xs)
+    for s in range(n):
+        xs[s] = points[order[s], 0]
     r2 = radius * radius
     counts = np.zeros(query.shape[0], dtype=np.int64)
     for i in range(query.shape[0]):
@@ -291,20 +317,61 @@ def violations(
     :data:`CORE_NEIGHBOURS` other contact markers within ``radius``, 1.5 pitches; all of them if fewer
     than 3 are) plus how many are ``below`` inside the contact's hull (a marker is never both; none for a
     contact of fewer than 3 markers)."""
-    index = np.flatnonzero(contact)
-    members = xy[index]
+    n = xy.shape[0]
+    index = np.empty(n, dtype=np.int64)  # the contact's markers, in order
+    m, n_upper, n_lower = 0, 0, 0
+    for i in range(n):
+        if contact[i]:
+            index[m] = i
+            m += 1
+        n_upper += above[i]
+        n_lower += below[i]
+    members = _rows(xy, index, m)
     count = 0
-    upper = np.flatnonzero(above)
-    if len(upper) and len(index) >= 3:
-        counts = count_within(members, members, radius, True) - 1
-        core = index[counts >= CORE_NEIGHBOURS]
-        if len(core) < 3:
-            core = index
-        count += int(inside_hull(xy[core], xy[upper], HULL_TOLERANCE_MM).sum())
-    lower = np.flatnonzero(below)
-    if len(lower) and len(index) >= 3:
-        count += int(inside_hull(members, xy[lower], HULL_TOLERANCE_MM).sum())
+    if n_upper and m >= 3:
+        counts = count_within(members, members, radius, True)
+        core = np.empty(m, dtype=np.int64)
+        c = 0
+        for j in range(m):
+            if counts[j] - 1 >= CORE_NEIGHBOURS:
+                core[c] = index[j]
+                c += 1
+        hull = _rows(xy, core, c) if c >= 3 else members
+        count += _count_inside(hull, _flagged_rows(xy, above, n_upper))
+    if n_lower and m >= 3:
+        count += _count_inside(members, _flagged_rows(xy, below, n_lower))
     return count
+
+
+@numba.njit  # no cache of its own: compiled into its callers'
+def _rows(xy: np.ndarray, index: np.ndarray, count: int) -> np.ndarray:
+    """``xy[index[:count]]`` as a new ``(count, 2)`` array."""
+    out = np.empty((count, 2))
+    for j in range(count):
+        out[j, 0], out[j, 1] = xy[index[j], 0], xy[index[j], 1]
+    return out
+
+
+@numba.njit  # no cache of its own: compiled into its callers'
+def _flagged_rows(xy: np.ndarray, flags: np.ndarray, count: int) -> np.ndarray:
+    """``xy[flags]`` (``count`` of them) as a new ``(count, 2)`` array."""
+    out = np.empty((count, 2))
+    j = 0
+    for i in range(xy.shape[0]):
+        if flags[i]:
+            out[j, 0], out[j, 1] = xy[i, 0], xy[i, 1]
+            j += 1
+    return out
+
+
+@numba.njit  # no cache of its own: compiled into its callers'
+def _count_inside(hull_of: np.ndarray, query: np.ndarray) -> int:
+    """How many of ``query`` lie inside the convex hull of ``hull_of`` (:func:`inside_hull`)."""
+    inside = inside_hull(hull_of, query, HULL_TOLERANCE_MM)
+    total = 0
+    for i in range(inside.shape[0]):
+        total += inside[i]
+    return total
 
 
 @numba.njit(cache=True)

@@ -27,7 +27,7 @@ def locate(
     return cells_read(image, corners, weights, white, min_contrast)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(nogil=True)  # no cache of its own: compiled into its callers'
 def capture(
     image, index, n_lines, n_samples, midpoints, normals, offsets, min_rise, min_lines, agreement_px,
     max_size_change_px, corners,
@@ -95,7 +95,7 @@ def capture(
     return True
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(nogil=True)  # no cache of its own: compiled into its callers'
 def corner_subpix(image, corners, half, max_iters, eps):
     """OpenCV's ``cornerSubPix`` (no dead zone) on ``corners`` (N, 2) px, in place; False if a corner
     moved more than ``half`` px (OpenCV then puts it back: here the caller gives up).
@@ -158,7 +158,7 @@ def corner_subpix(image, corners, half, max_iters, eps):
     return True
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(nogil=True)  # no cache of its own: compiled into its callers'
 def cells_read(image, quads, weights, white, min_contrast):
     """Whether every fiducial's 6x6 cells (black border and 4x4 bits) read as ``white`` (M, 36) says, in
     the quads' orientation.

@@ -1,12 +1,17 @@
 """Compiled kernels of :mod:`softjig.sensing.robust`: the scoring of a batch of 3-point hypotheses, the
-least-squares refinement of an inlier set, and the choice of the best refined candidate."""
+least-squares refinement of an inlier set, and the choice of the best refined candidate.
+
+Numba's cache keys a kernel on its own module's text: the code of the kernels it calls
+(:mod:`softjig._geometry_kernels`) is compiled into it, so a change there needs a change here too (the
+hand-written 3x3 solvers of ``plane_fit``, issue 14, came with this paragraph).
+"""
 
 from __future__ import annotations
 
 import numba
 import numpy as np
 
-from softjig._geometry_kernels import inside_hull, plane_fit
+from softjig._geometry_kernels import inside_hull, plane_fit, stable_argsort
 from softjig.geometry import DEGENERATE_PLANE_RATIO, HULL_TOLERANCE_MM
 
 #: A triple whose triangle's angle at its first point has a sine below this is collinear: no plane.
@@ -99,26 +104,33 @@ def refine(
     """
     n = points.shape[0]
     residuals = np.zeros(n)
-    mask = mask.copy()
+    given = mask
+    mask = np.empty(n, dtype=np.bool_)
+    count = 0
+    for i in range(n):
+        mask[i] = given[i]
+        count += given[i]
     for _ in range(max_rounds):
-        if mask.sum() < 3:
+        if count < 3:
             return False, mask, residuals
         centroid, singular, normal, _ = plane_fit(points, mask)
         if singular[0] <= 0 or singular[1] <= DEGENERATE_PLANE_RATIO * singular[0] or normal[2] == 0:
             return False, mask, residuals
         offset = -(normal[0] * centroid[0] + normal[1] * centroid[1] + normal[2] * centroid[2])
         same = True
+        count = 0
         for i in range(n):
             residuals[i] = (
                 points[i, 0] * normal[0] + points[i, 1] * normal[1] + points[i, 2] * normal[2] + offset
             )
             inside = abs(residuals[i]) <= t
+            count += inside
             if inside != mask[i]:
                 same = False
                 mask[i] = inside
         if same:
             break
-    return mask.sum() >= 3, mask, residuals
+    return count >= 3, mask, residuals
 
 
 @numba.njit(cache=True)
@@ -160,23 +172,27 @@ def best_candidate(
             masks[j, i] = abs(r) <= t
             total += min(r * r, t2)
         cost[j] = total
-    order = np.argsort(cost, kind="mergesort")[:pool_size]
-    alive = np.zeros(order.shape[0], dtype=np.bool_)
-    for q in range(order.shape[0]):
-        alive[q] = masks[order[q]].sum() >= 3
+    order = stable_argsort(cost)  # the pool: the first pool_size of these
+    pool = min(pool_size, h)
+    alive = np.zeros(pool, dtype=np.bool_)
+    for q in range(pool):
+        count = 0
+        for i in range(n):
+            count += masks[order[q], i]
+        alive[q] = count >= 3
     kept = np.zeros((n_candidates, n), dtype=np.bool_)
     n_taken, n_kept = 0, 0
     best_cost = np.inf
     best_mask = np.zeros(n, dtype=np.bool_)
     best_residuals = np.zeros(n)
-    for q in range(order.shape[0]):
+    for q in range(pool):
         if n_taken >= n_candidates:
             break
         if not alive[q]:
             continue
         taken = masks[order[q]]
         n_taken += 1
-        for other in range(q, order.shape[0]):  # rule out the sets too like it (itself included)
+        for other in range(q, pool):  # rule out the sets too like it (itself included)
             if alive[other]:
                 row = masks[order[other]]
                 both, either = 0, 0
@@ -190,12 +206,20 @@ def best_candidate(
             continue
         repeated = False
         for other in range(n_kept):
-            if np.array_equal(kept[other], mask):
+            same = True
+            for i in range(n):
+                if kept[other, i] != mask[i]:
+                    same = False
+                    break
+            if same:
                 repeated = True
                 break
         if repeated:
             continue
-        kept[n_kept] = mask
+        n_inliers = 0
+        for i in range(n):
+            kept[n_kept, i] = mask[i]
+            n_inliers += mask[i]
         n_kept += 1
         selection = 0.0
         n_above = 0
@@ -203,17 +227,30 @@ def best_candidate(
             selection += min(residuals[i] * residuals[i], t2)
             n_above += residuals[i] > t
         if one_sided and n_above > 0:
-            above = np.empty((n_above, 2))
-            inliers = np.empty((mask.sum(), 2))
-            a, b = 0, 0
-            for i in range(n):
-                if residuals[i] > t:
-                    above[a, 0], above[a, 1] = points[i, 0], points[i, 1]
-                    a += 1
-                if mask[i]:
-                    inliers[b, 0], inliers[b, 1] = points[i, 0], points[i, 1]
-                    b += 1
-            selection += above_penalty * t2 * inside_hull(inliers, above, HULL_TOLERANCE_MM).sum()
+            selection += above_penalty * t2 * _above_inside(points, mask, residuals, t, n_above, n_inliers)
         if selection < best_cost:
             best_cost, best_mask, best_residuals = selection, mask, residuals
     return n_kept > 0, best_mask, best_residuals
+
+
+@numba.njit  # no cache of its own: compiled into its callers'
+def _above_inside(
+    points: np.ndarray, mask: np.ndarray, residuals: np.ndarray, t: float, n_above: int, n_inliers: int
+) -> int:
+    """How many of the ``n_above`` points more than ``t`` above the plane lie inside the ``(x, y)`` hull
+    of the ``n_inliers`` points of ``mask`` (:func:`best_candidate`'s one-sided penalty)."""
+    above = np.empty((n_above, 2))
+    inliers = np.empty((n_inliers, 2))
+    a, b = 0, 0
+    for i in range(points.shape[0]):
+        if residuals[i] > t:
+            above[a, 0], above[a, 1] = points[i, 0], points[i, 1]
+            a += 1
+        if mask[i]:
+            inliers[b, 0], inliers[b, 1] = points[i, 0], points[i, 1]
+            b += 1
+    inside = inside_hull(inliers, above, HULL_TOLERANCE_MM)
+    n_inside = 0
+    for i in range(n_above):
+        n_inside += inside[i]
+    return n_inside
