@@ -1,16 +1,16 @@
 """Arrays that take long to derive from a few parameters, kept on disk between runs.
 
-The sub-pixel fit's weight tables (:func:`softjig.sensing.subpixel.fit_tables`) cost 0.3-1 s to build
-and depend only on a marker model: every short command (a single ``softjig estimate``) would pay for
-them at start-up. They are stored in the user's cache folder, ``$SOFTJIG_CACHE_DIR``, else
+The sub-pixel fit's weight tables (:func:`softjig.sensing.subpixel.fit_tables`) cost 0.3-1 s to build and
+depend only on a marker model: every short command (a single ``softjig estimate``) would pay for them at
+start-up. They are stored in the user's cache folder, ``$SOFTJIG_CACHE_DIR``, else
 ``$XDG_CACHE_HOME/softjig``, else ``~/.cache/softjig``, one ``.bin`` file per entry named by a digest of
 its key (the kind of array, its format version and every parameter it depends on). A file is one JSON
 header line (the key itself, the dtype, the shape and a SHA-256 of the array's bytes) and then the raw
-bytes (an ``.npz`` took 0.6 ms to read, this 0.09 ms, at every Estimator's build): a file that does not parse, holds another key or fails its
-checksum is rebuilt and replaced. Files are written to a temporary file in the same folder and renamed
-over the old one, so a reader never sees half a file. The cache is an optimisation only: if the folder
-cannot be created or written (a read-only home), the array is built and returned as if there were no
-cache; ``SOFTJIG_CACHE_DIR=off`` disables it.
+bytes (read at every Estimator's build: a raw file is several times faster to read than an ``.npz``). A
+file that does not parse, holds another key or fails its checksum is rebuilt and replaced. Files are
+written to a temporary file in the same folder and renamed over the old one, so a reader never sees half
+a file. The cache is an optimisation only: if the folder cannot be created or written (a read-only home),
+the array is built and returned as if there were no cache; ``SOFTJIG_CACHE_DIR=off`` disables it.
 """
 
 from __future__ import annotations

@@ -27,13 +27,17 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.spatial import cKDTree
-from scipy.spatial.transform import Rotation
 
 from softjig.config import CameraConfig, JigConfig
 from softjig.geometry import pose_from_rotation_translation
+
+if TYPE_CHECKING:
+    from scipy.spatial import cKDTree
+
+# scipy.spatial (0.1 s to import) is imported where a level is measured, not by every estimate's start-up.
 
 #: Fewest rest markers a level is fitted to (six unknowns; a spread of markers over the membrane).
 MIN_LEVEL_MARKERS = 12
@@ -192,6 +196,8 @@ class HeadPrior:
     def mahalanobis2(self, T_correction: np.ndarray) -> float:
         """The squared Mahalanobis distance of a correction from no error: its rotation, and how far it
         moves the head's centre, each against its tolerance (a zero tolerance: infinite)."""
+        from scipy.spatial.transform import Rotation
+
         rotvec_deg = np.degrees(Rotation.from_matrix(T_correction[:3, :3]).as_rotvec())
         centre = np.asarray(self.centre_mm)
         moved = T_correction[:3, :3] @ centre + T_correction[:3, 3] - centre
@@ -273,6 +279,8 @@ def level_head(
     """
     if not prior.rotation_deg > 0:
         return "the config's tolerances say the head is mounted exactly (tolerances.camera_rotation_deg = 0)"
+    from scipy.spatial import cKDTree
+
     rest_xyz = np.asarray(rest_xyz_mm, dtype=float)
     rest = cKDTree(rest_xyz[:, :2])
     reach = MATCH_REACH_PITCHES * pitch_mm
@@ -318,6 +326,8 @@ def level_head(
 def levelled_jig(jig: JigConfig, level: HeadLevel) -> JigConfig:
     """``jig`` with both cameras at their levelled poses (``level.T_correction @ T_J_cam``), the rest as
     it is: what ``softjig survey`` writes when the head was levelled."""
+
+    from scipy.spatial.transform import Rotation
 
     def moved(camera: CameraConfig) -> CameraConfig:
         T = level.T_correction @ camera.T_J_cam
