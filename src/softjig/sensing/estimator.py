@@ -113,8 +113,8 @@ class Estimator:
         rectified once here, and each pair with them.
     method : ``"refractive"`` (the default: ours) or ``"paper"`` (exactly as published).
     reference : the unloaded jig's markers (:meth:`reference_from_pair`), for ``"refractive"``; the
-        nominal rest shape when ``None``. When it levelled the head (``reference.head_level``), frames
-        without fiducials use the levelled camera poses (``frame_source`` ``"membrane"``).
+        nominal rest shape when ``None``. When it measured the head's pose (``reference.head_level``),
+        frames without fiducials use it (``frame_source`` ``"membrane"`` or ``"reference fiducials"``).
     calibration : the paper's tilt calibration to apply, if any (fitted to this method's estimates).
     model : the :class:`JigModel` of ``jig`` when already built (another estimator's ``model``).
     detector, frame_finder, matcher, triangulator : stages to use instead of the jig's and the method's
