@@ -303,7 +303,7 @@ def accuracy_table(rows: Sequence[Row]) -> list[str]:
         "|---|---|---|---|---|---|---|---|",
     ]
     for way in ("size+reference", "no size+reference"):
-        for source in ("fiducials", "membrane", "config"):
+        for source in sorted({r.frame_source for r in rows if r.frame_source is not None}):
             for lo, hi in itertools.pairwise((0, 20, 40, 80, 100_000)):
                 sel = [
                     r

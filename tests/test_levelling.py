@@ -92,18 +92,22 @@ def test_a_shift_beyond_half_a_pitch_is_still_found():
     assert _rotation_error_deg(level.T_correction, C_true) < 0.05
 
 
-@pytest.mark.parametrize("seed", range(6))
-def test_a_small_patch_in_view_is_levelled_right_or_not_at_all(seed):
+def test_a_small_patch_in_view_is_levelled_right_or_not_at_all():
     """A few dozen markers of a grid on the dome's flank, the head off by about half a pitch: shifted
     by a pitch and tilted, the patch fits the rest markers too (a zoo design was levelled 2.9 deg wrong,
-    from 62 markers). The most probable alignment given the tolerances must be the true one, or none."""
-    rng = np.random.default_rng(seed)
+    from 62 markers). Each level measured must be the true one within three of its own sigmas (a wrong
+    alignment is degrees off), and some are measured."""
     patch = REST[np.hypot(REST[:, 0] - 25.0, REST[:, 1] - 10.0) < 22.0]
     assert 20 < len(patch) < 40
-    C_true = _about_head(rng.normal(0.0, 0.5, 3), rng.normal(0.0, 1.0, 3) + np.array([2.0, 2.5, 0.0]))
-    level = level_head(_seen_through(C_true, patch, 0.2, seed), REST, pitch_mm=PITCH, prior=PRIOR)
-    if isinstance(level, HeadLevel):
-        assert _rotation_error_deg(level.T_correction, C_true) < 0.3
+    levelled = 0
+    for seed in range(12):
+        rng = np.random.default_rng(seed)
+        C_true = _about_head(rng.normal(0.0, 0.5, 3), rng.normal(0.0, 1.0, 3) + np.array([2.0, 2.5, 0.0]))
+        level = level_head(_seen_through(C_true, patch, 0.2, seed), REST, pitch_mm=PITCH, prior=PRIOR)
+        if isinstance(level, HeadLevel):
+            levelled += 1
+            assert _rotation_error_deg(level.T_correction, C_true) < 3.0 * level.tilt_sigma_deg, seed
+    assert levelled >= 3
 
 
 def test_too_few_markers_give_a_reason_not_a_level():

@@ -49,6 +49,8 @@ TRIM_MEDIAN_FACTOR = 3.0
 MAX_RMS_PITCHES = 0.25
 #: Two alignments whose -2 log posteriors differ by less than this are as probable (odds below e^5).
 AMBIGUITY = 10.0
+#: The residual RMS the alignments' scores are measured against is at least this (mm).
+MIN_RMS_MM = 1e-3
 ICP_MAX_STEPS = 20
 LEVEL_MAX_ROUNDS = 4
 #: A round's correction below this (rad, and mm) ends the rounds: far below any level's uncertainty.
@@ -101,17 +103,17 @@ class _RigidFit:
 
 
 def rigid_fit(points: np.ndarray, targets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The rotation ``R`` and translation ``t`` minimising ``sum |R p_i + t - q_i|^2`` (Kabsch's SVD).
+    """The rotation ``R`` and translation ``t`` minimising ``sum |R p_i + t - q_i|^2`` (Kabsch's
+    solution, by SciPy's ``Rotation.align_vectors`` of the centred points).
 
     Parameters
     ----------
     points, targets : (N, 3) corresponding points (mm), ``N >= 3`` not all on a line.
     """
+    from scipy.spatial.transform import Rotation
+
     p_mean, q_mean = points.mean(axis=0), targets.mean(axis=0)
-    h = (points - p_mean).T @ (targets - q_mean)
-    u, _, vt = np.linalg.svd(h)
-    d = np.sign(np.linalg.det(vt.T @ u.T))
-    rotation = vt.T @ np.diag([1.0, 1.0, d]) @ u.T
+    rotation = Rotation.align_vectors(targets - q_mean, points - p_mean)[0].as_matrix()
     return rotation, q_mean - rotation @ p_mean
 
 
@@ -234,7 +236,9 @@ def _scores(
     nearest rest marker (capped at the reach: a marker no rest marker explains), against the best
     alignment's own residual variance, plus the prior's Mahalanobis distance. The same markers for every
     alignment, so ones that pair fewer markers are not favoured."""
-    variance = min(fit.rms_mm for fit in fits) ** 2 / 3.0  # per coordinate
+    # per coordinate; floored, so that markers that fit exactly (a rig surveyed from this very frame)
+    # give finite scores
+    variance = max(min(fit.rms_mm for fit in fits), MIN_RMS_MM) ** 2 / 3.0
     scores = []
     for fit in fits:
         moved = points @ fit.T[:3, :3].T + fit.T[:3, 3]
