@@ -262,7 +262,9 @@ def test_a_survey_without_fiducials_writes_the_levelled_cameras(hidden_scenes, t
         app, ["survey", str(left), str(right), "--config", str(rig), "--out", str(out), "--json"]
     )
     assert result.exit_code == 0, result.output
-    summary = json.loads(result.stdout)["summary"]
+    report = json.loads(result.stdout)
+    assert report["frame_source"] == "membrane"
+    summary = report["summary"]
     C_true = unloaded.as_built.jig.cameras.left.T_J_cam @ np.linalg.inv(HIDDEN.cameras.left.T_J_cam)
     assert abs(summary["head_rotation_deg"] - _rotation_error_deg(np.eye(4), C_true)) < 0.1
     assert "levelled on the unloaded membrane" in result.stderr

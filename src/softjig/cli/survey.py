@@ -66,7 +66,11 @@ def _print_report(survey, source: str) -> None:
     typer.echo(f"height noise of one frame: {s['noise_mm']:.3f} mm")
 
 
-def _warn_about_the_pose(survey: Survey, level_note: str | None, frame_source: str) -> None:
+#: What the first frame's ``frame_source`` was, by how its reference measured the head (``None``: not).
+_FRAME_SOURCE = {"reference fiducials": "fiducials", "membrane": "membrane", None: "config"}
+
+
+def _warn_about_the_pose(survey: Survey, level_note: str | None) -> None:
     """Say where the cameras' pose came from when the fiducials were not seen: levelled on the membrane
     (and how far the head was off), or the config's (and why it was not levelled)."""
     level = survey.head_level
@@ -79,7 +83,7 @@ def _warn_about_the_pose(survey: Survey, level_note: str | None, frame_source: s
             "levelled ones. The level takes the rest shape's tilt and centre to be the config's; to "
             "measure the membrane in the jig frame itself, make the fiducials visible to both cameras"
         )
-    elif frame_source != "fiducials":
+    elif level is None:
         why = level_note or "sensing.extrinsics is 'config'"
         warn(
             f"the fiducials were not seen and {why}, so the cameras' poses come from the config: the "
@@ -189,7 +193,8 @@ def survey_cmd(
         smooth=not raw_heights,
         max_deviation_mm=max_deviation,
     )
-    frame_source = estimator.observe(*pairs[0]).frame.source
+    level = survey.head_level
+    frame_source = _FRAME_SOURCE[None if level is None else level.source]
     save_jig(survey.jig, out)
     if markers_csv is not None:
         write_text_atomic(
@@ -201,5 +206,5 @@ def survey_cmd(
         )
     else:
         _print_report(survey, source)
-    _warn_about_the_pose(survey, references[0].level_note, frame_source)
+    _warn_about_the_pose(survey, references[0].level_note)
     typer.echo(f"wrote the surveyed rig to {out}", err=True)
