@@ -244,6 +244,9 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=1, help="timed passes per tree")
     parser.add_argument("--child", type=Path, default=None, help=argparse.SUPPRESS)
     args = parser.parse_args()
+    for name in ("frames_per_alpha", "rounds"):  # 0 divided by zero or gave no pass; 0 rounds was made 1
+        if getattr(args, name) < 1:
+            parser.error(f"--{name.replace('_', '-')} must be at least 1, got {getattr(args, name)}")
     root = args.out or Path(tempfile.mkdtemp(prefix="bench_bag_"))
     if args.child is not None:
         worker(root, args.child)
@@ -251,14 +254,14 @@ def main() -> None:
     prepare(root, args.frames_per_alpha)
     srcs = [str(Path(s).resolve()) for s in args.src] if args.src else [None]
     bags = [root / f"bag{i}" for i in range(len(srcs))]
-    trees = _rounds(srcs, root, bags, max(1, args.rounds))
+    trees = _rounds(srcs, root, bags, args.rounds)
     print(f"1280x720 mono8, one worker, one OpenCV thread; {_sizes(root, bags)} (zstd chunks)")
     labels = [f"t{i}" for i in range(len(srcs))]
     _table(trees, labels)
     for label, src in zip(labels, srcs, strict=True):
         print(f"{label}: {src or 'this interpreter'}")
     print(
-        f"medians over {max(1, args.rounds)} round(s); wall times suffer from the shared "
+        f"medians over {args.rounds} round(s); wall times suffer from the shared "
         "machine's load (CPU time, this process only, less so); load average now "
         f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs"
     )

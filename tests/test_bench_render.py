@@ -1,4 +1,4 @@
-"""The render and study benchmarks refuse counts they would answer with NaN figures or a traceback."""
+"""The render, study and bag benchmarks refuse counts they would answer with NaN figures or a traceback."""
 
 from __future__ import annotations
 
@@ -32,6 +32,9 @@ def test_frame_counts_without_figures_are_refused(args, message):
         # --repeats 0 (or --rounds 0 with --src) ended in a traceback on the empty medians
         ("bench_render.py", "--repeats"),
         ("bench_render.py", "--rounds"),
+        # --frames-per-alpha 0 divided by zero; --rounds 0 was taken for 1
+        ("bench_bag.py", "--frames-per-alpha"),
+        ("bench_bag.py", "--rounds"),
         # each ended in a traceback (an empty median, a division by --empty) after Ray had started
         ("bench_study.py", "--tasks"),
         ("bench_study.py", "--frames-per-task"),
