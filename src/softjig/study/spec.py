@@ -286,7 +286,7 @@ class StudySpec:
 
     @property
     def n_frames(self) -> int:
-        """Loaded frames per design and seed (without drawing the zoo's: that takes ~1.5 ms a frame)."""
+        """Loaded frames per design and seed (the zoo's count, without drawing its frames)."""
         return self.frames.zoo.count if self.frames.zoo is not None else len(self.frame_specs()) - 1
 
     def frame_specs(self, seed: int | None = None) -> list:
