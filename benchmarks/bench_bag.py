@@ -45,7 +45,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 def timed_frames(frames, estimator, *, estimate: bool):
     """``(reference, wall s, CPU s)`` per frame of ``frames``: from asking for the frame to having its
-    images (and, ``estimate``, the estimate of a loaded frame). Of this benchmark and bench_frame's."""
+    images (and, ``estimate``, the estimate of a loaded frame)."""
     from softjig.errors import SoftjigError
 
     it = iter(frames)
@@ -62,14 +62,19 @@ def timed_frames(frames, estimator, *, estimate: bool):
 
 
 def _time_source(frames, jig, reference, *, estimate: bool) -> tuple[list[float], list[float], float]:
+    """:func:`frame_figures` of ``frames`` with an Estimator of ``jig`` against ``reference``."""
+    from softjig.sensing.estimator import Estimator
+
+    estimator = Estimator(jig, reference=reference, method="refractive")  # once, as estimate_dataset does
+    return frame_figures(frames, estimator, estimate=estimate)
+
+
+def frame_figures(frames, estimator, *, estimate: bool) -> tuple[list[float], list[float], float]:
     """Wall and CPU seconds per loaded frame: from asking for the frame to having its images (and its
     estimate), and the mean CPU seconds a loaded frame. The source's opening (a bag's metadata and type
     definitions, ~0.1-0.3 s once) falls on the first frame (a dataset's or softjig bag's reference
     frame, which the medians leave out), which the mean leaves out: the mean is the CPU of the frames
-    after the first over their number."""
-    from softjig.sensing.estimator import Estimator
-
-    estimator = Estimator(jig, reference=reference, method="refractive")  # once, as estimate_dataset does
+    after the first over their number. Of this benchmark and bench_frame's."""
     wall, cpu = [], []
     total, after_first = 0.0, 0
     for k, (is_reference, spent_wall, spent) in enumerate(timed_frames(frames, estimator, estimate=estimate)):
