@@ -1,4 +1,4 @@
-"""The render, study and bag benchmarks refuse counts they would answer with NaN figures or a traceback."""
+"""Benchmarks (render, study, bag, estimate) refuse counts they would answer with NaN or a traceback."""
 
 from __future__ import annotations
 
@@ -32,6 +32,10 @@ def test_frame_counts_without_figures_are_refused(args, message):
         # --repeats 0 (or --rounds 0 with --src) ended in a traceback on the empty medians
         ("bench_render.py", "--repeats"),
         ("bench_render.py", "--rounds"),
+        # the side-by-side medians and ratios of no round or call were NaN, exit 0
+        ("bench_estimate.py", "--rounds"),
+        ("bench_estimate.py", "--calls"),
+        ("bench_estimate.py", "--repeats"),
         # --frames-per-alpha 0 divided by zero; --rounds 0 was taken for 1
         ("bench_bag.py", "--frames-per-alpha"),
         ("bench_bag.py", "--rounds"),
