@@ -45,7 +45,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 def timed_frames(frames, estimator, *, estimate: bool):
     """``(reference, wall s, CPU s)`` per frame of ``frames``: from asking for the frame to having its
-    images (and, ``estimate``, the estimate of a loaded frame). Of this benchmark and bench_frame's."""
+    images (and, ``estimate``, the estimate of a loaded frame)."""
     from softjig.errors import SoftjigError
 
     it = iter(frames)
@@ -62,14 +62,19 @@ def timed_frames(frames, estimator, *, estimate: bool):
 
 
 def _time_source(frames, jig, reference, *, estimate: bool) -> tuple[list[float], list[float], float]:
+    """:func:`frame_figures` of ``frames`` with an Estimator of ``jig`` against ``reference``."""
+    from softjig.sensing.estimator import Estimator
+
+    estimator = Estimator(jig, reference=reference, method="refractive")  # once, as estimate_dataset does
+    return frame_figures(frames, estimator, estimate=estimate)
+
+
+def frame_figures(frames, estimator, *, estimate: bool) -> tuple[list[float], list[float], float]:
     """Wall and CPU seconds per loaded frame: from asking for the frame to having its images (and its
     estimate), and the mean CPU seconds a loaded frame. The source's opening (a bag's metadata and type
     definitions, ~0.1-0.3 s once) falls on the first frame (a dataset's or softjig bag's reference
     frame, which the medians leave out), which the mean leaves out: the mean is the CPU of the frames
-    after the first over their number."""
-    from softjig.sensing.estimator import Estimator
-
-    estimator = Estimator(jig, reference=reference, method="refractive")  # once, as estimate_dataset does
+    after the first over their number. Of this benchmark and bench_frame's."""
     wall, cpu = [], []
     total, after_first = 0.0, 0
     for k, (is_reference, spent_wall, spent) in enumerate(timed_frames(frames, estimator, estimate=estimate)):
@@ -244,6 +249,9 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=1, help="timed passes per tree")
     parser.add_argument("--child", type=Path, default=None, help=argparse.SUPPRESS)
     args = parser.parse_args()
+    for name in ("frames_per_alpha", "rounds"):  # 0 divided by zero or gave no pass; 0 rounds was made 1
+        if getattr(args, name) < 1:
+            parser.error(f"--{name.replace('_', '-')} must be at least 1, got {getattr(args, name)}")
     root = args.out or Path(tempfile.mkdtemp(prefix="bench_bag_"))
     if args.child is not None:
         worker(root, args.child)
@@ -251,14 +259,14 @@ def main() -> None:
     prepare(root, args.frames_per_alpha)
     srcs = [str(Path(s).resolve()) for s in args.src] if args.src else [None]
     bags = [root / f"bag{i}" for i in range(len(srcs))]
-    trees = _rounds(srcs, root, bags, max(1, args.rounds))
+    trees = _rounds(srcs, root, bags, args.rounds)
     print(f"1280x720 mono8, one worker, one OpenCV thread; {_sizes(root, bags)} (zstd chunks)")
     labels = [f"t{i}" for i in range(len(srcs))]
     _table(trees, labels)
     for label, src in zip(labels, srcs, strict=True):
         print(f"{label}: {src or 'this interpreter'}")
     print(
-        f"medians over {max(1, args.rounds)} round(s); wall times suffer from the shared "
+        f"medians over {args.rounds} round(s); wall times suffer from the shared "
         "machine's load (CPU time, this process only, less so); load average now "
         f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs"
     )

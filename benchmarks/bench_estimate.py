@@ -78,6 +78,9 @@ def main() -> None:
     parser.add_argument("--stages", action="store_true", help="side by side: per-stage CPU time too")
     parser.add_argument("--worker", metavar="PAIRS_NPZ", help=argparse.SUPPRESS)
     args = parser.parse_args()
+    for name in ("repeats", "rounds", "calls"):  # 0: medians and ratios of nothing, printed as NaN
+        if getattr(args, name) < 1:
+            parser.error(f"--{name} must be at least 1, got {getattr(args, name)}")
     cv2.setNumThreads(1)
     if args.worker:
         _worker(Path(args.worker), args.method)

@@ -85,17 +85,13 @@ def _estimate_pass(estimator, pairs, spent: dict[str, float]) -> dict[str, float
 
 def _bag_pass(bag: Path, estimator, *, estimate: bool) -> tuple[float, float]:
     """Mean and median CPU ms a loaded frame of reading the bag (and estimating), first frame (the bag's
-    opening) left out."""
-    from bench_bag import timed_frames
+    opening, its reference frame) left out (:func:`bench_bag.frame_figures`)."""
+    from bench_bag import frame_figures
     from softjig.io.rosbag import BagReader
 
     with BagReader(bag) as reader:
-        frames = reader.pairs(reader.choose_topics())
-        cpu = [(ref, c) for ref, _, c in timed_frames(frames, estimator, estimate=estimate)]
-    # a reference frame's read is a read all the same: it counts towards the loaded frames' mean
-    total = sum(c for _, c in cpu[1:])
-    loaded = [c for ref, c in cpu[1:] if not ref]
-    return 1000 * total / len(loaded), 1000 * statistics.median(loaded)
+        _, cpu, mean = frame_figures(reader.pairs(reader.choose_topics()), estimator, estimate=estimate)
+    return 1000 * mean, 1000 * statistics.median(cpu)
 
 
 def _results(estimator_cls, jig, reference, dataset) -> list:

@@ -48,7 +48,7 @@ def errors_deg(results: Path, truth: dict) -> dict[int, float]:
         row = json.loads(line)
         if row.get("index") in truth and "normal" in row:
             cos = float(np.dot(row["normal"], truth[row["index"]][2]))
-            out[row["index"]] = math.degrees(math.acos(min(1.0, cos)))
+            out[row["index"]] = math.degrees(math.acos(min(1.0, max(-1.0, cos))))
     return out
 
 
@@ -61,6 +61,11 @@ def main() -> None:
     truth = truths(args.dataset)
     old, new = errors_deg(args.old, truth), errors_deg(args.new, truth)
     both = sorted(set(old) & set(new))
+    if not both:  # else every figure below is the NaN of an empty mean
+        parser.error(
+            f"no loaded frame of {args.dataset} is estimated in both {args.old} and {args.new} "
+            f"(loaded {len(truth)}, estimated by old {len(old)}, new {len(new)}): results of another dataset?"
+        )
     print(f"frames: {len(truth)} loaded, estimated by old {len(old)}, new {len(new)}, both {len(both)}")
     print("| D mm | tilt deg | frames | RMSE old deg | RMSE new deg | p (new worse) |")
     print("|---|---|---|---|---|---|")

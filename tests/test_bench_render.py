@@ -1,4 +1,4 @@
-"""The render and study benchmarks refuse counts they would answer with NaN figures or a traceback."""
+"""Benchmarks (render, study, bag, estimate) refuse counts they would answer with NaN or a traceback."""
 
 from __future__ import annotations
 
@@ -26,23 +26,32 @@ def test_frame_counts_without_figures_are_refused(args, message):
     assert message in done.stderr
 
 
-@pytest.mark.parametrize("name", ["--repeats", "--rounds"])
-def test_bench_render_refuses_no_pairs(name):
-    # --repeats 0 (or --rounds 0 with --src) ended in a traceback on the empty medians
-    bench_render = SCRIPT.with_name("bench_render.py")
+@pytest.mark.parametrize(
+    ("script", "name"),
+    [
+        # --repeats 0 (or --rounds 0 with --src) ended in a traceback on the empty medians
+        ("bench_render.py", "--repeats"),
+        ("bench_render.py", "--rounds"),
+        # the side-by-side medians and ratios of no round or call were NaN, exit 0
+        ("bench_estimate.py", "--rounds"),
+        ("bench_estimate.py", "--calls"),
+        ("bench_estimate.py", "--repeats"),
+        # --frames-per-alpha 0 divided by zero; --rounds 0 was taken for 1
+        ("bench_bag.py", "--frames-per-alpha"),
+        ("bench_bag.py", "--rounds"),
+        # each ended in a traceback (an empty median, a division by --empty) after Ray had started
+        ("bench_study.py", "--tasks"),
+        ("bench_study.py", "--frames-per-task"),
+        ("bench_study.py", "--repeats"),
+        ("bench_study.py", "--empty"),
+    ],
+)
+def test_benchmarks_refuse_no_work(script, name):
     done = subprocess.run(
-        [sys.executable, str(bench_render), name, "0"], capture_output=True, text=True, timeout=120
-    )
-    assert done.returncode == 2
-    assert f"{name} must be at least 1" in done.stderr
-
-
-@pytest.mark.parametrize("name", ["--tasks", "--frames-per-task", "--repeats", "--empty"])
-def test_bench_study_refuses_no_work(name):
-    # each ended in a traceback (an empty median, a division by --empty) after Ray had started
-    bench_study = SCRIPT.with_name("bench_study.py")
-    done = subprocess.run(
-        [sys.executable, str(bench_study), name, "0"], capture_output=True, text=True, timeout=300
+        [sys.executable, str(SCRIPT.with_name(script)), name, "0"],
+        capture_output=True,
+        text=True,
+        timeout=300,
     )
     assert done.returncode == 2
     assert f"{name} must be at least 1" in done.stderr

@@ -117,12 +117,17 @@ def check_reachable(jig: JigConfig, spec: FrameSpec) -> None:
         )
 
 
-def theta_values_deg(theta_step_deg: float) -> list[float]:
-    """The azimuths ``0, step, 2 step, ...`` below 360 degrees."""
+def theta_count(theta_step_deg: float) -> int:
+    """How many azimuths :func:`theta_values_deg` gives for ``theta_step_deg`` (deg), without listing them
+    (a study refuses a step that gives too many)."""
     if not (math.isfinite(theta_step_deg) and 0.0 < theta_step_deg <= 360.0):
         raise InputError(f"the theta step must be in (0, 360] degrees, got {theta_step_deg}")
-    n = math.ceil(360.0 / theta_step_deg - 1e-9)
-    return [i * theta_step_deg for i in range(n)]
+    return math.ceil(360.0 / theta_step_deg - 1e-9)
+
+
+def theta_values_deg(theta_step_deg: float) -> list[float]:
+    """The azimuths ``0, step, 2 step, ...`` below 360 degrees."""
+    return [i * theta_step_deg for i in range(theta_count(theta_step_deg))]
 
 
 def paper_sweep(

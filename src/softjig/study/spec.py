@@ -286,7 +286,7 @@ class StudySpec:
 
     @property
     def n_frames(self) -> int:
-        """Loaded frames per design and seed (without drawing the zoo's: that takes ~1.5 ms a frame)."""
+        """Loaded frames per design and seed (the zoo's count, without drawing its frames)."""
         return self.frames.zoo.count if self.frames.zoo is not None else len(self.frame_specs()) - 1
 
     def frame_specs(self, seed: int | None = None) -> list:
@@ -348,10 +348,12 @@ def _parse_frames(data: Any) -> FramesSpec:
         if not data["poses"]:
             raise ConfigError("frames.poses: an empty list gives no frame; give at least one pose")
         return _parse(FramesSpec, data, "frames")
+    from softjig.sim.scenarios import theta_count
+
     frames = _parse(FramesSpec, data, "frames")
     step = frames.theta_step_deg
-    if math.isfinite(step) and step > 0:  # else the sweep's own check (frame_specs) says what is wrong
-        n = len(frames.diameters_mm) * len(frames.alphas_deg) * math.ceil(360.0 / step - 1e-9)
+    if math.isfinite(step) and 0.0 < step <= 360.0:  # else the sweep's own check (frame_specs) says why
+        n = len(frames.diameters_mm) * len(frames.alphas_deg) * theta_count(step)
         if n > MAX_ZOO_FRAMES:
             raise ConfigError(
                 f"frames.theta_step_deg: {step:g} gives {n:,} sweep frames per design, over the "
