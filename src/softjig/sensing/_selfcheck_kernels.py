@@ -1,9 +1,10 @@
 """Compiled kernels of :mod:`softjig.sensing.selfcheck`: the split halves' two plane fits and their noise,
 per principal axis, in one pass (Numba is confined to the ``_kernels`` modules, issue 16).
 
-Numba's cache keys a kernel on its own module's text: the code of the kernels it calls
-(:mod:`softjig._geometry_kernels`) is compiled into it, so a change there needs a change here too (the
-hand-written 3x3 solvers of ``plane_fit``, issue 14, came with this paragraph).
+Numba's cache checks only the file of the kernel it caches (its modification time and size), not the
+kernels it calls: those of :mod:`softjig._geometry_kernels` are compiled into it, so a change there needs
+this file touched too, or the cache keeps the old code (the hand-written 3x3 solvers of ``plane_fit``,
+issue 14, came with this paragraph).
 """
 
 from __future__ import annotations
