@@ -253,3 +253,22 @@ def test_indentations_against_references_unknown_at_different_markers_equal_one_
     ):
         np.testing.assert_array_equal(shared.depth_mm, own.depth_mm)
         assert (shared.zero_mm, shared.noise_mm) == (own.zero_mm, own.noise_mm)
+
+
+def test_indentation_refuses_references_and_markers_of_another_shape():
+    """A reference shorter than the markers, one of two columns, or markers without their z were read past
+    their ends (a noise of 1e-6 mm, or a depth per reference entry) instead of refused."""
+    from softjig.errors import InputError
+    from softjig.sensing.contact import indentation, indentations
+
+    g = np.arange(-40.0, 40.1, 6.0)
+    gx, gy = np.meshgrid(g, g)
+    points = np.column_stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)])
+    n = len(points)
+    for reference in (np.zeros(n - 50), np.zeros(n + 50), np.zeros((n, 2))):
+        with pytest.raises(InputError, match="reference height per marker"):
+            indentation(points, reference, pitch_mm=6.0)
+    with pytest.raises(InputError, match="reference height per marker"):
+        indentations(points, (), pitch_mm=6.0)
+    with pytest.raises(InputError, match=r"\(M, 3\) markers"):
+        indentation(points[:, :2], np.zeros(n), pitch_mm=6.0)
