@@ -230,3 +230,45 @@ def test_indentations_against_two_references_equal_one_call_each():
         assert shared.zero_mm == pytest.approx(own.zero_mm, abs=1e-12)
         assert shared.noise_mm == pytest.approx(own.noise_mm, rel=1e-12)
     assert both[0].noise_mm != pytest.approx(both[1].noise_mm)  # two different fields
+
+
+def test_indentations_against_references_unknown_at_different_markers_equal_one_call_each():
+    """A marker without a reference height in one reference must not leave the other's fits: the shared
+    pass fits only markers finite in every column, so such references are measured one call each."""
+    from softjig.sensing.contact import indentation, indentations
+
+    rng = np.random.default_rng(4)
+    g = np.arange(-40.0, 40.1, 6.0)
+    gx, gy = np.meshgrid(g, g)
+    xy = np.column_stack([gx.ravel(), gy.ravel()]) + rng.normal(0, 0.2, (gx.size, 2))
+    points = np.column_stack([xy, -0.004 * (xy**2).sum(axis=1) + rng.normal(0, 0.1, len(xy))])
+    reference = -0.004 * (xy**2).sum(axis=1)
+    reference[::3] = np.nan  # markers with no reference marker near
+    rest = -0.0041 * (xy**2).sum(axis=1)
+    both = indentations(points, (reference, rest), pitch_mm=6.0)
+    for shared, own in zip(
+        both,
+        (indentation(points, reference, pitch_mm=6.0), indentation(points, rest, pitch_mm=6.0)),
+        strict=True,
+    ):
+        np.testing.assert_array_equal(shared.depth_mm, own.depth_mm)
+        assert (shared.zero_mm, shared.noise_mm) == (own.zero_mm, own.noise_mm)
+
+
+def test_indentation_refuses_references_and_markers_of_another_shape():
+    """A reference shorter than the markers, one of two columns, or markers without their z were read past
+    their ends (a noise of 1e-6 mm, or a depth per reference entry) instead of refused."""
+    from softjig.errors import InputError
+    from softjig.sensing.contact import indentation, indentations
+
+    g = np.arange(-40.0, 40.1, 6.0)
+    gx, gy = np.meshgrid(g, g)
+    points = np.column_stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)])
+    n = len(points)
+    for reference in (np.zeros(n - 50), np.zeros(n + 50), np.zeros((n, 2))):
+        with pytest.raises(InputError, match="reference height per marker"):
+            indentation(points, reference, pitch_mm=6.0)
+    with pytest.raises(InputError, match="reference height per marker"):
+        indentations(points, (), pitch_mm=6.0)
+    with pytest.raises(InputError, match=r"\(M, 3\) markers"):
+        indentation(points[:, :2], np.zeros(n), pitch_mm=6.0)

@@ -1,5 +1,6 @@
 """The plane fit's hand-written solvers (softjig._geometry_kernels: the symmetric 3x3 eigen-decomposition
-and the one-sided Jacobi SVD) against numpy.linalg, and the fit against NumPy's SVD of the centred points."""
+and the one-sided Jacobi SVD) against numpy.linalg, the fit against NumPy's SVD of the centred points, and
+the kernels' median and stable argsort against NumPy's."""
 
 from __future__ import annotations
 
@@ -10,7 +11,13 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 from numpy.testing import assert_allclose
 
-from softjig._geometry_kernels import plane_fit, right_singular_3, symmetric_eigen_3x3
+from softjig._geometry_kernels import (
+    median_in_place,
+    plane_fit,
+    right_singular_3,
+    stable_argsort,
+    symmetric_eigen_3x3,
+)
 
 EPS = np.finfo(float).eps
 
@@ -115,3 +122,22 @@ def test_plane_fit_is_numpys_svd_of_the_centred_points(count, seed, noise, tilt,
     assert fitted[2] >= 0
     residual = np.sqrt(np.mean((centred @ fitted) ** 2))
     assert rms == pytest.approx(residual, rel=1e-9, abs=1e-12)
+
+
+# Few distinct values (ties, which the partition and the merge must keep apart) as well as many.
+ties = st.one_of(st.integers(-3, 3).map(float), finite)
+
+
+@settings(max_examples=400, deadline=None)
+@given(st.lists(ties, min_size=1, max_size=80))
+def test_median_in_place_is_numpys(values):
+    array = np.array(values)
+    assert median_in_place(array.copy()) == np.median(array)
+
+
+@settings(max_examples=400, deadline=None)
+@given(st.lists(ties, min_size=0, max_size=120))
+def test_stable_argsort_is_numpys(values):
+    """Up to 120 values: runs of 16 merged three times, and a ragged last run."""
+    array = np.array(values, dtype=float)
+    assert np.array_equal(stable_argsort(array), np.argsort(array, kind="stable"))

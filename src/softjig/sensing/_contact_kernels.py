@@ -4,9 +4,11 @@ flood fill and violation counts, and the per-marker plane arithmetic (each one p
 Numba is confined to this module (issue 16); ``benchmarks/bench_kernels.py`` measures what each kernel
 gains a pair over its NumPy counterpart.
 
-Numba's cache keys a kernel on its own module's text: the code of the kernels it calls
-(:mod:`softjig._geometry_kernels`) is compiled into it, so a change there needs a change here too (the
-hand-written 3x3 solvers of ``plane_fit``, issue 14, came with this paragraph).
+Numba's cache checks only the file of the kernel it caches (its modification time and size), not what
+it uses from elsewhere: the kernels of :mod:`softjig._geometry_kernels` are compiled into it and the
+constants of :mod:`softjig.geometry` frozen into it, so a change to either file needs this file touched
+too, or the cache keeps the old code (the hand-written 3x3 solvers of ``plane_fit``, issue 14, came with
+this paragraph).
 """
 
 from __future__ import annotations

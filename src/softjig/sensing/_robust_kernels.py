@@ -1,9 +1,11 @@
 """Compiled kernels of :mod:`softjig.sensing.robust`: the scoring of a batch of 3-point hypotheses, the
 least-squares refinement of an inlier set, and the choice of the best refined candidate.
 
-Numba's cache keys a kernel on its own module's text: the code of the kernels it calls
-(:mod:`softjig._geometry_kernels`) is compiled into it, so a change there needs a change here too (the
-hand-written 3x3 solvers of ``plane_fit``, issue 14, came with this paragraph).
+Numba's cache checks only the file of the kernel it caches (its modification time and size), not what
+it uses from elsewhere: the kernels of :mod:`softjig._geometry_kernels` are compiled into it and the
+constants of :mod:`softjig.geometry` frozen into it, so a change to either file needs this file touched
+too, or the cache keeps the old code (the hand-written 3x3 solvers of ``plane_fit``, issue 14, came with
+this paragraph).
 """
 
 from __future__ import annotations

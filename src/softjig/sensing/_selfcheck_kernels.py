@@ -1,9 +1,10 @@
 """Compiled kernels of :mod:`softjig.sensing.selfcheck`: the split halves' two plane fits and their noise,
 per principal axis, in one pass (Numba is confined to the ``_kernels`` modules, issue 16).
 
-Numba's cache keys a kernel on its own module's text: the code of the kernels it calls
-(:mod:`softjig._geometry_kernels`) is compiled into it, so a change there needs a change here too (the
-hand-written 3x3 solvers of ``plane_fit``, issue 14, came with this paragraph).
+Numba's cache checks only the file of the kernel it caches (its modification time and size), not the
+kernels it calls: those of :mod:`softjig._geometry_kernels` are compiled into it, so a change there needs
+this file touched too, or the cache keeps the old code (the hand-written 3x3 solvers of ``plane_fit``,
+issue 14, came with this paragraph).
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ def split_fits(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``selfcheck.split_halves``' splits in one compiled pass:
     ``(ok (2,), normals (2, 2, 3), sigmas (2, 2))`` for the splits at the median along each principal
-    axis of the points' centred ``(x, y)`` (:func:`half_fits`).
+    axis of the points' centred ``(x, y)`` (:func:`half_fits_into`).
 
     Written in loops over preallocated arrays, with the median by :func:`~softjig._geometry_kernels.
     median_in_place`: NumPy's ``mean``, ``median``, array expressions and slice assignments compiled in
@@ -61,28 +62,12 @@ def split_fits(
         middle = median_in_place(scratch)
         for i in range(n):
             side[i] = along[i] > middle
-        ok[k] = _half_fits_into(points, side, sigma, min_points, mask, normals[k], sigmas[k])
+        ok[k] = half_fits_into(points, side, sigma, min_points, mask, normals[k], sigmas[k])
     return ok, normals, sigmas
 
 
 @numba.njit  # no cache of its own: compiled into its callers'
-def half_fits(
-    points: np.ndarray, side: np.ndarray, sigma: float, min_points: int
-) -> tuple[bool, np.ndarray, np.ndarray]:
-    """The least-squares planes of ``points[side]`` and ``points[~side]``: ``(ok, normals (2, 3),
-    sigmas (2,))``, each normal with ``n_z > 0`` and the RMS angle of its error for a depth noise
-    ``sigma`` (mm), as :func:`~softjig.sensing.uncertainty.normal_uncertainty` with ``point_sigma_mm``
-    (``ok`` false when a half has fewer than ``min_points`` or its ``(x, y)`` lie on a line: an expected
-    outcome, not an error)."""
-    normals = np.zeros((2, 3))
-    sigmas = np.zeros(2)
-    mask = np.empty(points.shape[0], dtype=np.bool_)
-    ok = _half_fits_into(points, side, sigma, min_points, mask, normals, sigmas)
-    return ok, normals, sigmas
-
-
-@numba.njit  # no cache of its own: compiled into its callers'
-def _half_fits_into(
+def half_fits_into(
     points: np.ndarray,
     side: np.ndarray,
     sigma: float,
@@ -91,8 +76,12 @@ def _half_fits_into(
     normals: np.ndarray,
     sigmas: np.ndarray,
 ) -> bool:
-    """:func:`half_fits` into ``normals`` (2, 3) and ``sigmas`` (2,), with ``mask`` (N,) as scratch; the
-    first half that fails leaves its row and the later ones as they were."""
+    """The least-squares planes of ``points[side]`` and ``points[~side]`` into ``normals`` (2, 3) and
+    ``sigmas`` (2,), ``mask`` (N,) as scratch: each normal with ``n_z > 0`` and the RMS angle of its error
+    for a depth noise ``sigma`` (mm), as :func:`~softjig.sensing.uncertainty.normal_uncertainty` with
+    ``point_sigma_mm``; false when a half has fewer than ``min_points`` or its ``(x, y)`` lie on a line
+    (an expected outcome, not an error: the first half that fails leaves its row and the later ones as
+    they were)."""
     for h in range(2):
         count = 0
         for i in range(points.shape[0]):

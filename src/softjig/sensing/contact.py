@@ -30,7 +30,7 @@ import cv2
 import numpy as np
 
 from softjig.config import JigConfig
-from softjig.errors import EstimationError
+from softjig.errors import EstimationError, InputError
 from softjig.geometry import PlaneFit
 from softjig.jig_shape import rest_inner_height_mm
 from softjig.sensing import _contact_kernels as kernels
@@ -132,11 +132,24 @@ def indentations(
 ) -> tuple[Indentation, ...]:
     """:func:`indentation` against each of several reference heights (for example the reference frame's
     and the rest shape's), in one pass: the neighbour noise's fits depend on the markers' positions only,
-    so they are shared."""
+    so they are shared. The pass fits the markers finite against every reference, so references unknown
+    (NaN) at different markers are taken one call each: each result is its own call's."""
+    points_J = np.asarray(points_J, dtype=float)
+    if points_J.ndim != 2 or points_J.shape[1] != 3:
+        raise InputError(f"indentation needs (M, 3) markers, got shape {points_J.shape}")
+    shapes = [np.shape(z) for z in reference_zs_mm]
+    if not shapes or any(shape != (len(points_J),) for shape in shapes):
+        raise InputError(
+            f"indentation needs one ({len(points_J)},) reference height per marker, got {shapes}"
+        )
+    columns = np.column_stack(reference_zs_mm)
+    finite = np.isfinite(columns)
+    if len(reference_zs_mm) > 1 and not (finite == finite[:, :1]).all():
+        return tuple(indentation(points_J, z, pitch_mm=pitch_mm) for z in reference_zs_mm)
     if pitch_mm:  # the usual case, in one compiled pass
         depth, zero, noise = kernels.indentation(
             np.ascontiguousarray(points_J, dtype=float),
-            np.ascontiguousarray(np.column_stack(reference_zs_mm), dtype=float),
+            np.ascontiguousarray(columns, dtype=float),
             NOISE_RADIUS_PITCHES * pitch_mm,
         )
         if (noise > 0).all():
