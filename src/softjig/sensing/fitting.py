@@ -850,12 +850,9 @@ class ContactPlaneFitter:
         Why the index: the cameras see the markers at their apparent depth (compressed by about
         ``1 / n_oil`` in the oil, paraxially), and a rotated head rotates that apparent scene; the
         refracted triangulation maps apparent depth back to true depth with slope ``n_oil`` in the oil,
-        so a slope error ``delta`` of the apparent surface is ``n_oil delta`` of the true one. On the zoo
-        (seed 0, 25 designs x 4 frames, the 24 estimates with >= 20 markers in contact and no fiducials
-        found) the error was 1.3-1.8 times the head's drawn tilt (the indices were 1.45-1.56), and the
-        floor without the index covered 33 % of them at 1 sigma (73 % where the fiducials gave the
-        frame); with it, 64 % of the 228 such estimates of the full zoo (50 designs x 20 frames, with the
-        part's size and the reference frame).
+        so a slope error ``delta`` of the apparent surface is ``n_oil delta`` of the true one (the zoo's
+        coverage with and without the index: ``benchmarks/RESULTS.md``). A pose measured by the reference
+        frame's fiducials carries no floor, as the fiducials' own poses in each frame carry none.
         """
         source = observation.frame.source
         if source == "fiducials" or self._calibration is not None:
