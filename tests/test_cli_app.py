@@ -191,3 +191,17 @@ def test_a_system_error_of_no_signal_is_not_taken_for_one():
 
     with pytest.raises(SystemError, match="a bug"):
         command()
+
+
+def test_a_system_error_whose_causes_loop_is_raised_not_followed_forever():
+    from softjig.cli.app import handle_errors
+
+    first, second = SystemError("a bug"), ValueError("its cause")
+    first.__cause__, second.__cause__ = second, first
+
+    @handle_errors
+    def command():
+        raise first
+
+    with pytest.raises(SystemError, match="a bug"):
+        command()

@@ -82,32 +82,31 @@ def test_every_option_of_every_command_coerces_as_typer_does(tmp_path):
     assert compared > 1000
 
 
+def _assert_as_typer(text: str, *kinds: type) -> None:
+    """The light coercion of ``text`` is Typer's for every option annotated with one of ``kinds``."""
+    for command, param in PARAMS:
+        if param.type_descriptor.annotation in kinds:
+            typer_side, light = _both(command, param, text)
+            assert repr(light) == repr(typer_side), (param.name, text)
+
+
 @settings(max_examples=300, deadline=None)
 @given(st.floats(allow_nan=False, allow_infinity=False), st.sampled_from(["repr", "e", "f"]))
 def test_float_texts_as_typer_reads_them(number, style):
     text = {"repr": repr(number), "e": f"{number:.17e}", "f": f"{number:.6f}"}[style]
-    for command, param in PARAMS:
-        if param.type_descriptor.annotation is float:
-            typer_side, light = _both(command, param, text)
-            assert repr(light) == repr(typer_side), (param.name, text)
+    _assert_as_typer(text, float)
 
 
 @settings(max_examples=200, deadline=None)
 @given(st.from_regex(r"\A\s?[+-]?\d*[._]?\d*([eE][+-]?\d+)?\Z"))
 def test_number_like_texts_as_typer_reads_them(text):
-    for command, param in PARAMS:
-        if param.type_descriptor.annotation in (float, int):
-            typer_side, light = _both(command, param, text)
-            assert repr(light) == repr(typer_side), (param.name, text)
+    _assert_as_typer(text, float, int)
 
 
 @settings(max_examples=200, deadline=None)
 @given(st.from_regex(r"\A[+-]?\d{1,30}\Z"))
 def test_integer_texts_as_typer_reads_them(text):
-    for command, param in PARAMS:
-        if param.type_descriptor.annotation is int:
-            typer_side, light = _both(command, param, text)
-            assert repr(light) == repr(typer_side), (param.name, text)
+    _assert_as_typer(text, int)
 
 
 def test_a_single_estimate_builds_no_pydantic_adapter_for_its_options(tmp_path):

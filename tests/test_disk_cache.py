@@ -49,7 +49,7 @@ def test_built_once_then_read(cache):
     assert len(calls) == 2
 
 
-@pytest.mark.parametrize("damage", ["truncate", "garbage", "flip"])
+@pytest.mark.parametrize("damage", ["truncate", "garbage", "flip", "json list", "json number", "deep json"])
 def test_a_corrupt_entry_is_rebuilt_and_replaced(cache, damage):
     good = np.linspace(0, 1, 50)
     cached_array("test", "k", lambda: good)
@@ -59,6 +59,9 @@ def test_a_corrupt_entry_is_rebuilt_and_replaced(cache, damage):
         raw = raw[: len(raw) // 2]
     elif damage == "garbage":
         raw = bytearray(b"not a cache entry at all")
+    elif damage != "flip":  # another file's JSON as the header line
+        header = {"json list": b"[1, 2]", "json number": b"3", "deep json": b"[" * 100_000}[damage]
+        raw = bytearray(header + b"\n" + good.tobytes())
     else:  # a flipped byte inside the array's data still parses: the checksum catches it
         at = bytes(raw).index(good.tobytes()) + 8
         raw[at] ^= 0xFF

@@ -52,12 +52,12 @@ def _read(path: Path, key: str) -> np.ndarray | None:
         data = path.read_bytes()
         header, _, raw = data.partition(b"\n")
         meta = json.loads(header)
-        if meta.get("key") != key:
+        if not isinstance(meta, dict) or meta.get("key") != key:  # another file's JSON (a list, a number)
             return None
         array = np.frombuffer(raw, dtype=np.dtype(meta["dtype"])).reshape(meta["shape"])
         if meta.get("sha256") != _checksum(array):
             return None
-    except (OSError, ValueError, KeyError, TypeError):  # missing, truncated, not ours
+    except (OSError, ValueError, KeyError, TypeError, RecursionError):  # missing, truncated, not ours
         return None
     return array
 

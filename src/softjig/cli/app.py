@@ -313,8 +313,10 @@ def _exit_if_interrupted(exc: BaseException) -> None:
     """End the command as its signal would if ``exc`` was caused by one: a signal handler's exception
     raised while a compiled kernel called back into Python (Numba's ``_numba_unpickle``) reaches us as a
     ``SystemError`` whose cause is the :class:`~softjig.io.workers.Terminated` or ``KeyboardInterrupt``."""
-    seen = exc
-    while seen is not None:
+    seen: BaseException | None = exc
+    visited: set[int] = set()  # a chain may loop (``raise a from b`` with ``b`` caused by ``a``)
+    while seen is not None and id(seen) not in visited:
+        visited.add(id(seen))
         if isinstance(seen, Terminated):
             _exit_after_signal(str(seen), seen.exit_code)
         if isinstance(seen, KeyboardInterrupt):

@@ -69,6 +69,7 @@ import numpy as np
 
 from softjig.errors import InputError
 from softjig.io.dataset import json_default
+from softjig.io.mcap_chunks import ZSTD_LEVEL
 
 if TYPE_CHECKING:
     from softjig.config import JigConfig, Part
@@ -1026,7 +1027,7 @@ class BagWriter:
         *,
         overwrite: bool = False,
         chunk_bytes: int = CHUNK_BYTES,
-        zstd_level: int | None = None,
+        zstd_level: int = ZSTD_LEVEL,
         durable: bool = True,
         simulated: bool = False,
     ) -> None:
@@ -1034,9 +1035,9 @@ class BagWriter:
         self.simulated = simulated
         self.jig = jig
         self.overwrite = overwrite
-        from softjig.io.mcap_chunks import ZSTD_LEVEL, check_options
+        from softjig.io.mcap_chunks import check_options
 
-        check_options(chunk_bytes, ZSTD_LEVEL if zstd_level is None else zstd_level)  # before any file
+        check_options(chunk_bytes, zstd_level)  # before any file
         self.chunk_bytes = chunk_bytes
         self.zstd_level = zstd_level
         self.durable = durable
@@ -1098,8 +1099,7 @@ class BagWriter:
                 f"cannot write the bag {root}: {exc.strerror or exc}; choose another path"
             ) from None
         self._store = _typestore()
-        level = {} if self.zstd_level is None else {"level": self.zstd_level}
-        self._writer = ChunkWriter(self._fh, chunk_bytes=self.chunk_bytes, **level)
+        self._writer = ChunkWriter(self._fh, chunk_bytes=self.chunk_bytes, level=self.zstd_level)
         self._writer.start(profile="ros2", library="softjig")
         self._writer.add_metadata(
             PROVENANCE_RECORD, {"provenance": SIMULATION if self.simulated else RECORDING}
