@@ -1,4 +1,5 @@
-"""softjig.disk_cache and the sub-pixel tables kept on disk: same tables, atomic, rebuilt if corrupt."""
+"""softjig.disk_cache, and the sub-pixel tables and the jig model kept on disk: the same arrays as built,
+atomic, rebuilt if corrupt or derived by other code."""
 
 from __future__ import annotations
 
@@ -8,8 +9,11 @@ import numpy as np
 import pytest
 from numpy.testing import assert_array_equal
 
-from softjig.disk_cache import cache_dir, cached_array
-from softjig.sensing import subpixel
+from softjig.config import MarkerConfig, default_jig
+from softjig.disk_cache import ALIGNMENT, cache_dir, cached_array, cached_arrays
+from softjig.sensing import setup, subpixel
+from softjig.sensing.estimator import Estimator
+from softjig.sensing.setup import JigModel, model_arrays, model_key
 from softjig.sensing.subpixel import MarkerModel, _build_tables, _tables_key
 
 SMALL = MarkerModel(radius_px=3.0, blur_px=1.2, half_width_px=4)
@@ -98,3 +102,122 @@ def test_tables_key_names_every_parameter():
         keys.add(_tables_key(replace(SMALL, **{name: changed})))
     assert len(keys) == 1 + len(SMALL.__dataclass_fields__)
     assert f"format={subpixel.TABLES_FORMAT_VERSION}" in _tables_key(SMALL)
+
+
+# --------------------------------------------------------------------------------- named arrays
+
+
+def test_named_arrays_are_read_back_aligned_and_read_only(cache):
+    arrays = {
+        "floats": np.linspace(0, 1, 7),
+        "ints": np.arange(5, dtype=np.int64).reshape(5, 1),
+        "bytes": np.arange(3, dtype=np.uint8),  # 3 bytes: the next array starts aligned all the same
+        "empty": np.zeros((0, 3)),
+        "scalar": np.array(2.5),
+        "singles": np.ones((2, 3), np.float32),
+    }
+    calls = []
+    cached_arrays("test", "k", lambda: calls.append(1) or arrays)
+    read = cached_arrays("test", "k", lambda: 1 / 0)
+    assert calls == [1] and list(read) == list(arrays)
+    for name, array in arrays.items():
+        assert_array_equal(read[name], array)
+        assert read[name].dtype == array.dtype and read[name].shape == array.shape
+        assert not read[name].flags.writeable and read[name].flags.aligned
+    (path,) = cache.iterdir()
+    data = path.read_bytes()
+    assert (data.index(b"\n") + 1) % ALIGNMENT == 0  # the body starts at a multiple of ALIGNMENT
+
+
+def test_arrays_of_objects_are_refused(cache):
+    with pytest.raises(TypeError, match="objects"):
+        cached_arrays("test", "k", lambda: {"a": np.array([None, 1])})
+    assert not cache.exists()
+
+
+# ------------------------------------------------------------------------------------- jig model
+
+
+def _assert_same_model(a: JigModel, b: JigModel) -> None:
+    """Bit for bit: every array and number the model's stages read."""
+    assert a.setup == b.setup
+    for name in ("T_J_left", "T_J_right", "fiducial_quads_left_px", "fiducial_quads_right_px"):
+        assert_array_equal(getattr(a.frame.config_frame, name), getattr(b.frame.config_frame, name))
+    assert_array_equal(a.frame.T_left_right, b.frame.T_left_right)
+    assert a.frame.corners_J_by_id.keys() == b.frame.corners_J_by_id.keys()
+    for i in a.frame.corners_J_by_id:
+        assert_array_equal(a.frame.corners_J_by_id[i], b.frame.corners_J_by_id[i])
+    fa, fb = a.frame.fast, b.frame.fast
+    assert fa.expected_quads == fb.expected_quads and fa.sorted_ids == fb.sorted_ids
+    assert (fa.n_left, fa.distorted, fa.image_shape) == (fb.n_left, fb.distorted, fb.image_shape)
+    assert_array_equal(fa.points_J, fb.points_J)
+    assert_array_equal(fa.white, fb.white)
+    for name in fa.pinhole.__dataclass_fields__:
+        assert_array_equal(getattr(fa.pinhole, name), getattr(fb.pinhole, name))
+    for ta, tb in zip(fa.capture_tables, fb.capture_tables, strict=True):
+        assert (ta is None) == (tb is None)
+        if ta is not None:
+            assert (ta.shape, ta.window) == (tb.shape, tb.window)
+            for name in ("index", "midpoints", "normals", "offsets"):
+                assert_array_equal(getattr(ta, name), getattr(tb, name))
+                assert getattr(ta, name).dtype == getattr(tb, name).dtype
+    assert_array_equal(a.rest_shape.xyz_mm, b.rest_shape.xyz_mm)
+    assert a.rest_reference.height_at_axis_mm == b.rest_reference.height_at_axis_mm
+    assert a.rest_reference.scatter_mm is b.rest_reference.scatter_mm is None
+    assert (a.marker_tables is None) == (b.marker_tables is None)
+    if a.marker_tables is not None:
+        assert_array_equal(a.marker_tables, b.marker_tables)
+        assert a.marker_tables.dtype == b.marker_tables.dtype
+
+
+@pytest.mark.parametrize(
+    "jig",
+    [default_jig(), default_jig().replace(markers=MarkerConfig(layout="hex", pitch_mm=6.0))],
+    ids=["default", "hex grid"],
+)
+def test_the_jig_model_read_from_disk_is_the_one_derived(cache, monkeypatch, jig):
+    built = JigModel.build(jig)  # derived and stored
+    assert len(list(cache.iterdir())) == 2  # the model, and the sub-pixel tables it read
+    with monkeypatch.context() as patch:
+        patch.setattr(setup, "model_arrays", lambda *_: pytest.fail("derived again"))
+        read = JigModel.build(jig)
+    _assert_same_model(read, built)
+    monkeypatch.setenv("SOFTJIG_CACHE_DIR", "off")
+    _assert_same_model(read, JigModel.build(jig))  # and the one derived without a cache
+
+
+def test_an_estimate_with_the_model_from_disk_is_bit_identical(cache, monkeypatch, default_scene):
+    left, right = default_scene.pair.left, default_scene.pair.right
+    Estimator(default_scene.jig)  # stores the model
+    from_disk = Estimator(default_scene.jig).estimate(left, right)
+    monkeypatch.setenv("SOFTJIG_CACHE_DIR", "off")
+    derived = Estimator(default_scene.jig).estimate(left, right)
+    assert from_disk.estimate == derived.estimate
+    assert_array_equal(from_disk.left.xy_px, derived.left.xy_px)
+
+
+def test_the_model_key_names_the_jig_and_the_code(monkeypatch):
+    jig = default_jig()
+    key = model_key(jig)
+    assert key is not None and repr(jig) in key and f"format={setup.MODEL_FORMAT_VERSION}" in key
+    moved = jig.replace(markers=MarkerConfig(pitch_mm=jig.markers.pitch_mm + 1e-12))
+    assert model_key(moved) != key  # floats exactly
+    for name in setup.DERIVED_BY:
+        assert name in key
+    monkeypatch.setattr(setup, "_CODE", setup._CODE.replace("sensing/setup.py:", "sensing/setup.py:1"))
+    assert model_key(jig) != key  # another version of the code: derived again
+    monkeypatch.setattr(setup, "_CODE", None)  # the modules' files unreadable: never read from disk
+    assert model_key(jig) is None
+
+
+def test_the_modules_deriving_the_model_exist():
+    """A module renamed or moved must be renamed in DERIVED_BY too (else nothing would be cached)."""
+    assert setup._fingerprint(setup.DERIVED_BY) is not None
+    assert setup._fingerprint(("no_such_module.py",)) is None
+
+
+def test_model_arrays_are_read_only():
+    arrays = model_arrays(default_jig())
+    assert all(not array.flags.writeable for array in arrays.values()), [
+        name for name, array in arrays.items() if array.flags.writeable
+    ]

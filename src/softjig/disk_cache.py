@@ -1,16 +1,20 @@
 """Arrays that take long to derive from a few parameters, kept on disk between runs.
 
 The sub-pixel fit's weight tables (:func:`softjig.sensing.subpixel.fit_tables`) cost 0.3-1 s to build and
-depend only on a marker model: every short command (a single ``softjig estimate``) would pay for them at
-start-up. They are stored in the user's cache folder, ``$SOFTJIG_CACHE_DIR``, else
-``$XDG_CACHE_HOME/softjig``, else ``~/.cache/softjig``, one ``.bin`` file per entry named by a digest of
-its key (the kind of array, its format version and every parameter it depends on). A file is one JSON
-header line (the key itself, the dtype, the shape and a SHA-256 of the array's bytes) and then the raw
-bytes (read at every Estimator's build: a raw file is several times faster to read than an ``.npz``). A
-file that does not parse, holds another key or fails its checksum is rebuilt and replaced. Files are
-written to a temporary file in the same folder and renamed over the old one, so a reader never sees half
-a file. The cache is an optimisation only: if the folder cannot be created or written (a read-only home),
-the array is built and returned as if there were no cache; ``SOFTJIG_CACHE_DIR=off`` disables it.
+depend only on a marker model, and what an estimator derives from a jig
+(:meth:`softjig.sensing.setup.JigModel.build`) costs several times a frame's work: every short command (a
+single ``softjig estimate``) and every one-shot ``estimate_pair`` would pay for them. They are stored in the
+user's cache folder, ``$SOFTJIG_CACHE_DIR``, else ``$XDG_CACHE_HOME/softjig``, else ``~/.cache/softjig``,
+one ``.bin`` file per entry named by a digest of its key (the kind of arrays, their format version and
+every parameter they depend on). An entry holds one or several named arrays (:func:`cached_arrays`): a file
+is one JSON header line (the key itself, each array's name, dtype, shape and offset, and a CRC-32 of the
+bytes after the header) and then the raw bytes, each array starting at a multiple of
+:data:`ALIGNMENT` bytes (read at every Estimator's build: a raw file is several times faster to read than
+an ``.npz``, and its arrays are views of the bytes read, not copies). A file that does not parse, holds
+another key or fails its checksum is rebuilt and replaced. Files are written to a temporary file in the
+same folder and renamed over the old one, so a reader never sees half a file. The cache is an
+optimisation only: if the folder cannot be created or written (a read-only home), the arrays are built and
+returned as if there were no cache; ``SOFTJIG_CACHE_DIR=off`` disables it.
 """
 
 from __future__ import annotations
@@ -18,92 +22,136 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import json
+import math
 import os
 import tempfile
-from collections.abc import Callable
+import zlib
+from collections.abc import Callable, Mapping
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["cache_dir", "cached_array"]
+__all__ = ["ALIGNMENT", "cache_dir", "cached_array", "cached_arrays"]
 
 _DISABLED = ("", "0", "off", "none")
+#: Every array of an entry starts at a multiple of this many bytes of its file (a cache line).
+ALIGNMENT = 64
 
 
 def cache_dir() -> Path | None:
     """The folder of softjig's cached arrays (see the module docstring), or ``None`` if disabled."""
+    folder = _cache_folder()
+    return None if folder is None else Path(folder)
+
+
+def _cache_folder() -> str | None:
+    """:func:`cache_dir` as a string (``os.path``: read at every Estimator's build, where ``pathlib``'s
+    objects cost more than the file read)."""
     explicit = os.environ.get("SOFTJIG_CACHE_DIR")
     if explicit is not None:
-        return None if explicit.strip().lower() in _DISABLED else Path(explicit).expanduser()
+        return None if explicit.strip().lower() in _DISABLED else os.path.expanduser(explicit)
     xdg = os.environ.get("XDG_CACHE_HOME", "").strip()
-    base = Path(xdg).expanduser() if xdg and Path(xdg).is_absolute() else Path.home() / ".cache"
-    return base / "softjig"
+    base = (
+        os.path.expanduser(xdg)
+        if xdg and os.path.isabs(xdg)
+        else os.path.join(os.path.expanduser("~"), ".cache")
+    )
+    return os.path.join(base, "softjig")
 
 
-def _checksum(array: np.ndarray) -> str:
-    header = f"{array.dtype.str}{array.shape}".encode()
-    return hashlib.sha256(header + np.ascontiguousarray(array).tobytes()).hexdigest()
+def _layout(arrays: Mapping[str, np.ndarray]) -> tuple[list[list], int]:
+    """Each array's ``[name, dtype, shape, offset]`` in the body (offsets aligned), and the body's size."""
+    entries, offset = [], 0
+    for name, array in arrays.items():
+        entries.append([name, array.dtype.str, list(array.shape), offset])
+        offset += -(-array.nbytes // ALIGNMENT) * ALIGNMENT
+    return entries, offset
 
 
-def _read(path: Path, key: str) -> np.ndarray | None:
-    """The array of a file written by :func:`_write` (one JSON header line, then the raw bytes), or
-    ``None`` when it is missing, truncated, of another key or fails its checksum."""
+def _read(path: str, key: str) -> dict[str, np.ndarray] | None:
+    """The arrays of a file written by :func:`_write` (read-only views of its bytes), or ``None`` when it is
+    missing, truncated, of another key or fails its checksum."""
     try:
-        data = path.read_bytes()
-        header, _, raw = data.partition(b"\n")
-        meta = json.loads(header)
+        with open(path, "rb") as handle:
+            data = handle.read()
+        start = data.index(b"\n") + 1
+        meta = json.loads(data[:start])
         if not isinstance(meta, dict) or meta.get("key") != key:  # another file's JSON (a list, a number)
             return None
-        array = np.frombuffer(raw, dtype=np.dtype(meta["dtype"])).reshape(meta["shape"])
-        if meta.get("sha256") != _checksum(array):
+        body = memoryview(data)[start:]
+        if meta.get("crc32") != zlib.crc32(body) or len(body) != meta.get("size"):
             return None
+        arrays = {}
+        for name, dtype, shape, offset in meta["arrays"]:
+            count = math.prod(shape)
+            array = np.frombuffer(data, dtype, count, start + offset).reshape(tuple(shape))
+            arrays[name] = array if array.flags.aligned else array.copy()
     except (OSError, ValueError, KeyError, TypeError, RecursionError):  # missing, truncated, not ours
         return None
-    return array
+    return arrays
 
 
-def _write(path: Path, key: str, array: np.ndarray) -> None:
-    array = np.ascontiguousarray(array)
-    header = json.dumps(
-        {"key": key, "dtype": array.dtype.str, "shape": list(array.shape), "sha256": _checksum(array)}
-    ).encode()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+def _write(path: str, key: str, arrays: Mapping[str, np.ndarray]) -> None:
+    entries, size = _layout(arrays)
+    body = bytearray(size)
+    for (_, _, _, offset), array in zip(entries, arrays.values(), strict=True):
+        body[offset : offset + array.nbytes] = array.tobytes()
+    header = json.dumps({"key": key, "arrays": entries, "size": size, "crc32": zlib.crc32(body)}).encode()
+    header += b" " * (-(len(header) + 1) % ALIGNMENT)  # the body starts aligned in the file, too
+    folder, name = os.path.split(path)
+    os.makedirs(folder, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=folder, prefix=f".{name}.", suffix=".tmp")
     try:
         with os.fdopen(fd, "wb") as handle:
-            handle.write(header + b"\n" + array.tobytes())
+            handle.write(header + b"\n" + bytes(body))
         os.replace(tmp, path)
     except BaseException:
-        Path(tmp).unlink(missing_ok=True)
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
         raise
 
 
-def cached_array(kind: str, key: str, build: Callable[[], np.ndarray]) -> np.ndarray:
-    """``build()``, or the array a previous call with the same ``kind`` and ``key`` stored on disk.
+def cached_arrays(
+    kind: str, key: str, build: Callable[[], Mapping[str, np.ndarray]]
+) -> dict[str, np.ndarray]:
+    """``build()``, or the named arrays a previous call with the same ``kind`` and ``key`` stored on disk.
 
     Parameters
     ----------
-    kind : a file-name-safe name of the kind of array, e.g. ``"subpixel-tables"``.
-    key : everything the array depends on, as text: its format version and parameters (floats written
+    kind : a file-name-safe name of the kind of arrays, e.g. ``"jig-model"``.
+    key : everything the arrays depend on, as text: their format version and parameters (floats written
         with ``repr``, so exactly). Two calls with the same key must build identical arrays.
-    build : computes the array (any dtype but object) when no valid entry is stored.
+    build : computes the arrays (name -> array of any dtype but object) when no valid entry is stored.
+
+    Returns
+    -------
+    The arrays by name, in ``build``'s order, read-only (views of the file's bytes when read).
+    """
+    folder = _cache_folder()
+    path = None
+    if folder is not None:
+        digest = hashlib.sha256(f"{kind}\n{key}".encode()).hexdigest()[:32]
+        path = os.path.join(folder, f"{kind}-{digest}.bin")
+        found = _read(path, key)
+        if found is not None:
+            return found
+    arrays = {name: np.asarray(value, order="C") for name, value in build().items()}
+    if any(array.dtype.hasobject for array in arrays.values()):
+        raise TypeError(f"cached_arrays({kind!r}): arrays of objects cannot be stored as raw bytes")
+    if path is not None:
+        with contextlib.suppress(OSError):  # a cache we cannot write is no error: the next run builds again
+            _write(path, key, arrays)
+    for array in arrays.values():
+        array.flags.writeable = False
+    return arrays
+
+
+def cached_array(kind: str, key: str, build: Callable[[], np.ndarray]) -> np.ndarray:
+    """``build()``, or the array a previous call with the same ``kind`` and ``key`` stored on disk: a
+    :func:`cached_arrays` entry of one array (same parameters).
 
     Returns
     -------
     The array, read-only.
     """
-    folder = cache_dir()
-    path = None
-    if folder is not None:
-        digest = hashlib.sha256(f"{kind}\n{key}".encode()).hexdigest()[:32]
-        path = folder / f"{kind}-{digest}.bin"
-        found = _read(path, key)
-        if found is not None:
-            found.flags.writeable = False
-            return found
-    array = np.asarray(build())
-    if path is not None:
-        with contextlib.suppress(OSError):  # a cache we cannot write is no error: the next run builds again
-            _write(path, key, array)
-    array.flags.writeable = False
-    return array
+    return cached_arrays(kind, key, lambda: {"array": np.asarray(build())})["array"]

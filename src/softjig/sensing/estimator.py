@@ -155,8 +155,8 @@ class Estimator:
         composition = COMPOSITIONS[method]
         self.needs_part_size = composition.needs_part_size
         used = self.model.jig
-        self.reference = ReferenceModel.build(
-            reference if reference is not None else self.model.rest_shape, used
+        self.reference = (
+            self.model.rest_reference if reference is None else ReferenceModel.build(reference, used)
         )
         levels = reference is not None and composition.uses_reference
         self.head_level = reference.head_level if levels else None

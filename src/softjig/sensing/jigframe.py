@@ -293,36 +293,84 @@ class FrameConstants:
     fast: _FastConstants
 
 
-def frame_constants(jig: JigConfig) -> FrameConstants:
-    """The jig-frame constants of this jig (an estimator builds them once)."""
+def frame_arrays(jig: JigConfig) -> dict[str, np.ndarray]:
+    """The arrays :func:`frame_constants` derives from a jig, by name, read-only: the config's frame
+    (``T_J_left``, ``T_J_right``, the expected fiducial quads ``quads_left``, ``quads_right``), the right
+    camera's pose in the left one's frame, each fiducial's corners in J, the Gauss-Newton fit's constants
+    (``pinhole.*``), the fiducials' cells (``white``) and the capture tables of the expected quads in
+    each image (``capture_left.*``, ``capture_right.*``; absent when a scanline leaves the image).
+
+    A function of the jig alone: an estimator reads them from the disk cache
+    (:meth:`softjig.sensing.setup.JigModel.build`) rather than project the fiducials again.
+    """
     expected = jig_frame_from_config(jig)
     T_left_right = invert_pose(expected.T_J_left) @ expected.T_J_right
     T_left_right.flags.writeable = False
-    corners_by_fiducial = fiducial_corners_J(jig.fiducials)
-    corners_by_fiducial.flags.writeable = False
-    corners = corners_by_fiducial.reshape(-1, 3)
+    corners = fiducial_corners_J(jig.fiducials)
+    corners.flags.writeable = False
+    n = 4 * len(corners)
+    pinhole = _pinhole_constants(jig, expected, T_left_right, n, n)
+    arrays = {
+        "T_J_left": expected.T_J_left,
+        "T_J_right": expected.T_J_right,
+        "quads_left": expected.fiducial_quads_left_px,
+        "quads_right": expected.fiducial_quads_right_px,
+        "T_left_right": T_left_right,
+        "corners_J": corners,
+        **{f"pinhole.{name}": getattr(pinhole, name) for name in _PinholeConstants.__dataclass_fields__},
+        "white": cell_patterns(jig.fiducials.dictionary, tuple(jig.fiducials.ids)),
+    }
+    image_shape = (jig.cameras.left.height_px, jig.cameras.left.width_px)
+    for side in ("left", "right"):
+        quads = np.ascontiguousarray(arrays[f"quads_{side}"], dtype=float)
+        table = capture_table(quads.tobytes(), len(quads), image_shape)
+        if table is not None:
+            meta = np.array([table.window, *table.shape], dtype=np.int64)
+            meta.flags.writeable = False
+            arrays[f"capture_{side}.meta"] = meta
+            for name in ("index", "midpoints", "normals", "offsets"):
+                arrays[f"capture_{side}.{name}"] = getattr(table, name)
+    return arrays
+
+
+def frame_constants(jig: JigConfig, arrays: dict[str, np.ndarray] | None = None) -> FrameConstants:
+    """The jig-frame constants of this jig (an estimator builds them once), from its
+    :func:`frame_arrays` (derived here when not given)."""
+    a = arrays if arrays is not None else frame_arrays(jig)
+    quads = a["quads_left"], a["quads_right"]
+    expected = JigFrame(a["T_J_left"], a["T_J_right"], "config", float("nan"), (), *quads)
+    corners = a["corners_J"].reshape(-1, 3)
     points = np.concatenate([corners, corners])
     points.flags.writeable = False
-    n = len(corners)
-    expected_quads = (
-        np.ascontiguousarray(expected.fiducial_quads_left_px, dtype=float).tobytes(),
-        np.ascontiguousarray(expected.fiducial_quads_right_px, dtype=float).tobytes(),
-    )
-    image_shape = (jig.cameras.left.height_px, jig.cameras.left.width_px)
     fast = _FastConstants(
-        expected_quads=expected_quads,
+        expected_quads=tuple(np.ascontiguousarray(q, dtype=float).tobytes() for q in quads),
         points_J=points,
-        n_left=n,
-        T_left_right=T_left_right,
+        n_left=len(corners),
+        T_left_right=a["T_left_right"],
         sorted_ids=tuple(sorted(jig.fiducials.ids)),
-        distorted=bool(np.any(jig.cameras.left.distortion) or np.any(jig.cameras.right.distortion)),
-        pinhole=_pinhole_constants(jig, expected, T_left_right, n, n),
-        image_shape=image_shape,
-        capture_tables=_capture_tables(expected_quads, image_shape),
-        white=cell_patterns(jig.fiducials.dictionary, tuple(jig.fiducials.ids)),
+        distorted=any(jig.cameras.left.distortion) or any(jig.cameras.right.distortion),
+        pinhole=_PinholeConstants(*(a[f"pinhole.{name}"] for name in _PinholeConstants.__dataclass_fields__)),
+        image_shape=(jig.cameras.left.height_px, jig.cameras.left.width_px),
+        capture_tables=(_table_of(a, "left"), _table_of(a, "right")),
+        white=a["white"],
     )
-    return FrameConstants(
-        expected, T_left_right, dict(zip(jig.fiducials.ids, corners_by_fiducial, strict=True)), fast
+    corners_by_id = dict(zip(jig.fiducials.ids, a["corners_J"], strict=True))
+    return FrameConstants(expected, a["T_left_right"], corners_by_id, fast)
+
+
+def _table_of(arrays: dict[str, np.ndarray], side: str) -> CaptureTable | None:
+    """The capture table :func:`frame_arrays` stored for ``side``, or ``None`` when there is none."""
+    meta = arrays.get(f"capture_{side}.meta")
+    if meta is None:
+        return None
+    window, *shape = (int(v) for v in meta)
+    return CaptureTable(
+        index=arrays[f"capture_{side}.index"],
+        shape=tuple(shape),
+        midpoints=arrays[f"capture_{side}.midpoints"],
+        normals=arrays[f"capture_{side}.normals"],
+        offsets=arrays[f"capture_{side}.offsets"],
+        window=window,
     )
 
 

@@ -132,20 +132,31 @@ class KernelConstants:
     ratio: np.ndarray
 
 
-def kernel_constants(jig: JigConfig, layers: FlatLayers | None = None) -> KernelConstants:
-    """The kernel's constants of this jig (an estimator builds them once; ``layers``: its
-    :func:`~softjig.rig.flat_layers`, made here when not given)."""
+def kernel_constants(
+    jig: JigConfig, layers: FlatLayers | None = None, *, arrays: dict[str, np.ndarray] | None = None
+) -> KernelConstants:
+    """The kernel's constants of this jig (an estimator builds them once) from its :func:`kernel_arrays`
+    (derived here when not given, with ``layers``: its :func:`~softjig.rig.flat_layers`, made here when
+    not given)."""
+    a = arrays if arrays is not None else kernel_arrays(jig, layers)
     cams = jig.cameras.left, jig.cameras.right
-    distorted = tuple(cam if np.any(cam.distortion) else None for cam in cams)
+    distorted = tuple(cam if any(cam.distortion) else None for cam in cams)
+    return KernelConstants(
+        a["triangulation.intrinsics"], distorted, a["triangulation.z_if"], a["triangulation.ratio"]
+    )
+
+
+def kernel_arrays(jig: JigConfig, layers: FlatLayers | None = None) -> dict[str, np.ndarray]:
+    """The arrays of :func:`kernel_constants`, by name (``triangulation.*``), read-only: each camera's
+    ``(fx, fy, cx, cy)`` (``(1, 1, 0, 0)`` for a camera with distortion), the layers' interface heights
+    and ``n_0 / n_i`` per region."""
+    cams = jig.cameras.left, jig.cameras.right
     intrinsics = np.array(
-        [
-            (1.0, 1.0, 0.0, 0.0) if d is not None else (c.fx_px, c.fy_px, c.cx_px, c.cy_px)
-            for c, d in zip(cams, distorted, strict=True)
-        ]
+        [(1.0, 1.0, 0.0, 0.0) if any(c.distortion) else (c.fx_px, c.fy_px, c.cx_px, c.cy_px) for c in cams]
     )
     intrinsics.flags.writeable = False
     z_if, ratio, _, _ = layer_constants(layers if layers is not None else flat_layers(jig))
-    return KernelConstants(intrinsics, distorted, z_if, ratio)
+    return {"triangulation.intrinsics": intrinsics, "triangulation.z_if": z_if, "triangulation.ratio": ratio}
 
 
 def _as_pixels(xy_px: np.ndarray, name: str) -> np.ndarray:

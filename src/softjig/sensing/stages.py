@@ -100,16 +100,20 @@ class LogDetector:
     ----------
     sigma_px, threshold, candidates, refine, model : as :func:`~softjig.sensing.detect.detect_markers`
         takes them (``threshold=None``: its default).
+    tables : the model fit's tables of ``model`` (:func:`~softjig.sensing.subpixel.kernel_tables`; read
+        here, from disk, when not given).
     """
 
-    def __init__(self, *, sigma_px: float, threshold: float | None, candidates: str, refine, model) -> None:
+    def __init__(
+        self, *, sigma_px: float, threshold: float | None, candidates: str, refine, model, tables=None
+    ) -> None:
         self._kwargs = {"sigma_px": sigma_px, "candidates": candidates, "refine": refine}
         if threshold is not None:
             self._kwargs["threshold"] = threshold
         if model is not None:
             self._kwargs["model"] = model
-            if refine == "model":  # the model fit's weight tables, read once (from disk)
-                self._kwargs["tables"] = kernel_tables(model)
+            if refine == "model":  # the model fit's weight tables, read once
+                self._kwargs["tables"] = tables if tables is not None else kernel_tables(model)
 
     @classmethod
     def from_model(cls, model: JigModel, *, candidates: str | None = None) -> LogDetector:
@@ -121,6 +125,7 @@ class LogDetector:
             candidates=candidates or setup.candidates,
             refine=setup.refine,
             model=setup.marker,
+            tables=model.marker_tables,
         )
 
     def detect(self, gray: np.ndarray, exclude: Exclusion | None = None) -> Markers:
