@@ -2,19 +2,21 @@
 
 The sub-pixel fit's weight tables (:func:`softjig.sensing.subpixel.fit_tables`) cost 0.3-1 s to build and
 depend only on a marker model, and what an estimator derives from a jig
-(:meth:`softjig.sensing.setup.JigModel.build`) costs several times a frame's work: every short command (a
-single ``softjig estimate``) and every one-shot ``estimate_pair`` would pay for them. They are stored in the
-user's cache folder, ``$SOFTJIG_CACHE_DIR``, else ``$XDG_CACHE_HOME/softjig``, else ``~/.cache/softjig``,
-one ``.bin`` file per entry named by a digest of its key (the kind of arrays, their format version and
-every parameter they depend on). An entry holds one or several named arrays (:func:`cached_arrays`): a file
-is one JSON header line (the key itself, each array's name, dtype, shape and offset, and a CRC-32 of the
-bytes after the header) and then the raw bytes, each array starting at a multiple of
-:data:`ALIGNMENT` bytes (read at every Estimator's build: a raw file is several times faster to read than
-an ``.npz``, and its arrays are views of the bytes read, not copies). A file that does not parse, holds
-another key or fails its checksum is rebuilt and replaced. Files are written to a temporary file in the
-same folder and renamed over the old one, so a reader never sees half a file. The cache is an
-optimisation only: if the folder cannot be created or written (a read-only home), the arrays are built and
-returned as if there were no cache; ``SOFTJIG_CACHE_DIR=off`` disables it.
+(:meth:`softjig.sensing.setup.JigModel.build`) costs about as much as a frame's estimate: every short
+command (a single ``softjig estimate``) and every one-shot ``estimate_pair`` would pay for them. They are
+stored in the user's cache folder, ``$SOFTJIG_CACHE_DIR``, else ``$XDG_CACHE_HOME/softjig``, else
+``~/.cache/softjig``, one ``.bin`` file per entry named by a digest of its key (the kind of arrays, their
+format version and every parameter they depend on).
+
+An entry holds one or several named arrays (:func:`cached_arrays`). Its file is one JSON header line (the
+digest of the kind and key, each array's name, dtype, shape and offset, the body's size and its
+:func:`_checksum`) and then the raw bytes, each array starting at a multiple of :data:`ALIGNMENT` bytes: it is
+read at every Estimator's build, and a raw file is several times faster to read than an ``.npz`` (its
+arrays are views of the bytes read, not copies). A file that does not parse, holds another key or fails
+its checksum is rebuilt and replaced. Files are written to a temporary file in the same folder and renamed
+over the old one, so a reader never sees half a file. The cache is an optimisation only: if the folder
+cannot be created or written (a read-only home), the arrays are built and returned as if there were no
+cache; ``SOFTJIG_CACHE_DIR=off`` disables it.
 """
 
 from __future__ import annotations
@@ -22,10 +24,8 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import json
-import math
 import os
 import tempfile
-import zlib
 from collections.abc import Callable, Mapping
 from pathlib import Path
 
@@ -51,12 +51,25 @@ def _cache_folder() -> str | None:
     if explicit is not None:
         return None if explicit.strip().lower() in _DISABLED else os.path.expanduser(explicit)
     xdg = os.environ.get("XDG_CACHE_HOME", "").strip()
-    base = (
-        os.path.expanduser(xdg)
-        if xdg and os.path.isabs(xdg)
-        else os.path.join(os.path.expanduser("~"), ".cache")
-    )
-    return os.path.join(base, "softjig")
+    if xdg and os.path.isabs(xdg):
+        return os.path.join(os.path.expanduser(xdg), "softjig")
+    home = os.environ.get("HOME") or os.path.expanduser("~")  # expanduser reads HOME first, too
+    return os.path.join(home, ".cache", "softjig")
+
+
+def _digest(kind: str, key: str) -> str:
+    """A 128-bit BLAKE2b digest of an entry's kind and key, in hex: its file's name and its header's
+    ``digest`` (CPython's own BLAKE2, not OpenSSL's hashes, whose set-up costs more than hashing a key)."""
+    return hashlib.blake2b(f"{kind}\n{key}".encode(), digest_size=16).hexdigest()
+
+
+def _checksum(body: bytes | bytearray | memoryview) -> int:
+    """The body's 64-bit words summed modulo 2**64 (its size is a multiple of :data:`ALIGNMENT`): a word
+    changed, a part zeroed, overwritten or cut off changes it; a part moved elsewhere does not (the cache
+    guards against accidents, not against tampering). One pass of NumPy's sum: it is checked at every
+    Estimator's build, where a CRC or a cryptographic hash of the tables would cost more than the rest
+    of the read."""
+    return int(np.frombuffer(body, np.uint64).sum(dtype=np.uint64))
 
 
 def _layout(arrays: Mapping[str, np.ndarray]) -> tuple[list[list], int]:
@@ -68,35 +81,43 @@ def _layout(arrays: Mapping[str, np.ndarray]) -> tuple[list[list], int]:
     return entries, offset
 
 
-def _read(path: str, key: str) -> dict[str, np.ndarray] | None:
+def _read(path: str, digest: str) -> dict[str, np.ndarray] | None:
     """The arrays of a file written by :func:`_write` (read-only views of its bytes), or ``None`` when it is
-    missing, truncated, of another key or fails its checksum."""
+    missing, truncated, of another key (``digest``: :func:`_digest` of its kind and key) or fails its
+    checksum."""
     try:
-        with open(path, "rb") as handle:
-            data = handle.read()
+        fd = os.open(path, os.O_RDONLY)  # not open(): no buffered reader to make for one read
+        try:
+            data = os.read(fd, os.fstat(fd).st_size)
+        finally:
+            os.close(fd)
         start = data.index(b"\n") + 1
         meta = json.loads(data[:start])
-        if not isinstance(meta, dict) or meta.get("key") != key:  # another file's JSON (a list, a number)
+        if not isinstance(meta, dict) or meta.get("digest") != digest:  # another file's JSON, or key
             return None
         body = memoryview(data)[start:]
-        if meta.get("crc32") != zlib.crc32(body) or len(body) != meta.get("size"):
+        if len(body) != meta.get("size") or meta.get("sum64") != _checksum(body):
             return None
         arrays = {}
         for name, dtype, shape, offset in meta["arrays"]:
-            count = math.prod(shape)
-            array = np.frombuffer(data, dtype, count, start + offset).reshape(tuple(shape))
-            arrays[name] = array if array.flags.aligned else array.copy()
+            array = np.ndarray(shape, dtype, data, start + offset)  # a view: read-only, as bytes are
+            if not array.flags.aligned:  # bytes not allocated at a multiple of the item size
+                array = array.copy()
+                array.flags.writeable = False
+            arrays[name] = array
     except (OSError, ValueError, KeyError, TypeError, RecursionError):  # missing, truncated, not ours
         return None
     return arrays
 
 
-def _write(path: str, key: str, arrays: Mapping[str, np.ndarray]) -> None:
+def _write(path: str, digest: str, arrays: Mapping[str, np.ndarray]) -> None:
     entries, size = _layout(arrays)
     body = bytearray(size)
     for (_, _, _, offset), array in zip(entries, arrays.values(), strict=True):
         body[offset : offset + array.nbytes] = array.tobytes()
-    header = json.dumps({"key": key, "arrays": entries, "size": size, "crc32": zlib.crc32(body)}).encode()
+    header = json.dumps(
+        {"digest": digest, "arrays": entries, "size": size, "sum64": _checksum(body)}
+    ).encode()
     header += b" " * (-(len(header) + 1) % ALIGNMENT)  # the body starts aligned in the file, too
     folder, name = os.path.split(path)
     os.makedirs(folder, exist_ok=True)
@@ -130,9 +151,9 @@ def cached_arrays(
     folder = _cache_folder()
     path = None
     if folder is not None:
-        digest = hashlib.sha256(f"{kind}\n{key}".encode()).hexdigest()[:32]
+        digest = _digest(kind, key)
         path = os.path.join(folder, f"{kind}-{digest}.bin")
-        found = _read(path, key)
+        found = _read(path, digest)
         if found is not None:
             return found
     arrays = {name: np.asarray(value, order="C") for name, value in build().items()}
@@ -140,7 +161,7 @@ def cached_arrays(
         raise TypeError(f"cached_arrays({kind!r}): arrays of objects cannot be stored as raw bytes")
     if path is not None:
         with contextlib.suppress(OSError):  # a cache we cannot write is no error: the next run builds again
-            _write(path, key, arrays)
+            _write(path, digest, arrays)
     for array in arrays.values():
         array.flags.writeable = False
     return arrays

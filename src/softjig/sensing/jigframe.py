@@ -296,9 +296,10 @@ class FrameConstants:
 def frame_arrays(jig: JigConfig) -> dict[str, np.ndarray]:
     """The arrays :func:`frame_constants` derives from a jig, by name, read-only: the config's frame
     (``T_J_left``, ``T_J_right``, the expected fiducial quads ``quads_left``, ``quads_right``), the right
-    camera's pose in the left one's frame, each fiducial's corners in J, the Gauss-Newton fit's constants
-    (``pinhole.*``), the fiducials' cells (``white``) and the capture tables of the expected quads in
-    each image (``capture_left.*``, ``capture_right.*``; absent when a scanline leaves the image).
+    camera's pose in the left one's frame, each fiducial's corners in J and every corner in the order
+    they are found (``points_J``), the Gauss-Newton fit's constants (``pinhole.*``), the fiducials' cells
+    (``white``) and the capture tables of the expected quads in each image (``capture_left.*``,
+    ``capture_right.*``; absent when a scanline leaves the image).
 
     A function of the jig alone: an estimator reads them from the disk cache
     (:meth:`softjig.sensing.setup.JigModel.build`) rather than project the fiducials again.
@@ -308,6 +309,8 @@ def frame_arrays(jig: JigConfig) -> dict[str, np.ndarray]:
     T_left_right.flags.writeable = False
     corners = fiducial_corners_J(jig.fiducials)
     corners.flags.writeable = False
+    points = np.concatenate([corners.reshape(-1, 3)] * 2)  # the corners found in the left image, then right
+    points.flags.writeable = False
     n = 4 * len(corners)
     pinhole = _pinhole_constants(jig, expected, T_left_right, n, n)
     arrays = {
@@ -317,7 +320,8 @@ def frame_arrays(jig: JigConfig) -> dict[str, np.ndarray]:
         "quads_right": expected.fiducial_quads_right_px,
         "T_left_right": T_left_right,
         "corners_J": corners,
-        **{f"pinhole.{name}": getattr(pinhole, name) for name in _PinholeConstants.__dataclass_fields__},
+        "points_J": points,
+        **{name: getattr(pinhole, name[len("pinhole.") :]) for name in _PINHOLE_ARRAYS},
         "white": cell_patterns(jig.fiducials.dictionary, tuple(jig.fiducials.ids)),
     }
     image_shape = (jig.cameras.left.height_px, jig.cameras.left.width_px)
@@ -337,19 +341,16 @@ def frame_constants(jig: JigConfig, arrays: dict[str, np.ndarray] | None = None)
     """The jig-frame constants of this jig (an estimator builds them once), from its
     :func:`frame_arrays` (derived here when not given)."""
     a = arrays if arrays is not None else frame_arrays(jig)
-    quads = a["quads_left"], a["quads_right"]
+    quads = a["quads_left"], a["quads_right"]  # float64 (projected)
     expected = JigFrame(a["T_J_left"], a["T_J_right"], "config", float("nan"), (), *quads)
-    corners = a["corners_J"].reshape(-1, 3)
-    points = np.concatenate([corners, corners])
-    points.flags.writeable = False
     fast = _FastConstants(
-        expected_quads=tuple(np.ascontiguousarray(q, dtype=float).tobytes() for q in quads),
-        points_J=points,
-        n_left=len(corners),
+        expected_quads=(quads[0].tobytes(), quads[1].tobytes()),
+        points_J=a["points_J"],
+        n_left=len(a["points_J"]) // 2,
         T_left_right=a["T_left_right"],
         sorted_ids=tuple(sorted(jig.fiducials.ids)),
         distorted=any(jig.cameras.left.distortion) or any(jig.cameras.right.distortion),
-        pinhole=_PinholeConstants(*(a[f"pinhole.{name}"] for name in _PinholeConstants.__dataclass_fields__)),
+        pinhole=_PinholeConstants(*(a[name] for name in _PINHOLE_ARRAYS)),
         image_shape=(jig.cameras.left.height_px, jig.cameras.left.width_px),
         capture_tables=(_table_of(a, "left"), _table_of(a, "right")),
         white=a["white"],
@@ -363,7 +364,7 @@ def _table_of(arrays: dict[str, np.ndarray], side: str) -> CaptureTable | None:
     meta = arrays.get(f"capture_{side}.meta")
     if meta is None:
         return None
-    window, *shape = (int(v) for v in meta)
+    window, *shape = meta.tolist()
     return CaptureTable(
         index=arrays[f"capture_{side}.index"],
         shape=tuple(shape),
@@ -497,6 +498,10 @@ class _PinholeConstants:
     t_rl: np.ndarray
     focal: np.ndarray
     centre: np.ndarray
+
+
+#: The names of the :class:`_PinholeConstants` arrays in :func:`frame_arrays`, in field order.
+_PINHOLE_ARRAYS = tuple(f"pinhole.{name}" for name in _PinholeConstants.__dataclass_fields__)
 
 
 def _pinhole_constants(
