@@ -3,12 +3,14 @@ atomic, rebuilt if corrupt or derived by other code."""
 
 from __future__ import annotations
 
+import os
 from dataclasses import replace
 
 import numpy as np
 import pytest
 from numpy.testing import assert_array_equal
 
+from softjig import disk_cache
 from softjig.config import MarkerConfig, default_jig
 from softjig.disk_cache import ALIGNMENT, cache_dir, cached_array, cached_arrays
 from softjig.sensing import setup, subpixel
@@ -127,6 +129,22 @@ def test_named_arrays_are_read_back_aligned_and_read_only(cache):
     (path,) = cache.iterdir()
     data = path.read_bytes()
     assert (data.index(b"\n") + 1) % ALIGNMENT == 0  # the body starts at a multiple of ALIGNMENT
+
+
+def test_the_oldest_entries_beyond_the_limit_are_deleted(cache, monkeypatch):
+    monkeypatch.setattr(disk_cache, "MAX_ENTRIES_PER_KIND", 3)
+    for k in range(5):
+        cached_arrays("test", f"k={k}", lambda: {"a": np.ones(2)})
+        for path in cache.iterdir():  # mtimes in order, however coarse the file system's clock
+            if path.name.startswith("test-"):
+                os.utime(path, ns=(path.stat().st_atime_ns, path.stat().st_mtime_ns - 10**9))
+    cached_array("other", "k", lambda: np.ones(2))  # another kind: not counted with them
+    assert len(list(cache.glob("test-*.bin"))) == 3
+    assert len(list(cache.glob("other-*.bin"))) == 1
+    calls = []
+    cached_arrays("test", "k=4", lambda: calls.append(1) or {"a": np.ones(2)})  # the newest: kept
+    cached_arrays("test", "k=0", lambda: calls.append(1) or {"a": np.ones(2)})  # the oldest: deleted
+    assert calls == [1]
 
 
 def test_arrays_of_objects_are_refused(cache):

@@ -16,7 +16,8 @@ arrays are views of the bytes read, not copies). A file that does not parse, hol
 its checksum is rebuilt and replaced. Files are written to a temporary file in the same folder and renamed
 over the old one, so a reader never sees half a file. The cache is an optimisation only: if the folder
 cannot be created or written (a read-only home), the arrays are built and returned as if there were no
-cache; ``SOFTJIG_CACHE_DIR=off`` disables it.
+cache; ``SOFTJIG_CACHE_DIR=off`` disables it. At most :data:`MAX_ENTRIES_PER_KIND` entries of a kind are
+kept (the oldest are deleted when one more is written).
 """
 
 from __future__ import annotations
@@ -31,11 +32,13 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["ALIGNMENT", "cache_dir", "cached_array", "cached_arrays"]
+__all__ = ["ALIGNMENT", "MAX_ENTRIES_PER_KIND", "cache_dir", "cached_array", "cached_arrays"]
 
 _DISABLED = ("", "0", "off", "none")
 #: Every array of an entry starts at a multiple of this many bytes of its file (a cache line).
 ALIGNMENT = 64
+#: At most this many entries of one kind are kept: the oldest beyond are deleted when one is written.
+MAX_ENTRIES_PER_KIND = 256
 
 
 def cache_dir() -> Path | None:
@@ -162,9 +165,28 @@ def cached_arrays(
     if path is not None:
         with contextlib.suppress(OSError):  # a cache we cannot write is no error: the next run builds again
             _write(path, digest, arrays)
+            _prune(folder, kind)
     for array in arrays.values():
         array.flags.writeable = False
     return arrays
+
+
+def _prune(folder: str, kind: str) -> None:
+    """Delete the oldest entries of ``kind`` (by modification time) beyond :data:`MAX_ENTRIES_PER_KIND`.
+
+    Called after each write only (an entry is written when none was found): entries keyed by a version of
+    the code (:func:`softjig.sensing.setup.model_key`) would otherwise pile up with every edit. A reader
+    that had opened a deleted entry reads it whole; one that had not builds the arrays again.
+    """
+    prefix = f"{kind}-"
+    entries = []
+    for entry in os.scandir(folder):
+        if entry.name.startswith(prefix) and entry.name.endswith(".bin"):
+            with contextlib.suppress(OSError):  # deleted meanwhile by another process
+                entries.append((entry.stat().st_mtime_ns, entry.path))
+    for _, path in sorted(entries, reverse=True)[MAX_ENTRIES_PER_KIND:]:
+        with contextlib.suppress(OSError):
+            os.unlink(path)
 
 
 def cached_array(kind: str, key: str, build: Callable[[], np.ndarray]) -> np.ndarray:
