@@ -8,9 +8,11 @@ on each pair: detect, frame, match, triangulate, contact and plane. A method is 
 (:data:`COMPOSITIONS`): ``"paper"`` triangulates as through air and fits the crop under the part's base,
 ``"refractive"`` triangulates through the layers and fits the contact found from the indentation.
 
-Build one per jig and reuse it for every frame (building it costs about as much as estimating one). Nothing
-is cached on the side: two estimators of one jig share nothing, and an estimator's only state that
-changes is where its frame finder last found the fiducials (which only saves time).
+Build one per jig and reuse it for every frame. Building one reads what the jig's model derives by
+projecting the jig from the disk cache (:meth:`~softjig.sensing.setup.JigModel.build`), a fraction of a
+frame's work; the first build of a jig by a version of the code derives it, about a frame's work. Nothing
+is kept in memory on the side: two estimators of one jig share no object, and an estimator's only state
+that changes is where its frame finder last found the fiducials (which only saves time).
 """
 
 from __future__ import annotations

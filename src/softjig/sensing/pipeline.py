@@ -85,8 +85,9 @@ def estimate_pair(
 
     A one-shot :class:`~softjig.sensing.estimator.Estimator` (``Estimator(jig, method=method,
     reference=reference, calibration=calibration).estimate(left, right, ...)``): see there for the
-    parameters, results and errors. Building it costs about as much as a frame: a loop over
-    frames builds one estimator and calls ``estimate`` for each.
+    parameters, results and errors. Building it reads the jig's model from the disk cache (a fraction of
+    a frame's work; its first build derives it): a loop over frames builds one estimator all the same
+    and calls ``estimate`` for each.
     """
     estimator = Estimator(jig, method=method, reference=reference, calibration=calibration)
     return estimator.estimate(left, right, part_diameter_mm=part_diameter_mm, timings=timings)
