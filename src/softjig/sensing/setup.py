@@ -165,7 +165,7 @@ def setup_numbers(jig: JigConfig, layers: FlatLayers | None = None) -> np.ndarra
 def setup_of(jig: JigConfig, numbers: np.ndarray) -> SensingSetup:
     """The :class:`SensingSetup` of ``jig`` whose projected numbers are ``numbers``
     (:func:`setup_numbers`); the rest is read off the config."""
-    sigma, radius_px, blur_px, speckle_corr_px, low, high, apex_z = (float(v) for v in numbers)
+    sigma, radius_px, blur_px, speckle_corr_px, low, high, apex_z = np.asarray(numbers, dtype=float).tolist()
     marker = MarkerModel(
         radius_px=radius_px,
         blur_px=blur_px,
