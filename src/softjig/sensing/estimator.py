@@ -17,6 +17,7 @@ that changes is where its frame finder last found the fiducials (which only save
 
 from __future__ import annotations
 
+import functools
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -163,11 +164,15 @@ class Estimator:
         levels = reference is not None and composition.uses_reference
         self.head_level = reference.head_level if levels else None
         self._level_note = reference.level_note if levels else None
-        fallback = (
+        fallback = (  # the levelled frame, made only if a frame does not find its fiducials
             None
             if self.head_level is None
-            else levelled_frame(
-                used, self.model.frame.config_frame, self.head_level.T_correction, self.head_level.source
+            else functools.partial(
+                levelled_frame,
+                used,
+                self.model.frame.config_frame,
+                self.head_level.T_correction,
+                self.head_level.source,
             )
         )
         self.detector = detector if detector is not None else detector_for(self.model)

@@ -526,12 +526,13 @@ def resolve_jig_frame(
     *,
     constants: FrameConstants | None = None,
     memory: FiducialMemory | None = None,
-    fallback: JigFrame | None = None,
+    fallback: JigFrame | Callable[[], JigFrame] | None = None,
 ) -> tuple[JigFrame, list[str]]:
     """The jig frame as ``sensing.extrinsics`` asks, with any warning to report.
 
     ``"fiducials"`` requires them; ``"config"`` uses the fixed extrinsics; ``"auto"`` measures them when
-    found and falls back to ``fallback`` (default: the config's frame) with a warning. See
+    found and falls back to ``fallback`` (default: the config's frame; a function is called only then)
+    with a warning. See
     :func:`jig_frame_from_fiducials`, which also says what ``constants`` and ``memory`` are.
 
     Raises
@@ -555,5 +556,5 @@ def resolve_jig_frame(
             f"{message} and sensing.extrinsics is 'fiducials': make them visible, or set "
             "sensing.extrinsics = 'config' to use the calibrated camera poses in the config"
         )
-    used = fallback if fallback is not None else k.config_frame
+    used = k.config_frame if fallback is None else fallback() if callable(fallback) else fallback
     return used, [f"{message}: used {FALLBACK_NAMES[used.source]} instead"]

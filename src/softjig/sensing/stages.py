@@ -157,11 +157,11 @@ class FiducialFrameFinder:
     """The cameras' pose as ``sensing.extrinsics`` asks (:func:`~softjig.sensing.jigframe.resolve_jig_frame`),
     remembering where the general path found the fiducials for the next frames (its own
     :class:`~softjig.sensing.jigframe.FiducialMemory`); ``fallback`` is the frame used when the fiducials
-    are not found (default: the config's; an estimator with a levelled reference passes its levelled
-    frame).
+    are not found (default: the config's; an estimator with a levelled reference passes a function making
+    its levelled frame, called when a frame first needs it: frames that find their fiducials never do).
     """
 
-    def __init__(self, model: JigModel, fallback: JigFrame | None = None) -> None:
+    def __init__(self, model: JigModel, fallback: JigFrame | Callable[[], JigFrame] | None = None) -> None:
         self._jig = model.jig
         self._constants = model.frame
         self._memory = FiducialMemory()
@@ -174,8 +174,14 @@ class FiducialFrameFinder:
             self._jig,
             constants=self._constants,
             memory=self._memory,
-            fallback=self._fallback,
+            fallback=self._fallback_frame if self._fallback is not None else None,
         )
+
+    def _fallback_frame(self) -> JigFrame:
+        """The fallback frame, made by its function the first time it is needed, then kept."""
+        if callable(self._fallback):
+            self._fallback = self._fallback()
+        return self._fallback
 
 
 class RowMatcher:
