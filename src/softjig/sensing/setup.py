@@ -13,6 +13,7 @@ one-shot estimator then costs little more than the frame it estimates.
 from __future__ import annotations
 
 import functools
+import hashlib
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -48,25 +49,6 @@ AXIS_SURFACE_MIN_MARKERS = 6
 
 #: Version of the layout of :func:`model_arrays`: bump it when the arrays stored change meaning.
 MODEL_FORMAT_VERSION = 1
-#: The modules (under ``softjig/``) whose code derives :func:`model_arrays`: each one's size and
-#: modification time are part of :func:`model_key`, so that an edit to any of them derives the arrays
-#: again instead of reading those an older version of the code stored.
-DERIVED_BY = (
-    "config.py",
-    "geometry.py",
-    "optics.py",
-    "rig.py",
-    "jig_shape.py",
-    "aruco.py",
-    "sensing/setup.py",
-    "sensing/jigframe.py",
-    "sensing/fiducials.py",
-    "sensing/identities.py",
-    "sensing/detect.py",
-    "sensing/subpixel.py",
-    "sensing/stereo.py",
-    "sensing/refractive.py",
-)
 #: :func:`sensing_setup`'s numbers derived by projecting the jig, in the order :func:`setup_numbers` gives.
 SETUP_NUMBERS = (
     "sigma_px",
@@ -294,26 +276,39 @@ def model_arrays(jig: JigConfig, layers: FlatLayers | None = None) -> dict[str, 
     return arrays
 
 
-def _fingerprint(names: tuple[str, ...]) -> str | None:
-    """``name:size:mtime_ns`` of each module of ``softjig`` named, or ``None`` if one cannot be read."""
-    root = Path(__file__).resolve().parent.parent
-    try:
-        stats = [os.stat(root / name) for name in names]
-    except OSError:
+def _fingerprint(root: str) -> str | None:
+    """A digest of every module under ``root`` (``relative path:size:mtime_ns`` of each ``.py`` file,
+    sorted), or ``None`` if the folder cannot be read.
+
+    Every module rather than a list of those that derive :func:`model_arrays`: a list must be kept in step
+    with the imports by hand, and a module left off it (one the rest shape's indentation calls, say)
+    would let an edit read arrays an older version of the code stored. Any edit derives the arrays again,
+    once; the walk is made once per process.
+    """
+    entries = []
+    for folder, subfolders, files in os.walk(root):  # an unreadable folder lists nothing
+        subfolders[:] = [name for name in subfolders if name != "__pycache__"]
+        for path in (os.path.join(folder, name) for name in files if name.endswith(".py")):
+            try:
+                stat = os.stat(path)
+            except OSError:  # removed meanwhile
+                return None
+            entries.append(f"{os.path.relpath(path, root)}:{stat.st_size}:{stat.st_mtime_ns}")
+    if not entries:
         return None
-    return " ".join(f"{n}:{st.st_size}:{st.st_mtime_ns}" for n, st in zip(names, stats, strict=True))
+    return hashlib.blake2b("\n".join(sorted(entries)).encode(), digest_size=16).hexdigest()
 
 
 # The code this process runs, read once at import (a constant: the modules loaded do not change while it
 # runs, even when their files do).
-_CODE = _fingerprint(DERIVED_BY)
+_CODE = _fingerprint(str(Path(__file__).resolve().parent.parent))
 
 
 def model_key(jig: JigConfig) -> str | None:
     """Everything :func:`model_arrays` depends on, as exact text (its key in the disk cache): the jig's
-    content (its ``repr``: every field, floats exactly), :data:`MODEL_FORMAT_VERSION`, the size and
-    modification time of the modules of :data:`DERIVED_BY` and the numerical libraries' versions;
-    ``None`` (derive, do not cache) when the modules' files cannot be read."""
+    content (its ``repr``: every field, floats exactly), :data:`MODEL_FORMAT_VERSION`, a digest of the
+    package's modules (:func:`_fingerprint`) and the numerical libraries' versions; ``None`` (derive, do
+    not cache) when the modules' files cannot be read."""
     if _CODE is None:
         return None
     libraries = f"numpy={np.__version__} scipy={scipy.__version__} opencv={cv2.__version__}"
