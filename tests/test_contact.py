@@ -207,25 +207,32 @@ def test_indentation_noise_on_a_coarse_grid_is_the_markers_noise_not_the_drapes_
     assert 0.75 * sigma < np.median(estimates) < 1.25 * sigma
 
 
+def _jittered_grid(rng, pitch_mm=6.0):
+    """Marker centres (x, y) of a square grid over +-40 mm, each moved by 0.2 mm of noise."""
+    g = np.arange(-40.0, 40.1, pitch_mm)
+    gx, gy = np.meshgrid(g, g)
+    return np.column_stack([gx.ravel(), gy.ravel()]) + rng.normal(0, 0.2, (gx.size, 2))
+
+
+def _shared_and_each(points, references, pitch_mm=6.0):
+    """The indentations against ``references`` in one shared pass, and each from its own call."""
+    from softjig.sensing.contact import indentation, indentations
+
+    shared = indentations(points, references, pitch_mm=pitch_mm)
+    return shared, tuple(indentation(points, z, pitch_mm=pitch_mm) for z in references)
+
+
 def test_indentations_against_two_references_equal_one_call_each():
     """The reference frame's and the rest shape's indentation share their neighbour fits in one pass: each
     must be what its own call gives."""
-    from softjig.sensing.contact import indentation, indentations
-
     rng = np.random.default_rng(3)
-    g = np.arange(-40.0, 40.1, 6.0)
-    gx, gy = np.meshgrid(g, g)
-    xy = np.column_stack([gx.ravel(), gy.ravel()]) + rng.normal(0, 0.2, (gx.size, 2))
+    xy = _jittered_grid(rng)
     z = -0.004 * (xy**2).sum(axis=1) - 3.0 * (np.hypot(*xy.T) < 15) + rng.normal(0, 0.1, len(xy))
     points = np.column_stack([xy, z])
     reference = -0.004 * (xy**2).sum(axis=1) + rng.normal(0, 0.05, len(xy))
     rest = -0.0041 * (xy**2).sum(axis=1)
-    both = indentations(points, (reference, rest), pitch_mm=6.0)
-    for shared, own in zip(
-        both,
-        (indentation(points, reference, pitch_mm=6.0), indentation(points, rest, pitch_mm=6.0)),
-        strict=True,
-    ):
+    both, each = _shared_and_each(points, (reference, rest))
+    for shared, own in zip(both, each, strict=True):
         np.testing.assert_allclose(shared.depth_mm, own.depth_mm, rtol=0, atol=1e-12)
         assert shared.zero_mm == pytest.approx(own.zero_mm, abs=1e-12)
         assert shared.noise_mm == pytest.approx(own.noise_mm, rel=1e-12)
@@ -235,22 +242,13 @@ def test_indentations_against_two_references_equal_one_call_each():
 def test_indentations_against_references_unknown_at_different_markers_equal_one_call_each():
     """A marker without a reference height in one reference must not leave the other's fits: the shared
     pass fits only markers finite in every column, so such references are measured one call each."""
-    from softjig.sensing.contact import indentation, indentations
-
     rng = np.random.default_rng(4)
-    g = np.arange(-40.0, 40.1, 6.0)
-    gx, gy = np.meshgrid(g, g)
-    xy = np.column_stack([gx.ravel(), gy.ravel()]) + rng.normal(0, 0.2, (gx.size, 2))
+    xy = _jittered_grid(rng)
     points = np.column_stack([xy, -0.004 * (xy**2).sum(axis=1) + rng.normal(0, 0.1, len(xy))])
     reference = -0.004 * (xy**2).sum(axis=1)
     reference[::3] = np.nan  # markers with no reference marker near
     rest = -0.0041 * (xy**2).sum(axis=1)
-    both = indentations(points, (reference, rest), pitch_mm=6.0)
-    for shared, own in zip(
-        both,
-        (indentation(points, reference, pitch_mm=6.0), indentation(points, rest, pitch_mm=6.0)),
-        strict=True,
-    ):
+    for shared, own in zip(*_shared_and_each(points, (reference, rest)), strict=True):
         np.testing.assert_array_equal(shared.depth_mm, own.depth_mm)
         assert (shared.zero_mm, shared.noise_mm) == (own.zero_mm, own.noise_mm)
 
