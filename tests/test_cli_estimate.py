@@ -357,3 +357,29 @@ def test_the_table_says_suspect_plainly(capsys):
     _print_estimate_table(estimate)
     out = capsys.readouterr().out
     assert f"SUSPECT: {reason}" in out and "quality" in out
+
+
+@pytest.mark.parametrize("extra", [["--part-diameter", "50"], ["--part-diameter", "1e9"]])
+def test_pair_leaves_the_garbage_collector_as_it_found_it(sweep, extra):
+    """A pair's estimate runs with the cyclic collector paused (start-up cost), and an in-process caller
+    gets it back on afterwards, whether the estimate succeeded or was refused."""
+    import gc
+    import sys
+
+    def estimating() -> bool:  # the estimator's code is on the stack
+        frame = sys._getframe()
+        while frame is not None and "softjig/sensing/" not in frame.f_code.co_filename.replace("\\", "/"):
+            frame = frame.f_back
+        return frame is not None
+
+    paused_during = []  # collection passes while the pair itself was estimated
+    gc.callbacks.append(lambda phase, info: estimating() and paused_during.append(phase))
+    try:
+        assert gc.isenabled()
+        result = runner.invoke(app, ["estimate", *_pair_args(sweep), *extra])
+        assert gc.isenabled()
+    finally:
+        gc.callbacks.pop()
+    assert "Traceback" not in result.output
+    assert result.exit_code == (0 if extra[1] == "50" else 2), result.output
+    assert paused_during == []

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import gc
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
@@ -146,7 +149,6 @@ def estimate(
     stamp_tolerance: StampToleranceOption = DEFAULT_STAMP_TOLERANCE_S,
 ) -> None:
     """Estimate the part's principal normal, tilt angles and push depth from a stereo pair or a dataset."""
-    import json
 
     cal = None
     if calibration is not None:
@@ -189,6 +191,48 @@ def estimate(
     _check_pair_options(
         inputs, config, reference_left, reference_right, out=out, workers=workers, part_size=part_size
     )
+    with _collector_paused():
+        _estimate_pair(
+            inputs, config, cal, method_name, part_diameter, reference_left, reference_right,
+            calibration, overlay=overlay, displacements=displacements, json_output=json_output,
+        )  # fmt: skip
+
+
+@contextmanager
+def _collector_paused() -> Iterator[None]:
+    """Pause Python's cyclic garbage collector for a bounded piece of work, then restore it.
+
+    A single-pair estimate imports NumPy, SciPy, OpenCV and Numba and loads its compiled kernels: about
+    10^5 long-lived objects, none of them garbage, that every collection pass walks again (a fifth of the
+    command's CPU time; ``benchmarks/bench_startup.py``). One pair's work makes little cyclic garbage, and
+    reference counting still frees everything else, so the collector waits until the work is done.
+    """
+    was_enabled = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if was_enabled:
+            gc.enable()
+
+
+def _estimate_pair(
+    inputs: list[Path],
+    config: Path | None,
+    cal: TiltCalibration | None,
+    method_name: str,
+    part_diameter: float | None,
+    reference_left: Path | None,
+    reference_right: Path | None,
+    calibration: Path | None,
+    *,
+    overlay: Path | None,
+    displacements: Path | None,
+    json_output: bool,
+) -> None:
+    """Estimate one stereo pair (``inputs``: LEFT.png RIGHT.png) and print it; see :func:`estimate`."""
+    import json
+
     from softjig.io.dataset import load_image
     from softjig.io.outputs import check_output
     from softjig.sensing.estimator import Estimator
