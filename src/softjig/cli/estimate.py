@@ -203,15 +203,20 @@ def _collector_paused() -> Iterator[None]:
     """Pause Python's cyclic garbage collector for a bounded piece of work, then restore it.
 
     A single-pair estimate imports NumPy, SciPy, OpenCV and Numba and loads its compiled kernels: about
-    10^5 long-lived objects, none of them garbage, that every collection pass walks again (a fifth of the
-    command's CPU time; ``benchmarks/bench_startup.py``). One pair's work makes little cyclic garbage, and
-    reference counting still frees everything else, so the collector waits until the work is done.
+    10^5 long-lived objects, none of them garbage, that every collection pass walks again
+    (``benchmarks/bench_startup.py``). One pair's work makes little cyclic garbage, and reference counting
+    still frees everything else, so the collector waits until the work is done. The objects made
+    meanwhile are then moved to the oldest generation (``gc.freeze`` and ``gc.unfreeze``) rather than
+    left in the youngest, whose first pass after the pause would otherwise walk them all at once; a
+    later full pass still collects any garbage among them.
     """
     was_enabled = gc.isenabled()
     gc.disable()
     try:
         yield
     finally:
+        gc.freeze()
+        gc.unfreeze()
         if was_enabled:
             gc.enable()
 
