@@ -21,14 +21,16 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-from pydantic import ConfigDict, TypeAdapter, ValidationError
 
+from softjig.dataclass_parse import parse_dataclass
 from softjig.errors import ConfigError, InputError
 from softjig.files import read_text_file, write_text_atomic
 
-# Unknown keys are refused, and so are NaN and infinities (TOML has ``nan`` and ``inf`` literals); values
-# built in Python without pydantic are checked for finiteness by :func:`validate_jig` as well.
-_STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
+# Files are read by :func:`~softjig.dataclass_parse.parse_dataclass`, which refuses unknown keys, NaN and
+# infinities (TOML has ``nan`` and ``inf`` literals); values built in Python are checked for finiteness by
+# :func:`validate_jig` as well. ``__pydantic_config__`` (pydantic's ``ConfigDict``, a plain dict) gives the
+# same rules to pydantic where a study validates one field's values (:mod:`softjig.study.spec`).
+_STRICT = {"extra": "forbid", "allow_inf_nan": False}
 
 CONFIG_VERSION = 1
 
@@ -516,7 +518,7 @@ def part_from_dict(data: dict[str, Any]) -> Part:
     kind = data.get("kind") if isinstance(data, dict) else None
     if kind not in _PART_KINDS:
         raise ConfigError(f"part.kind must be one of {sorted(_PART_KINDS)}, got {kind!r}")
-    part = _parse(_PART_KINDS[kind], data, "part")
+    part = parse_dataclass(_PART_KINDS[kind], data, "part")
     validate_part(part)
     return part
 
@@ -538,7 +540,7 @@ def placement_from_dict(data: dict[str, Any]) -> PartPlacement:
     if not isinstance(data, dict):
         raise ConfigError(f"pose must be a table of center_xy_mm and yaw_deg, got {data!r}")
     known = {k: data[k] for k in ("center_xy_mm", "yaw_deg") if k in data}
-    return _parse(PartPlacement, known, "pose")
+    return parse_dataclass(PartPlacement, known, "pose")
 
 
 # ----------------------------------------------------------------------------------------- validation
@@ -1073,16 +1075,6 @@ def invert_rotation_of(cam: CameraConfig) -> np.ndarray:
 # ------------------------------------------------------------------------------------------ TOML I/O
 
 
-def _parse(cls: type, data: Any, where: str) -> Any:
-    try:
-        return TypeAdapter(cls).validate_python(data)
-    except ValidationError as exc:
-        err = exc.errors()[0]
-        loc = ".".join(str(x) for x in (where, *err["loc"]) if x != "")
-        more = f" (and {exc.error_count() - 1} more)" if exc.error_count() > 1 else ""
-        raise ConfigError(f"{loc}: {err['msg']}{more}") from None
-
-
 def jig_to_dict(jig: JigConfig) -> dict[str, Any]:
     """The plain-dict (TOML/JSON) form of a jig; ``None`` values are left out (TOML has no null)."""
 
@@ -1144,7 +1136,7 @@ def jig_from_dict(data: dict[str, Any]) -> JigConfig:
     Every key of :data:`REQUIRED_KEYS` must be there; fields left out of a section take their defaults.
     """
     _check_complete(data)
-    jig = _parse(JigConfig, data, "")
+    jig = parse_dataclass(JigConfig, data)
     validate_jig(jig)
     return jig
 

@@ -61,7 +61,6 @@ from pydantic import ConfigDict, Field, TypeAdapter, ValidationError
 from softjig.config import (
     CylinderPart,
     JigConfig,
-    _parse,  # a pydantic model of a TOML section, its first error as a ConfigError naming the key
     default_jig,
     jig_to_dict,
     load_jig,
@@ -85,6 +84,18 @@ __all__ = [
 ]
 
 _STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+
+def _parse(cls: type, data: Any, where: str) -> Any:
+    """A study file's section ``data`` as the pydantic-validated ``cls`` (its fields' constraints
+    included); a ConfigError naming the first offending key below ``where``."""
+    try:
+        return TypeAdapter(cls).validate_python(data)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        loc = ".".join(str(x) for x in (where, *err["loc"]) if x != "")
+        more = f" (and {exc.error_count() - 1} more)" if exc.error_count() > 1 else ""
+        raise ConfigError(f"{loc}: {err['msg']}{more}") from None
 
 #: The estimation methods a study may name (:data:`softjig.sensing.pipeline.METHODS`).
 STUDY_METHODS = ("refractive", "paper")
