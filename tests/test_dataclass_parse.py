@@ -34,8 +34,8 @@ PARTS = [
 
 
 def _configs() -> list[tuple[type, dict]]:
-    """Plain dicts of real configs: the default jig, a hand-made one, 8 zoo designs (profiles, layouts and optics the
-    zoo draws), the four part kinds and a placement."""
+    """Plain dicts of real configs: the default jig, a hand-made one, 8 zoo designs (profiles, layouts
+    and optics the zoo draws), the four part kinds and a placement."""
     base = default_jig()
     hand_made = replace(  # a measured dome and an explicit marker list: no zoo design has them
         base,
