@@ -97,6 +97,7 @@ def _parse(cls: type, data: Any, where: str) -> Any:
         more = f" (and {exc.error_count() - 1} more)" if exc.error_count() > 1 else ""
         raise ConfigError(f"{loc}: {err['msg']}{more}") from None
 
+
 #: The estimation methods a study may name (:data:`softjig.sensing.pipeline.METHODS`).
 STUDY_METHODS = ("refractive", "paper")
 #: Loaded frames per task at most: a task renders its chunk's frames plus the unloaded reference frame,
