@@ -163,6 +163,25 @@ def test_compose_kernel_matches_numpy_paste_then_sensor():
     assert diff.max() <= 1 and np.mean(diff > 0) < 1e-3  # overlapping patches: sums in another order
 
 
+def test_compose_kernel_ignores_patches_outside_the_image():
+    """A patch wholly left, right, above or below the image adds nothing: the image equals the one composed
+    without it (a patch ending left of column 0 once gave a negative slice stop that wrapped round, and the
+    compiled loop read memory past the patch)."""
+    rng = np.random.default_rng(9)
+    h, w, p = 120, 160, 21
+    base, gain = (rng.uniform(0.02, 0.6, (h, w)).astype(np.float32) for _ in range(2))
+    inside = np.array([[5, 7], [100, 40], [-10, 90], [150, 110]])
+    outside = np.array([[-p, 30], [-p - 40, 60], [w, 20], [w + 5, 0], [40, -p], [70, h], [-p, -p]])
+    patches = rng.uniform(0.0, 0.4, (len(inside) + len(outside), p, p)).astype(np.float32)
+    im = default_jig().imaging
+
+    def compose(patches, origin):
+        return render._compose(base, gain, None, patches, origin, im, np.random.default_rng(1), 1.0)
+
+    got = compose(patches, np.vstack([inside, outside]))
+    np.testing.assert_array_equal(got, compose(patches[: len(inside)], inside))
+
+
 def test_rest_heights_held_once_give_the_same_membrane():
     jig = default_jig()
     as_built = draw_as_built(jig, rng=0)

@@ -404,6 +404,8 @@ def compose_sensor(
             if oy >= y1:
                 break
             j0, j1 = max(0, -ox), min(p, w - ox)
+            if j0 >= j1:  # wholly left or right of the image (and a negative slice stop would wrap round)
+                continue
             for i in range(max(0, y0 - oy), min(p, y1 - oy)):
                 y = oy + i
                 row_gain = band_gain[y - y0] if boxed else gain[y]
