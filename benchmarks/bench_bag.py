@@ -9,6 +9,11 @@ level 3, 1 MiB chunks, no softjig topics), then for each source times, per frame
 * ``read + estimate``: that and one :class:`~softjig.sensing.estimator.Estimator`'s ``estimate`` (refractive
   method, against the reference frame), what ``softjig estimate --workers 1`` spends per frame.
 
+and, for each bag, ``zstd``: the CPU its chunks' decompression alone takes a pair (every chunk of the file
+through one ``zstandard`` context, over the bag's pairs): the share of ``read`` that the writer's zstd
+level decides (softjig's level 1 chunks decompress at ~2 GB/s; a negative level stores camera images
+nearly as they are, in a bag ~1.6 times larger, and decompresses several times faster).
+
 One warm-up pass first (Numba caches, per-jig tables), then ``--rounds`` timed passes. Each figure is
 given as the median over the loaded frames and as their mean (the total over the frames after the first,
 which pays for opening the source, divided by the loaded frames): where a bag's zstd chunk holds several
@@ -116,9 +121,28 @@ def write_foreign_bag(dataset, path: Path) -> None:
     tmp.replace(path)
 
 
-def sources(data: Path, bag: Path) -> tuple[dict, object, object]:
-    """``({name: frames maker}, jig, reference)``: the dataset, softjig's bag (written to ``bag`` afresh by
-    this tree's writer) and the other library's bag in ``data``; warmed up (Numba, tables, page cache)."""
+def zstd_cpu_s(path: Path) -> float:
+    """CPU seconds spent decompressing every zstd chunk of the MCAP file (or a bag folder's) ``path``."""
+    import zstandard
+    from mcap.records import Chunk
+    from mcap.stream_reader import StreamReader
+
+    decompressor = zstandard.ZstdDecompressor()
+    spent = 0.0
+    for file in [path] if path.is_file() else sorted(path.glob("*.mcap")):
+        with open(file, "rb") as fh:
+            for record in StreamReader(fh, emit_chunks=True, record_size_limit=2**31).records:
+                if isinstance(record, Chunk) and record.compression == "zstd":
+                    c0 = time.process_time()
+                    decompressor.decompress(record.data, max_output_size=record.uncompressed_size)
+                    spent += time.process_time() - c0
+    return spent
+
+
+def sources(data: Path, bag: Path) -> tuple[dict, object, object, dict]:
+    """``({name: frames maker}, jig, reference, {bag source's name: (its path, its pairs)})``: the dataset,
+    softjig's bag (written to ``bag`` afresh by this tree's writer) and the other library's bag in
+    ``data``; warmed up (Numba, tables, page cache)."""
     import cv2
 
     cv2.setNumThreads(1)
@@ -143,29 +167,31 @@ def sources(data: Path, bag: Path) -> tuple[dict, object, object]:
     made = dict(zip(SOURCES, makers, strict=True))
     for source in made.values():
         _time_source(source(), jig, reference, estimate=True)
-    return made, jig, reference
+    bags = {SOURCES[1]: bag, SOURCES[2]: data / "foreign.mcap"}
+    return made, jig, reference, {name: (path, sum(1 for _ in made[name]())) for name, path in bags.items()}
 
 
-def measure(made: dict, jig, reference) -> dict[str, list[float]]:
+def measure(made: dict, jig, reference, bags: dict) -> dict[str, list[float]]:
     """Each source's figures (ms a frame) of one pass: read wall / CPU median / CPU mean, read + estimate
-    likewise, and the frames."""
+    likewise, a bag's zstd CPU a pair (NaN for the dataset), and the frames."""
     results = {}
     med = statistics.median
     for name, source in made.items():
         read, read_cpu, read_mean = _time_source(source(), jig, reference, estimate=False)
         full, full_cpu, full_mean = _time_source(source(), jig, reference, estimate=True)
-        figures = [med(read), med(read_cpu), read_mean, med(full), med(full_cpu), full_mean]
+        zstd = zstd_cpu_s(bags[name][0]) / bags[name][1] if name in bags else float("nan")
+        figures = [med(read), med(read_cpu), read_mean, med(full), med(full_cpu), full_mean, zstd]
         results[name] = [1000 * x for x in figures] + [len(full)]
     return results
 
 
 def worker(data: Path, bag: Path) -> None:
     """A warm tree: one JSON line of :func:`measure` for each ``time`` line on stdin."""
-    made, jig, reference = sources(data, bag)
+    made = sources(data, bag)
     print(json.dumps({"ready": True}), flush=True)
     for line in sys.stdin:
         if line.strip() == "time":
-            print(json.dumps(measure(made, jig, reference)), flush=True)
+            print(json.dumps(measure(*made)), flush=True)
 
 
 def prepare(root: Path, frames_per_alpha: int) -> None:
@@ -194,17 +220,21 @@ def _sizes(root: Path, bags: list[Path]) -> str:
 
 def _table(trees: list[dict[str, list[list[float]]]], labels: list[str]) -> None:
     """Medians over the rounds, each tree's row beside the other's."""
-    print(f"{'source':<24} {'tree':<6} {'read ms/frame':>24} {'read+estimate ms/frame':>26} {'frames':>7}")
-    print(f"{'':<24} {'':<6} {'wall / CPU / CPU mean':>24} {'wall / CPU / CPU mean':>26}")
+    print(
+        f"{'source':<24} {'tree':<6} {'read ms/frame':>24} {'read+estimate ms/frame':>26} {'zstd':>6} "
+        f"{'frames':>7}"
+    )
+    print(f"{'':<24} {'':<6} {'wall / CPU / CPU mean':>24} {'wall / CPU / CPU mean':>26} {'CPU':>6}")
     for name in SOURCES:
         for label, tree in zip(labels, trees, strict=True):
             rounds = tree.get(name)
             if not rounds:
                 continue
-            v = [statistics.median(r[i] for r in rounds) for i in range(7)]
+            v = [statistics.median(r[i] for r in rounds) for i in range(8)]
+            zstd = "-" if v[6] != v[6] else f"{v[6]:.2f}"  # NaN: not a bag
             print(
                 f"{name:<24} {label:<6} {v[0]:>8.2f} / {v[1]:>5.2f} / {v[2]:>5.2f} "
-                f"{v[3]:>10.2f} / {v[4]:>5.2f} / {v[5]:>5.2f} {int(v[6]):>7}"
+                f"{v[3]:>10.2f} / {v[4]:>5.2f} / {v[5]:>5.2f} {zstd:>6} {int(v[7]):>7}"
             )
 
 
