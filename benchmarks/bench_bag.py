@@ -26,6 +26,10 @@ tree): each writes its own bag (its own writer) and reads the same other-library
 turns, ``--rounds`` passes each, the order alternating, and the table gives each figure's median over the
 rounds, tree beside tree (one pass, ~3 s a tree, is short enough for the load to stay alike).
 
+``--zstd-level L [L ...]`` writes softjig's bags at zstd level ``L``: one level for every tree, or one a
+tree (``--src NEW NEW --zstd-level 1 -1`` measures two levels side by side; a tree whose
+``dataset_to_bag`` takes no ``zstd_level`` takes no level).
+
 Run: ``python benchmarks/bench_bag.py [--frames-per-alpha 12] [--out DIR] [--src A B --rounds 3]``. The
 numbers depend on the machine's load (the shared development machine runs several sessions at once):
 quote medians and say so.
@@ -139,7 +143,7 @@ def zstd_cpu_s(path: Path) -> float:
     return spent
 
 
-def sources(data: Path, bag: Path) -> tuple[dict, object, object, dict]:
+def sources(data: Path, bag: Path, zstd_level: int | None = None) -> tuple[dict, object, object, dict]:
     """``({name: frames maker}, jig, reference, {bag source's name: (its path, its pairs)})``: the dataset,
     softjig's bag (written to ``bag`` afresh by this tree's writer) and the other library's bag in
     ``data``; warmed up (Numba, tables, page cache)."""
@@ -153,7 +157,8 @@ def sources(data: Path, bag: Path) -> tuple[dict, object, object, dict]:
 
     dataset = Dataset.open(data / "dataset")
     jig = dataset.jig
-    dataset_to_bag(dataset, bag, estimate=False, start_unix_s=1.7e9, overwrite=True)  # this tree's writer
+    level = {} if zstd_level is None else {"zstd_level": zstd_level}  # else the tree's default
+    dataset_to_bag(dataset, bag, estimate=False, start_unix_s=1.7e9, overwrite=True, **level)  # its writer
     reference = dataset_reference(dataset, jig)
 
     def bag_frames(path):
@@ -185,9 +190,9 @@ def measure(made: dict, jig, reference, bags: dict) -> dict[str, list[float]]:
     return results
 
 
-def worker(data: Path, bag: Path) -> None:
+def worker(data: Path, bag: Path, zstd_level: int | None) -> None:
     """A warm tree: one JSON line of :func:`measure` for each ``time`` line on stdin."""
-    made = sources(data, bag)
+    made = sources(data, bag, zstd_level)
     print(json.dumps({"ready": True}), flush=True)
     for line in sys.stdin:
         if line.strip() == "time":
@@ -238,19 +243,22 @@ def _table(trees: list[dict[str, list[list[float]]]], labels: list[str]) -> None
             )
 
 
-def _rounds(srcs: list[str | None], root: Path, bags: list[Path], rounds: int) -> list[dict]:
+def _rounds(
+    srcs: list[str | None], root: Path, bags: list[Path], rounds: int, levels: list[int | None]
+) -> list[dict]:
     """Each tree's figures, round by round (the trees take turns, the order alternating)."""
     trees: list[dict[str, list[list[float]]]] = [{} for _ in srcs]
     if srcs == [None]:
-        made = sources(root, bags[0])
+        made = sources(root, bags[0], levels[0])
         for _ in range(rounds):
             for name, figures in measure(*made).items():
                 trees[0].setdefault(name, []).append(figures)
         return trees
     procs = []
-    for src, bag in zip(srcs, bags, strict=True):
+    for src, bag, level in zip(srcs, bags, levels, strict=True):
         env = {**os.environ, "PYTHONPATH": str(src)}
         argv = [sys.executable, __file__, "--out", str(root), "--child", str(bag)]
+        argv += [] if level is None else ["--zstd-level", str(level)]
         procs.append(
             subprocess.Popen(argv, env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
         )
@@ -277,24 +285,35 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=None, help="keep the dataset and bags here")
     parser.add_argument("--src", nargs="*", default=None, help="source trees to compare (PYTHONPATH)")
     parser.add_argument("--rounds", type=int, default=1, help="timed passes per tree")
+    parser.add_argument(
+        "--zstd-level",
+        type=int,
+        nargs="*",
+        default=None,
+        help="softjig's bag's zstd level: one for every tree, or one a tree (default: each tree's own)",
+    )
     parser.add_argument("--child", type=Path, default=None, help=argparse.SUPPRESS)
     args = parser.parse_args()
     for name in ("frames_per_alpha", "rounds"):  # 0 divided by zero or gave no pass; 0 rounds was made 1
         if getattr(args, name) < 1:
             parser.error(f"--{name.replace('_', '-')} must be at least 1, got {getattr(args, name)}")
     root = args.out or Path(tempfile.mkdtemp(prefix="bench_bag_"))
+    levels = args.zstd_level or [None]
     if args.child is not None:
-        worker(root, args.child)
+        worker(root, args.child, levels[0])
         return
-    prepare(root, args.frames_per_alpha)
     srcs = [str(Path(s).resolve()) for s in args.src] if args.src else [None]
+    if len(levels) not in (1, len(srcs)):
+        parser.error(f"--zstd-level takes one level or one a tree ({len(srcs)}), got {len(levels)}")
+    levels = levels * len(srcs) if len(levels) == 1 else levels
+    prepare(root, args.frames_per_alpha)
     bags = [root / f"bag{i}" for i in range(len(srcs))]
-    trees = _rounds(srcs, root, bags, args.rounds)
+    trees = _rounds(srcs, root, bags, args.rounds, levels)
     print(f"1280x720 mono8, one worker, one OpenCV thread; {_sizes(root, bags)} (zstd chunks)")
     labels = [f"t{i}" for i in range(len(srcs))]
     _table(trees, labels)
-    for label, src in zip(labels, srcs, strict=True):
-        print(f"{label}: {src or 'this interpreter'}")
+    for label, src, level in zip(labels, srcs, levels, strict=True):
+        print(f"{label}: {src or 'this interpreter'}" + ("" if level is None else f", zstd level {level}"))
     print(
         f"medians over {args.rounds} round(s); wall times suffer from the shared "
         "machine's load (CPU time, this process only, less so); load average now "
