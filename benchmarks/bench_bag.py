@@ -28,7 +28,7 @@ rounds, tree beside tree (one pass, ~3 s a tree, is short enough for the load to
 
 ``--zstd-level L [L ...]`` writes softjig's bags at zstd level ``L``: one level for every tree, or one a
 tree (``--src NEW NEW --zstd-level 1 -1`` measures two levels side by side; a tree whose
-``dataset_to_bag`` takes no ``zstd_level`` takes no level).
+``dataset_to_bag`` takes no ``zstd_level`` takes only its own level).
 
 Run: ``python benchmarks/bench_bag.py [--frames-per-alpha 12] [--out DIR] [--src A B --rounds 3]``. The
 numbers depend on the machine's load (the shared development machine runs several sessions at once):
@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import inspect
 import json
 import os
 import statistics
@@ -158,6 +159,12 @@ def sources(data: Path, bag: Path, zstd_level: int | None = None) -> tuple[dict,
     dataset = Dataset.open(data / "dataset")
     jig = dataset.jig
     level = {} if zstd_level is None else {"zstd_level": zstd_level}  # else the tree's default
+    if level and "zstd_level" not in inspect.signature(dataset_to_bag).parameters:  # an older tree
+        from softjig.io.mcap_chunks import ZSTD_LEVEL
+
+        if zstd_level != ZSTD_LEVEL:
+            raise SystemExit(f"this tree writes zstd level {ZSTD_LEVEL} only, not {zstd_level}")
+        level = {}
     dataset_to_bag(dataset, bag, estimate=False, start_unix_s=1.7e9, overwrite=True, **level)  # its writer
     reference = dataset_reference(dataset, jig)
 
