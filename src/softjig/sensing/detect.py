@@ -269,8 +269,8 @@ def check_image_content(gray: npt.ArrayLike, *, name: str = "the image") -> np.n
     Returns
     -------
     numpy.ndarray
-        The contiguous subsample it read (every 8th pixel of each axis, fewer for a small image;
-        ``uint8``, ``uint16`` or ``float32``): a cheap first test of two images' equality.
+        The contiguous subsample it read (every 8th pixel of each axis, a smaller step for an image
+        under 256 px; ``uint8``, ``uint16`` or ``float32``): a cheap first test of two images' equality.
 
     Raises
     ------
