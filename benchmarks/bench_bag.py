@@ -9,6 +9,11 @@ level 3, 1 MiB chunks, no softjig topics), then for each source times, per frame
 * ``read + estimate``: that and one :class:`~softjig.sensing.estimator.Estimator`'s ``estimate`` (refractive
   method, against the reference frame), what ``softjig estimate --workers 1`` spends per frame.
 
+and, for each bag, ``zstd``: the CPU its chunks' decompression alone takes a pair (every chunk of the file
+through one ``zstandard`` context, over the bag's pairs): the share of ``read`` that the writer's zstd
+level decides (softjig's level 1 chunks decompress at ~2 GB/s; a negative level stores camera images
+nearly as they are, in a bag ~1.6 times larger, and decompresses several times faster).
+
 One warm-up pass first (Numba caches, per-jig tables), then ``--rounds`` timed passes. Each figure is
 given as the median over the loaded frames and as their mean (the total over the frames after the first,
 which pays for opening the source, divided by the loaded frames): where a bag's zstd chunk holds several
@@ -21,6 +26,10 @@ tree): each writes its own bag (its own writer) and reads the same other-library
 turns, ``--rounds`` passes each, the order alternating, and the table gives each figure's median over the
 rounds, tree beside tree (one pass, ~3 s a tree, is short enough for the load to stay alike).
 
+``--zstd-level L [L ...]`` writes softjig's bags at zstd level ``L``: one level for every tree, or one a
+tree (``--src NEW NEW --zstd-level 1 -1`` measures two levels side by side; a tree whose
+``dataset_to_bag`` takes no ``zstd_level`` takes only its own level).
+
 Run: ``python benchmarks/bench_bag.py [--frames-per-alpha 12] [--out DIR] [--src A B --rounds 3]``. The
 numbers depend on the machine's load (the shared development machine runs several sessions at once):
 quote medians and say so.
@@ -30,6 +39,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import inspect
 import json
 import os
 import statistics
@@ -116,9 +126,28 @@ def write_foreign_bag(dataset, path: Path) -> None:
     tmp.replace(path)
 
 
-def sources(data: Path, bag: Path) -> tuple[dict, object, object]:
-    """``({name: frames maker}, jig, reference)``: the dataset, softjig's bag (written to ``bag`` afresh by
-    this tree's writer) and the other library's bag in ``data``; warmed up (Numba, tables, page cache)."""
+def zstd_cpu_s(path: Path) -> float:
+    """CPU seconds spent decompressing every zstd chunk of the MCAP file (or a bag folder's) ``path``."""
+    import zstandard
+    from mcap.records import Chunk
+    from mcap.stream_reader import StreamReader
+
+    decompressor = zstandard.ZstdDecompressor()
+    spent = 0.0
+    for file in [path] if path.is_file() else sorted(path.glob("*.mcap")):
+        with open(file, "rb") as fh:
+            for record in StreamReader(fh, emit_chunks=True, record_size_limit=2**31).records:
+                if isinstance(record, Chunk) and record.compression == "zstd":
+                    c0 = time.process_time()
+                    decompressor.decompress(record.data, max_output_size=record.uncompressed_size)
+                    spent += time.process_time() - c0
+    return spent
+
+
+def sources(data: Path, bag: Path, zstd_level: int | None = None) -> tuple[dict, object, object, dict]:
+    """``({name: frames maker}, jig, reference, {bag source's name: (its path, its pairs)})``: the dataset,
+    softjig's bag (written to ``bag`` afresh by this tree's writer) and the other library's bag in
+    ``data``; warmed up (Numba, tables, page cache)."""
     import cv2
 
     cv2.setNumThreads(1)
@@ -129,7 +158,14 @@ def sources(data: Path, bag: Path) -> tuple[dict, object, object]:
 
     dataset = Dataset.open(data / "dataset")
     jig = dataset.jig
-    dataset_to_bag(dataset, bag, estimate=False, start_unix_s=1.7e9, overwrite=True)  # this tree's writer
+    level = {} if zstd_level is None else {"zstd_level": zstd_level}  # else the tree's default
+    if level and "zstd_level" not in inspect.signature(dataset_to_bag).parameters:  # an older tree
+        from softjig.io.mcap_chunks import ZSTD_LEVEL
+
+        if zstd_level != ZSTD_LEVEL:
+            raise SystemExit(f"this tree writes zstd level {ZSTD_LEVEL} only, not {zstd_level}")
+        level = {}
+    dataset_to_bag(dataset, bag, estimate=False, start_unix_s=1.7e9, overwrite=True, **level)  # its writer
     reference = dataset_reference(dataset, jig)
 
     def bag_frames(path):
@@ -143,29 +179,31 @@ def sources(data: Path, bag: Path) -> tuple[dict, object, object]:
     made = dict(zip(SOURCES, makers, strict=True))
     for source in made.values():
         _time_source(source(), jig, reference, estimate=True)
-    return made, jig, reference
+    bags = {SOURCES[1]: bag, SOURCES[2]: data / "foreign.mcap"}
+    return made, jig, reference, {name: (path, sum(1 for _ in made[name]())) for name, path in bags.items()}
 
 
-def measure(made: dict, jig, reference) -> dict[str, list[float]]:
+def measure(made: dict, jig, reference, bags: dict) -> dict[str, list[float]]:
     """Each source's figures (ms a frame) of one pass: read wall / CPU median / CPU mean, read + estimate
-    likewise, and the frames."""
+    likewise, a bag's zstd CPU a pair (NaN for the dataset), and the frames."""
     results = {}
     med = statistics.median
     for name, source in made.items():
         read, read_cpu, read_mean = _time_source(source(), jig, reference, estimate=False)
         full, full_cpu, full_mean = _time_source(source(), jig, reference, estimate=True)
-        figures = [med(read), med(read_cpu), read_mean, med(full), med(full_cpu), full_mean]
+        zstd = zstd_cpu_s(bags[name][0]) / bags[name][1] if name in bags else float("nan")
+        figures = [med(read), med(read_cpu), read_mean, med(full), med(full_cpu), full_mean, zstd]
         results[name] = [1000 * x for x in figures] + [len(full)]
     return results
 
 
-def worker(data: Path, bag: Path) -> None:
+def worker(data: Path, bag: Path, zstd_level: int | None) -> None:
     """A warm tree: one JSON line of :func:`measure` for each ``time`` line on stdin."""
-    made, jig, reference = sources(data, bag)
+    made = sources(data, bag, zstd_level)
     print(json.dumps({"ready": True}), flush=True)
     for line in sys.stdin:
         if line.strip() == "time":
-            print(json.dumps(measure(made, jig, reference)), flush=True)
+            print(json.dumps(measure(*made)), flush=True)
 
 
 def prepare(root: Path, frames_per_alpha: int) -> None:
@@ -194,33 +232,40 @@ def _sizes(root: Path, bags: list[Path]) -> str:
 
 def _table(trees: list[dict[str, list[list[float]]]], labels: list[str]) -> None:
     """Medians over the rounds, each tree's row beside the other's."""
-    print(f"{'source':<24} {'tree':<6} {'read ms/frame':>24} {'read+estimate ms/frame':>26} {'frames':>7}")
-    print(f"{'':<24} {'':<6} {'wall / CPU / CPU mean':>24} {'wall / CPU / CPU mean':>26}")
+    print(
+        f"{'source':<24} {'tree':<6} {'read ms/frame':>24} {'read+estimate ms/frame':>26} {'zstd':>6} "
+        f"{'frames':>7}"
+    )
+    print(f"{'':<24} {'':<6} {'wall / CPU / CPU mean':>24} {'wall / CPU / CPU mean':>26} {'CPU':>6}")
     for name in SOURCES:
         for label, tree in zip(labels, trees, strict=True):
             rounds = tree.get(name)
             if not rounds:
                 continue
-            v = [statistics.median(r[i] for r in rounds) for i in range(7)]
+            v = [statistics.median(r[i] for r in rounds) for i in range(8)]
+            zstd = "-" if v[6] != v[6] else f"{v[6]:.2f}"  # NaN: not a bag
             print(
                 f"{name:<24} {label:<6} {v[0]:>8.2f} / {v[1]:>5.2f} / {v[2]:>5.2f} "
-                f"{v[3]:>10.2f} / {v[4]:>5.2f} / {v[5]:>5.2f} {int(v[6]):>7}"
+                f"{v[3]:>10.2f} / {v[4]:>5.2f} / {v[5]:>5.2f} {zstd:>6} {int(v[7]):>7}"
             )
 
 
-def _rounds(srcs: list[str | None], root: Path, bags: list[Path], rounds: int) -> list[dict]:
+def _rounds(
+    srcs: list[str | None], root: Path, bags: list[Path], rounds: int, levels: list[int | None]
+) -> list[dict]:
     """Each tree's figures, round by round (the trees take turns, the order alternating)."""
     trees: list[dict[str, list[list[float]]]] = [{} for _ in srcs]
     if srcs == [None]:
-        made = sources(root, bags[0])
+        made = sources(root, bags[0], levels[0])
         for _ in range(rounds):
             for name, figures in measure(*made).items():
                 trees[0].setdefault(name, []).append(figures)
         return trees
     procs = []
-    for src, bag in zip(srcs, bags, strict=True):
+    for src, bag, level in zip(srcs, bags, levels, strict=True):
         env = {**os.environ, "PYTHONPATH": str(src)}
         argv = [sys.executable, __file__, "--out", str(root), "--child", str(bag)]
+        argv += [] if level is None else ["--zstd-level", str(level)]
         procs.append(
             subprocess.Popen(argv, env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
         )
@@ -247,24 +292,35 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=None, help="keep the dataset and bags here")
     parser.add_argument("--src", nargs="*", default=None, help="source trees to compare (PYTHONPATH)")
     parser.add_argument("--rounds", type=int, default=1, help="timed passes per tree")
+    parser.add_argument(
+        "--zstd-level",
+        type=int,
+        nargs="*",
+        default=None,
+        help="softjig's bag's zstd level: one for every tree, or one a tree (default: each tree's own)",
+    )
     parser.add_argument("--child", type=Path, default=None, help=argparse.SUPPRESS)
     args = parser.parse_args()
     for name in ("frames_per_alpha", "rounds"):  # 0 divided by zero or gave no pass; 0 rounds was made 1
         if getattr(args, name) < 1:
             parser.error(f"--{name.replace('_', '-')} must be at least 1, got {getattr(args, name)}")
     root = args.out or Path(tempfile.mkdtemp(prefix="bench_bag_"))
+    levels = args.zstd_level or [None]
     if args.child is not None:
-        worker(root, args.child)
+        worker(root, args.child, levels[0])
         return
-    prepare(root, args.frames_per_alpha)
     srcs = [str(Path(s).resolve()) for s in args.src] if args.src else [None]
+    if len(levels) not in (1, len(srcs)):
+        parser.error(f"--zstd-level takes one level or one a tree ({len(srcs)}), got {len(levels)}")
+    levels = levels * len(srcs) if len(levels) == 1 else levels
+    prepare(root, args.frames_per_alpha)
     bags = [root / f"bag{i}" for i in range(len(srcs))]
-    trees = _rounds(srcs, root, bags, args.rounds)
+    trees = _rounds(srcs, root, bags, args.rounds, levels)
     print(f"1280x720 mono8, one worker, one OpenCV thread; {_sizes(root, bags)} (zstd chunks)")
     labels = [f"t{i}" for i in range(len(srcs))]
     _table(trees, labels)
-    for label, src in zip(labels, srcs, strict=True):
-        print(f"{label}: {src or 'this interpreter'}")
+    for label, src, level in zip(labels, srcs, levels, strict=True):
+        print(f"{label}: {src or 'this interpreter'}" + ("" if level is None else f", zstd level {level}"))
     print(
         f"medians over {args.rounds} round(s); wall times suffer from the shared "
         "machine's load (CPU time, this process only, less so); load average now "

@@ -128,3 +128,20 @@ def test_bag_to_dataset_to_bag_keeps_every_stamp(tmp_path):
     with BagReader(tmp_path / "again") as reader:
         again = [(p.stamp_left_ns, p.stamp_right_ns) for p in reader.pairs(reader.choose_topics())]
     assert again == first
+
+
+def test_dataset_to_bag_takes_the_zstd_level(sweep, tmp_path):
+    """A negative level stores the images nearly as they are: a larger bag with the same pairs."""
+    from softjig.io.bag_convert import dataset_to_bag
+
+    sizes, images = {}, {}
+    for level in (1, -1):
+        out = tmp_path / f"level{level}"
+        dataset_to_bag(sweep, out, estimate=False, start_unix_s=1.7e9, zstd_level=level)
+        sizes[level] = sum(p.stat().st_size for p in out.glob("*.mcap"))
+        with BagReader(out) as reader:
+            images[level] = [(p.left.copy(), p.right.copy()) for p in reader.pairs(reader.choose_topics())]
+    assert sizes[-1] > 1.3 * sizes[1]
+    assert len(images[1]) == len(sweep)
+    for (l1, r1), (l2, r2) in zip(images[1], images[-1], strict=True):
+        assert np.array_equal(l1, l2) and np.array_equal(r1, r2)

@@ -30,6 +30,7 @@ from typing import Any
 from softjig.config import JigConfig
 from softjig.errors import EstimationError, InputError
 from softjig.io.dataset import Dataset, DatasetWriter, Frame, is_simulation
+from softjig.io.mcap_chunks import ZSTD_LEVEL
 from softjig.io.rosbag import DEFAULT_STAMP_TOLERANCE_S, BagReader, BagWriter
 
 __all__ = ["ConvertSummary", "bag_to_dataset", "dataset_to_bag", "frame_stamps_ns"]
@@ -102,6 +103,7 @@ def dataset_to_bag(
     overwrite: bool = False,
     start_unix_s: float | None = None,
     on_frame: Callable[[int], None] | None = None,
+    zstd_level: int = ZSTD_LEVEL,
 ) -> ConvertSummary:
     """Write a dataset as a ROS 2 bag folder ``out``.
 
@@ -117,6 +119,9 @@ def dataset_to_bag(
     start_unix_s : the stamp of a frame at ``time_s = 0`` for frames without a wall-clock time (s since
         the epoch; default now).
     on_frame : called with each frame's index once it is written (progress).
+    zstd_level : the bag's zstd level (:class:`~softjig.io.rosbag.BagWriter`'s ``zstd_level``: 1 by
+        default; a negative level stores camera images nearly as they are, in a bag ~1.6 times larger
+        whose reader decompresses a 1280x720 mono8 pair in ~0.1 ms instead of ~1 ms).
 
     A bag folder that exists but is incomplete is never left behind on an error before the first frame;
     on an error later, the frames written so far stay a readable bag.
@@ -135,7 +140,8 @@ def dataset_to_bag(
     estimator = Estimator(jig, method=method, reference=reference) if estimate else None
     n_estimated = n_failed = n_frames = 0
     notes: list[str] = []
-    with BagWriter(out, jig, overwrite=overwrite, simulated=is_simulation(dataset.root)) as writer:
+    simulated = is_simulation(dataset.root)
+    with BagWriter(out, jig, overwrite=overwrite, simulated=simulated, zstd_level=zstd_level) as writer:
         for position, frame in enumerate(dataset.iter_frames()):
             left, right = frame.load_left(), frame.load_right()
             sl, sr = frame_stamps_ns(frame, position, start)
