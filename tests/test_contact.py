@@ -7,13 +7,7 @@ import pytest
 
 from softjig.config import default_jig
 from softjig.geometry import fit_plane_svd, normal_from_tilt_angles
-from softjig.sensing.contact import (
-    Indentation,
-    describe_contact,
-    drop_lifted_off,
-    face_centre_xy,
-    linear_percentile,
-)
+from softjig.sensing.contact import Indentation, describe_contact, drop_lifted_off, face_centre_xy
 
 PITCH = 8.0
 REST_Z = 30.0  # a flat unloaded membrane, for the synthetic cases
@@ -276,21 +270,3 @@ def test_indentation_refuses_references_and_markers_of_another_shape():
         indentations(points, (), pitch_mm=6.0)
     with pytest.raises(InputError, match=r"\(M, 3\) markers"):
         indentation(points[:, :2], np.zeros(n), pitch_mm=6.0)
-
-
-def test_linear_percentile_is_numpys_bit_for_bit():
-    """grow_contact's percentile equals np.percentile's exactly: sizes from 1, ties, -inf, the ends."""
-    rng = np.random.default_rng(5)
-    for trial in range(3000):
-        values = rng.normal(size=int(rng.integers(1, 70))) * 10 ** rng.uniform(-3, 3)
-        if trial % 4 == 0:
-            values = np.round(values, 1)  # ties
-        if trial % 9 == 0:
-            values[0] = -np.inf  # grow_contact's NaN depths
-        for q in (0, 10, 37.5, 50, 90.0, 99.9, 100):
-            with np.errstate(invalid="ignore"):
-                expected = float(np.percentile(values, q))
-            got = linear_percentile(values, q)
-            assert got == expected or (np.isnan(got) and np.isnan(expected)), (values, q)
-    with np.errstate(invalid="ignore"):
-        assert np.isnan(linear_percentile(np.array([1.0, np.nan, 3.0]), 90))

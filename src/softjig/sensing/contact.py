@@ -23,7 +23,6 @@ membrane draped down from it.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -199,44 +198,6 @@ def contact_candidates(dent: Indentation, *, sigmas: float = 4.0, min_depth_mm: 
     return dent.depth_mm > threshold  # False where NaN, as -inf would be
 
 
-def linear_percentile(values: np.ndarray, q: float) -> float:
-    """``float(np.percentile(values, q))`` (its default ``"linear"`` method) of a non-empty 1-D array.
-
-    Parameters
-    ----------
-    values : (N,) float64, N >= 1.
-    q : the percentile, 0 to 100.
-
-    Returns
-    -------
-    float
-        The same value as NumPy's, bit for bit: the same virtual index ``(N - 1) q / 100``, the two order
-        statistics around it (``np.partition``) and NumPy's interpolation (its ``_lerp``: from the
-        upper neighbour when the weight is at least one half).
-
-    Notes
-    -----
-    ``np.percentile`` spends ~20 us on its generality (axes, methods, weights) for the few dozen
-    candidates of a contact; this takes ~4 us. Other dtypes, arrays with NaN, empty ones and a ``q``
-    outside 0 to 100 go to NumPy.
-    """
-    n = values.size
-    index = (n - 1) * (q / 100)
-    numpy_only = n == 0 or not 0 <= index <= n - 1 or values.ndim != 1 or values.dtype != np.float64
-    if numpy_only or np.isnan(values).any():
-        return float(np.percentile(values, q))
-    if index >= n - 1:  # NumPy takes the largest twice, weighted by its index from -1
-        lo = hi = n - 1
-        gamma = index + 1.0
-    else:
-        lo = math.floor(index)
-        hi, gamma = lo + 1, index - lo
-    ordered = np.partition(values, (lo, hi) if hi != lo else lo)
-    a, b = float(ordered[lo]), float(ordered[hi])
-    diff = b - a
-    return b - diff * (1 - gamma) if gamma >= 0.5 else a + diff * gamma
-
-
 def grow_contact(
     points_J: np.ndarray,
     dent: Indentation,
@@ -286,7 +247,7 @@ def grow_contact(
     (used, plane) : (M,) the contact markers, and their plane.
     """
     depth = _nan_as_minus_inf(dent.depth_mm)
-    deepest = linear_percentile(depth[candidates], 90.0) if candidates.any() else 0.0
+    deepest = float(np.percentile(depth[candidates], 90)) if candidates.any() else 0.0
     seeds: list[np.ndarray] = []
     for share in SEED_DEPTH_SHARES:
         seed = candidates & (depth >= share * deepest)
