@@ -12,19 +12,29 @@ default_scene : the default pair: a 50 mm cylinder tilted 10 deg towards +x, 3 m
 unloaded_scene : the same as-built jig with no part (a reference frame), rendered with seed 99.
 small_dataset : DESIGN.md's small sweep on disk (a reference frame and 4 frames of a 50 mm part at 10 deg,
     every 90 deg, seed 2); copy it to ``tmp_path`` to change it.
+
+The property tests (Hypothesis) draw the same examples on every run (profile ``repeatable``,
+``derandomize``), so a run's verdict depends on the code alone, not on a lucky draw; run them with
+``HYPOTHESIS_PROFILE=explore`` to draw new examples (and add an ``@example`` for any failure they find).
 """
 
 from __future__ import annotations
 
 import hashlib
+import os
 from pathlib import Path
 
 import pytest
+from hypothesis import settings
 
 from scenes import UNLOADED_SEED, Scene, read_only, render_scene
 from softjig.config import JigConfig, default_jig
 
 SMALL_DATASET_SEED = 2
+
+settings.register_profile("repeatable", derandomize=True)
+settings.register_profile("explore", derandomize=False)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "repeatable"))
 
 
 def _digest(root: Path) -> dict[str, str]:
