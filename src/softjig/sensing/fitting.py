@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -163,6 +163,10 @@ def _common_fields(
         "n_markers_right": len(observation.right),
         "n_matches": len(observation.matches),
     }
+
+
+#: How the self-check's reasons among an estimate's warnings begin (:func:`suspicions`).
+SUSPECT_PREFIX = "suspect: "
 
 
 def suspicions(
@@ -382,7 +386,44 @@ class ContactPlaneFitter:
         self, observation: Observation, points_J: np.ndarray, part_diameter_mm: float | None
     ) -> SensingResult | Refusal:
         """Identify the markers, measure their indentation, find the contact (in the reference markers'
-        order, :func:`canonical_order`), drop the lifted-off markers, and describe the result."""
+        order, :func:`canonical_order`), drop the lifted-off markers, and describe the result.
+
+        With the part's size, the contact is searched under the known face; when that estimate fails its
+        self-checks, the contact is searched without the size as well, and reported instead (with a
+        warning that says so) when it passes every check, the part's size included (its area): two
+        searches that rest on different evidence, one of them confident. Otherwise the suspect estimate
+        stands.
+        """
+        result = self._fit(observation, points_J, part_diameter_mm, search_size_mm=part_diameter_mm)
+        if part_diameter_mm is None or not isinstance(result, SensingResult):
+            return result
+        if result.estimate.quality == "ok":
+            return result
+        try:
+            size_free = self._fit(observation, points_J, part_diameter_mm, search_size_mm=None)
+        except EstimationError:  # no plane grows without the size: the suspect estimate stands
+            return result
+        if not isinstance(size_free, SensingResult) or size_free.estimate.quality != "ok":
+            return result
+        reason = next(w for w in result.estimate.warnings if w.startswith(SUSPECT_PREFIX))
+        note = (
+            f"the contact searched under the part's {part_diameter_mm:g} mm face failed its checks "
+            f"({reason.removeprefix(SUSPECT_PREFIX)}); the contact found without the size, which passes "
+            "them, is reported"
+        )
+        estimate = replace(size_free.estimate, warnings=(*size_free.estimate.warnings, note))
+        return replace(size_free, estimate=estimate)
+
+    def _fit(
+        self,
+        observation: Observation,
+        points_J: np.ndarray,
+        part_diameter_mm: float | None,
+        *,
+        search_size_mm: float | None,
+    ) -> SensingResult | Refusal:
+        """:meth:`fit`'s estimate with the contact searched under a face of ``search_size_mm`` (or without
+        a size: ``None``), checked and described with the part's ``part_diameter_mm``."""
         identities = identify_markers(
             points_J, self._reference.markers, max_lateral_mm=IDENTITY_REACH_PITCHES * self._pitch
         )
@@ -398,13 +439,13 @@ class ContactPlaneFitter:
         order = canonical_order(identities.ids, points_J)
         in_order = Indentation(dent.depth_mm[order], dent.zero_mm, dent.noise_mm)
         ordered = Dent(points_J[order], in_order, candidates[order], noise, noise.inlier_mm)
-        found = self._contact(ordered, part_diameter_mm)
+        found = self._contact(ordered, search_size_mm)
         if not found:
             return found
         (used_in_order, plane), rival = found
         used = np.empty_like(used_in_order)
         used[order] = used_in_order
-        if part_diameter_mm is None:  # under a known face, the plane is already the SVD fit of points_J[used]
+        if search_size_mm is None:  # under a known face, the plane is already the SVD fit of points_J[used]
             plane = fit_or_fail(points_J[used], self._minimum)
         grown = used
         clearance = LIFT_OFF_SIGMAS * noise.face_depth_sigma_mm
@@ -443,6 +484,7 @@ class ContactPlaneFitter:
             dent,
             int(candidates.sum()),
             part_diameter_mm,
+            size_free_search=search_size_mm is None,
         )
         return SensingResult(
             estimate,
@@ -879,8 +921,11 @@ class ContactPlaneFitter:
         dent: Indentation,
         n_candidates: int,
         part_diameter_mm: float | None,
+        *,
+        size_free_search: bool,
     ) -> Estimate:
-        """The reported estimate, with its warnings and the self-check's reasons."""
+        """The reported estimate, with its warnings and the self-check's reasons (``size_free_search``: the
+        contact was grown without the part's size)."""
         part_centre = None
         if part_diameter_mm is not None:
             part_centre = face_centre_xy(
@@ -900,7 +945,7 @@ class ContactPlaneFitter:
                 f"{np.degrees(rival.angle_rad):.1f} deg from this one's ({rival.sigmas:.0f} times their "
                 "noise): the frame may show the membrane's wall beside a small contact"
             )
-        if part_diameter_mm is None and n_used < MIN_CANDIDATE_SHARE * n_candidates:  # size-free only
+        if size_free_search and n_used < MIN_CANDIDATE_SHARE * n_candidates:
             suspect.append(
                 f"suspect: only {n_used} of the {n_candidates} clearly pushed-in markers were fitted: a face "
                 "presses most of its dent, the plane may be a strip of the membrane's wall"
