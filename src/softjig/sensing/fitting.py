@@ -167,6 +167,15 @@ def _common_fields(
 
 #: How the self-check's reasons among an estimate's warnings begin (:func:`suspicions`).
 SUSPECT_PREFIX = "suspect: "
+#: Two estimates' normals further apart than this many times their combined 1-sigma tilt are two planes.
+DISTINCT_PLANE_SIGMAS = 3.0
+
+
+def _distinct_planes(a: Estimate, b: Estimate) -> bool:
+    """Whether two estimates of one frame found different planes: their normals further apart than
+    :data:`DISTINCT_PLANE_SIGMAS` times their combined ``tilt_sigma_deg``."""
+    angle_deg = math.degrees(math.acos(min(1.0, abs(float(np.dot(a.normal, b.normal))))))
+    return angle_deg > DISTINCT_PLANE_SIGMAS * math.hypot(a.tilt_sigma_deg, b.tilt_sigma_deg)
 
 
 def suspicions(
@@ -390,9 +399,10 @@ class ContactPlaneFitter:
 
         With the part's size, the contact is searched under the known face; when that estimate fails its
         self-checks, the contact is searched without the size as well, and reported instead (with a
-        warning that says so) when it passes every check, the part's size included (its area): two
-        searches that rest on different evidence, one of them confident. Otherwise the suspect estimate
-        stands.
+        warning that says so) when it passes every check, the part's size included (its area), and its
+        plane is another one (:func:`_distinct_planes`): two searches that rest on different evidence,
+        one of them confident. Where both found the same plane, the doubt the search with the size
+        raised stands (a rival contact, say), and so does the suspect estimate.
         """
         result = self._fit(observation, points_J, part_diameter_mm, search_size_mm=part_diameter_mm)
         if part_diameter_mm is None or not isinstance(result, SensingResult):
@@ -404,6 +414,8 @@ class ContactPlaneFitter:
         except EstimationError:  # no plane grows without the size: the suspect estimate stands
             return result
         if not isinstance(size_free, SensingResult) or size_free.estimate.quality != "ok":
+            return result
+        if not _distinct_planes(result.estimate, size_free.estimate):  # the same plane, doubted with the size
             return result
         reason = next(w for w in result.estimate.warnings if w.startswith(SUSPECT_PREFIX))
         note = (
