@@ -383,3 +383,12 @@ def test_pair_leaves_the_garbage_collector_as_it_found_it(sweep, extra):
     assert "Traceback" not in result.output
     assert result.exit_code == (0 if extra[1] == "50" else 2), result.output
     assert paused_during == []
+
+
+def test_the_lazy_copies_of_the_suspect_prefix_are_the_estimators():
+    """The command line and the study runner keep their own copy (they import the estimator lazily)."""
+    from softjig.cli.estimate import SUSPECT_PREFIX
+    from softjig.sensing.results import SUSPECT_PREFIX as ESTIMATORS
+    from softjig.study.run import _SUSPECT_PREFIX
+
+    assert SUSPECT_PREFIX == _SUSPECT_PREFIX == ESTIMATORS

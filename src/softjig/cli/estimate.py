@@ -81,7 +81,8 @@ def _print_estimate_table(estimate: dict) -> None:
             warn(message)
 
 
-SUSPECT_PREFIX = "suspect: "  # how the estimator's self-check reasons start (softjig.sensing.pipeline)
+# softjig.sensing.results.SUSPECT_PREFIX, not imported: the command line loads the estimator lazily
+SUSPECT_PREFIX = "suspect: "
 
 
 def _quality_text(estimate: dict) -> str:

@@ -40,8 +40,8 @@ from softjig.sensing.contact import (
     just_outside,
     under_face,
 )
-from softjig.sensing.identities import identify_markers
-from softjig.sensing.results import Estimate, Observation, Refusal, SensingResult
+from softjig.sensing.identities import MarkerIdentities, identify_markers
+from softjig.sensing.results import SUSPECT_PREFIX, Estimate, Observation, Refusal, SensingResult
 from softjig.sensing.robust import fit_plane_robust
 from softjig.sensing.selfcheck import MIN_HALF_POINTS, SplitCheck, agreement, split_halves
 from softjig.sensing.setup import JigModel, ReferenceModel
@@ -165,8 +165,6 @@ def _common_fields(
     }
 
 
-#: How the self-check's reasons among an estimate's warnings begin (:func:`suspicions`).
-SUSPECT_PREFIX = "suspect: "
 #: Two estimates' normals further apart than this many times their combined 1-sigma tilt are two planes.
 DISTINCT_PLANE_SIGMAS = 3.0
 
@@ -372,6 +370,21 @@ class Dent:
     threshold_mm: float
 
 
+@dataclass(frozen=True)
+class _Measured:
+    """What :meth:`ContactPlaneFitter.fit` measures of a frame once, whatever size its contact is searched
+    with: the markers' identities, their indentation (as matched, and in the canonical ``order`` as
+    ``ordered``) and the part's size given (mm, or ``None``)."""
+
+    observation: Observation
+    points_J: np.ndarray
+    identities: MarkerIdentities
+    dent: Indentation
+    ordered: Dent
+    order: np.ndarray
+    part_diameter_mm: float | None
+
+
 class ContactPlaneFitter:
     """Ours: the contact from the indentation, its plane fitted robustly, lifted-off markers dropped.
 
@@ -404,38 +417,6 @@ class ContactPlaneFitter:
         one of them confident. Where both found the same plane, the doubt the search with the size
         raised stands (a rival contact, say), and so does the suspect estimate.
         """
-        result = self._fit(observation, points_J, part_diameter_mm, search_size_mm=part_diameter_mm)
-        if part_diameter_mm is None or not isinstance(result, SensingResult):
-            return result
-        if result.estimate.quality == "ok":
-            return result
-        try:
-            size_free = self._fit(observation, points_J, part_diameter_mm, search_size_mm=None)
-        except EstimationError:  # no plane grows without the size: the suspect estimate stands
-            return result
-        if not isinstance(size_free, SensingResult) or size_free.estimate.quality != "ok":
-            return result
-        if not _distinct_planes(result.estimate, size_free.estimate):  # the same plane, doubted with the size
-            return result
-        reason = next(w for w in result.estimate.warnings if w.startswith(SUSPECT_PREFIX))
-        note = (
-            f"the contact searched under the part's {part_diameter_mm:g} mm face failed its checks "
-            f"({reason.removeprefix(SUSPECT_PREFIX)}); the contact found without the size, which passes "
-            "them, is reported"
-        )
-        estimate = replace(size_free.estimate, warnings=(*size_free.estimate.warnings, note))
-        return replace(size_free, estimate=estimate)
-
-    def _fit(
-        self,
-        observation: Observation,
-        points_J: np.ndarray,
-        part_diameter_mm: float | None,
-        *,
-        search_size_mm: float | None,
-    ) -> SensingResult | Refusal:
-        """:meth:`fit`'s estimate with the contact searched under a face of ``search_size_mm`` (or without
-        a size: ``None``), checked and described with the part's ``part_diameter_mm``."""
         identities = identify_markers(
             points_J, self._reference.markers, max_lateral_mm=IDENTITY_REACH_PITCHES * self._pitch
         )
@@ -451,6 +432,43 @@ class ContactPlaneFitter:
         order = canonical_order(identities.ids, points_J)
         in_order = Indentation(dent.depth_mm[order], dent.zero_mm, dent.noise_mm)
         ordered = Dent(points_J[order], in_order, candidates[order], noise, noise.inlier_mm)
+        measured = _Measured(observation, points_J, identities, dent, ordered, order, part_diameter_mm)
+        result = self._fit(measured, search_size_mm=part_diameter_mm)
+        if (
+            part_diameter_mm is None
+            or not isinstance(result, SensingResult)
+            or result.estimate.quality == "ok"
+        ):
+            return result
+        return self._size_free_instead(measured, result)
+
+    def _size_free_instead(self, measured: _Measured, suspect: SensingResult) -> SensingResult:
+        """The size-free contact's estimate of the ``measured`` frame, with a warning, where it passes every
+        check and found another plane than the ``suspect`` estimate under the known face; else that one."""
+        try:
+            size_free = self._fit(measured, search_size_mm=None)
+        except EstimationError:  # no plane grows without the size: the suspect estimate stands
+            return suspect
+        if not isinstance(size_free, SensingResult) or size_free.estimate.quality != "ok":
+            return suspect
+        if not _distinct_planes(suspect.estimate, size_free.estimate):  # one plane, doubted with the size
+            return suspect
+        reason = next(w for w in suspect.estimate.warnings if w.startswith(SUSPECT_PREFIX))
+        note = (
+            f"the contact searched under the part's {measured.part_diameter_mm:g} mm face failed its checks "
+            f"({reason.removeprefix(SUSPECT_PREFIX)}); the contact found without the size, which passes "
+            "them, is reported"
+        )
+        estimate = replace(size_free.estimate, warnings=(*size_free.estimate.warnings, note))
+        return replace(size_free, estimate=estimate)
+
+    def _fit(self, measured: _Measured, *, search_size_mm: float | None) -> SensingResult | Refusal:
+        """:meth:`fit`'s estimate of the ``measured`` frame with the contact searched under a face of
+        ``search_size_mm`` (or without a size: ``None``), checked and described with the part's size."""
+        observation, points_J, dent, ordered = (
+            measured.observation, measured.points_J, measured.dent, measured.ordered
+        )  # fmt: skip
+        part_diameter_mm, noise, order = measured.part_diameter_mm, ordered.noise, measured.order
         found = self._contact(ordered, search_size_mm)
         if not found:
             return found
@@ -494,7 +512,7 @@ class ContactPlaneFitter:
             violations,
             rival,
             dent,
-            int(candidates.sum()),
+            int(ordered.candidates.sum()),
             part_diameter_mm,
             size_free_search=search_size_mm is None,
         )
@@ -507,7 +525,7 @@ class ContactPlaneFitter:
             used,
             plane,
             observation.frame,
-            identities,
+            measured.identities,
             dent,
             contact,
             uncertainty,

@@ -20,6 +20,10 @@ from softjig.sensing.jigframe import JigFrame
 from softjig.sensing.stereo import StereoMatches
 from softjig.sensing.uncertainty import NormalUncertainty
 
+#: How the self-check's reasons begin among an :class:`Estimate`'s ``warnings`` (its ``quality`` is
+#: ``"suspect"`` when there is one).
+SUSPECT_PREFIX = "suspect: "
+
 __all__ = ["Estimate", "Markers", "Observation", "Refusal", "SensingResult"]
 
 

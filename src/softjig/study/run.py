@@ -63,7 +63,7 @@ __all__ = [
 
 #: Tasks in flight per worker: one running, one queued, so no worker waits for the parent.
 IN_FLIGHT_PER_WORKER = 2
-_SUSPECT_PREFIX = "suspect: "
+_SUSPECT_PREFIX = "suspect: "  # softjig.sensing.results.SUSPECT_PREFIX (sensing is imported lazily)
 _REASON_CHARS = 300  # a failure's message is kept to this length in the results
 
 
