@@ -116,10 +116,10 @@ def test_the_same_configs_give_the_same_values(case):
     assert ours == parse_dataclass(cls, _listify(data))
 
 
-# Values that do not fit a field: both refuse them. A bool or a string where a number belongs is refused by
-# us always (pydantic reads True as 1 and "8" as 8 in its lax mode); a float with no fractional part in an
-# int field is read by both.
-WRONG = [None, "x", math.nan, math.inf, -math.inf, [1.0], {"a": 1}]
+# Values that do not fit a field: both refuse them (1e300 and 2.5 fit a float field, and are compared
+# there). A bool or a string where a number belongs is refused by us always (pydantic reads True as 1 and
+# "8" as 8 in its lax mode); a float with no fractional part in an int field is read by both.
+WRONG = [None, "x", math.nan, math.inf, -math.inf, 1e300, 2.5, [1.0], {"a": 1}]
 
 
 @pytest.mark.agreement
@@ -140,6 +140,29 @@ def test_the_same_values_are_refused_at_the_same_field(case):
             tried += 1
             assert error == their_error, (path, wrong, error, their_error)
     assert tried >= 4 * len(leaves)  # most wrong values were tried, not waved through
+
+
+@pytest.mark.agreement
+@pytest.mark.parametrize("case", range(len(CONFIGS)))
+def test_integers_written_as_floats_are_read_alike(case):
+    """Every integer of a config written as a float (``8.0``, as a TOML file may): both read the same
+    value, an integer ``Literal`` (the bit depth) included."""
+    cls, data = CONFIGS[case]
+    data = _listify(data)
+    integers = [path for path, value in _leaves(data) if type(value) is int]
+    changed = data
+    for path in integers:
+        changed = _set(changed, path, float(_value_at(data, path)))
+    ours, error = _ours(cls, changed)
+    theirs, their_error = _pydantic(cls, changed)
+    assert error is None and their_error is None, (error, their_error)
+    assert repr(ours) == repr(theirs) == repr(parse_dataclass(cls, data))
+
+
+def _value_at(data, path):
+    for key in path:
+        data = data[key]
+    return data
 
 
 @pytest.mark.agreement

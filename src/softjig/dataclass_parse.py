@@ -9,9 +9,9 @@ the same ones, naming the same field).
 
 The field types understood are the ones the configs use: ``float``, ``int``, ``str``, ``bool``,
 ``Literal[...]``, ``X | None``, ``tuple[X, ...]``, fixed-length ``tuple[X, Y, ...]`` and nested dataclasses.
-Numbers are finite; ``bool`` is not a number; an ``int`` field takes a float with no fractional part; a
-tuple is given as a list or a tuple; a dataclass as a dict whose unknown keys are refused and whose missing
-keys take the field's default.
+Numbers are finite; ``bool`` is not a number; an ``int`` field (and an integer ``Literal``) takes a float
+with no fractional part within the 64-bit integers; a tuple is given as a list or a tuple; a dataclass as
+a dict whose unknown keys are refused and whose missing keys take the field's default.
 """
 
 from __future__ import annotations
@@ -75,6 +75,8 @@ def _convert(annotation: Any, value: Any) -> Any:
     origin = typing.get_origin(annotation)
     if origin is Literal:
         options = typing.get_args(annotation)
+        if _integral_float(value) and any(type(option) is int for option in options):
+            value = int(value)  # as an int field reads it
         if not any(value == option and type(value) is type(option) for option in options):
             raise _FieldError((), f"must be one of {', '.join(repr(o) for o in options)}, got {value!r}")
         return value
@@ -106,8 +108,14 @@ def _convert_float(value: Any) -> float:
     return number
 
 
+def _integral_float(value: Any) -> bool:
+    """A float with no fractional part within the 64-bit integers (a larger one is refused, as pydantic
+    refuses it, rather than read as an integer of hundreds of digits)."""
+    return isinstance(value, float) and value.is_integer() and abs(value) < 2.0**63
+
+
 def _convert_int(value: Any) -> int:
-    if isinstance(value, float) and math.isfinite(value) and value.is_integer():
+    if _integral_float(value):
         return int(value)
     if isinstance(value, bool) or not isinstance(value, int):
         raise _FieldError((), f"must be an integer, got {value!r}")
