@@ -313,12 +313,19 @@ def count_within(query: np.ndarray, points: np.ndarray, radius: float, inclusive
 
 @numba.njit(cache=True)
 def violations(
-    xy: np.ndarray, contact: np.ndarray, above: np.ndarray, below: np.ndarray, radius: float
+    xy: np.ndarray,
+    contact: np.ndarray,
+    above: np.ndarray,
+    far_above: np.ndarray,
+    below: np.ndarray,
+    radius: float,
+    tolerated: int,
 ) -> int:
-    """How many markers are ``above`` inside the hull of the contact's core (its markers with at least
-    :data:`CORE_NEIGHBOURS` other contact markers within ``radius``, 1.5 pitches; all of them if fewer
-    than 3 are) plus how many are ``below`` inside the contact's hull (a marker is never both; none for a
-    contact of fewer than 3 markers)."""
+    """How many markers contradict a contact beyond the ``tolerated`` few: those ``above`` inside the hull
+    of the contact's core (its markers with at least :data:`CORE_NEIGHBOURS` other contact markers within
+    ``radius``, 1.5 pitches; all of them if fewer than 3 are) plus those ``below`` inside the contact's
+    hull, less ``tolerated``, plus those of the first that are also ``far_above`` but one (a marker is
+    never both above and below; none for a contact of fewer than 3 markers)."""
     n = xy.shape[0]
     index = np.empty(n, dtype=np.int64)  # the contact's markers, in order
     m, n_upper, n_lower = 0, 0, 0
@@ -329,7 +336,7 @@ def violations(
         n_upper += above[i]
         n_lower += below[i]
     members = _rows(xy, index, m)
-    count = 0
+    count, far = 0, 0
     if n_upper and m >= 3:
         counts = count_within(members, members, radius, True)
         core = np.empty(m, dtype=np.int64)
@@ -339,10 +346,19 @@ def violations(
                 core[c] = index[j]
                 c += 1
         hull = _rows(xy, core, c) if c >= 3 else members
-        count += _count_inside(hull, _flagged_rows(xy, above, n_upper))
+        inside = inside_hull(hull, _flagged_rows(xy, above, n_upper), HULL_TOLERANCE_MM)
+        j = 0
+        for i in range(n):
+            if above[i]:
+                if inside[j]:
+                    if far_above[i]:
+                        far += 1
+                    else:
+                        count += 1
+                j += 1
     if n_lower and m >= 3:
         count += _count_inside(members, _flagged_rows(xy, below, n_lower))
-    return count
+    return max(0, count - tolerated) + max(0, far - 1)
 
 
 @numba.njit  # no cache of its own: compiled into its callers'

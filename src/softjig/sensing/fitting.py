@@ -101,6 +101,10 @@ RIVAL_SEARCH_PITCHES = 1.0
 CENTRED_SHARE = 0.5
 # Rounds of (robust fit of the markers under the face, the face's footprint from that plane).
 UNDER_FACE_ROUNDS = 3
+# When the face found under the known size is suspect, it is searched again from every placement on a
+# square grid over the clearly pushed-in markers, this many part radii apart (at least one pitch): a
+# search moves its face to where its contact puts it, so starts half a radius apart reach every face.
+PLACEMENT_GRID_RADII = 0.5
 # Identities: a marker keeps the nearest reference marker within this share of the pitch sideways.
 IDENTITY_REACH_PITCHES = 0.5
 
@@ -346,6 +350,16 @@ def _mean_xy(points_J: np.ndarray, selection: np.ndarray) -> np.ndarray:
     return points_J[selection, :2].sum(axis=0) / np.count_nonzero(selection)
 
 
+def placement_grid(xy_mm: np.ndarray, spacing_mm: float) -> np.ndarray:
+    """``(K, 2)`` points (mm) of a square grid of ``spacing_mm`` over the bounding box of ``xy_mm``
+    (``(N, 2)``, not empty), from its lower corner: where the face is searched from when every
+    placement is tried."""
+    low, high = xy_mm.min(axis=0), xy_mm.max(axis=0)
+    xs = np.arange(low[0], high[0] + spacing_mm / 2.0, spacing_mm)
+    ys = np.arange(low[1], high[1] + spacing_mm / 2.0, spacing_mm)
+    return np.stack(np.meshgrid(xs, ys, indexing="ij"), axis=-1).reshape(-1, 2)
+
+
 def _within(points_J: np.ndarray, centre_xy: np.ndarray, radius_mm: float) -> np.ndarray:
     return np.hypot(points_J[:, 0] - centre_xy[0], points_J[:, 1] - centre_xy[1]) < radius_mm
 
@@ -411,11 +425,13 @@ class ContactPlaneFitter:
         order, :func:`canonical_order`), drop the lifted-off markers, and describe the result.
 
         With the part's size, the contact is searched under the known face; when that estimate fails its
-        self-checks, the contact is searched without the size as well, and reported instead (with a
-        warning that says so) when it passes every check, the part's size included (its area), and its
-        plane is another one (:func:`_distinct_planes`): two searches that rest on different evidence,
-        one of them confident. Where both found the same plane, the doubt the search with the size
-        raised stands (a rival contact, say), and so does the suspect estimate.
+        self-checks, the face is searched again from every placement (:meth:`_placement_search`), whose
+        estimate is reported instead (more contacts, ranked by the same evidence). When
+        that one fails its checks too, the contact is searched without the size as well, and reported
+        instead (with a warning that says so) when it passes every check, the part's size included (its
+        area), and its plane is another one (:func:`_distinct_planes`): two searches that rest on
+        different evidence, one of them confident. Where both found the same plane, the doubt the
+        search with the size raised stands (a rival contact, say), and so does the suspect estimate.
         """
         identities = identify_markers(
             points_J, self._reference.markers, max_lateral_mm=IDENTITY_REACH_PITCHES * self._pitch
@@ -440,6 +456,11 @@ class ContactPlaneFitter:
             or result.estimate.quality == "ok"
         ):
             return result
+        searched = self._fit(measured, search_size_mm=part_diameter_mm, every_placement=True)
+        if isinstance(searched, SensingResult):
+            result = searched
+            if result.estimate.quality == "ok":
+                return result
         return self._size_free_instead(measured, result)
 
     def _size_free_instead(self, measured: _Measured, suspect: SensingResult) -> SensingResult:
@@ -462,14 +483,17 @@ class ContactPlaneFitter:
         estimate = replace(size_free.estimate, warnings=(*size_free.estimate.warnings, note))
         return replace(size_free, estimate=estimate)
 
-    def _fit(self, measured: _Measured, *, search_size_mm: float | None) -> SensingResult | Refusal:
+    def _fit(
+        self, measured: _Measured, *, search_size_mm: float | None, every_placement: bool = False
+    ) -> SensingResult | Refusal:
         """:meth:`fit`'s estimate of the ``measured`` frame with the contact searched under a face of
-        ``search_size_mm`` (or without a size: ``None``), checked and described with the part's size."""
+        ``search_size_mm`` (or without a size: ``None``; ``every_placement``: from every placement,
+        :meth:`_placement_search`), checked and described with the part's size."""
         observation, points_J, dent, ordered = (
             measured.observation, measured.points_J, measured.dent, measured.ordered
         )  # fmt: skip
         part_diameter_mm, noise, order = measured.part_diameter_mm, ordered.noise, measured.order
-        found = self._contact(ordered, search_size_mm)
+        found = self._contact(ordered, search_size_mm, every_placement=every_placement)
         if not found:
             return found
         (used_in_order, plane), rival = found
@@ -588,10 +612,11 @@ class ContactPlaneFitter:
         return fit
 
     def _contact(
-        self, dent: Dent, part_diameter_mm: float | None
+        self, dent: Dent, part_diameter_mm: float | None, *, every_placement: bool = False
     ) -> tuple[Contact, SplitCheck | None] | Refusal:
-        """The contact's markers (canonical order) and plane, under the known face or size-free, and its
-        rival's agreement (:meth:`_contact_under_known_face`; ``None`` size-free)."""
+        """The contact's markers (canonical order) and plane, under the known face (searched from every
+        placement with ``every_placement``) or size-free, and its rival's agreement
+        (:meth:`_contact_under_known_face`, :meth:`_placement_search`; ``None`` size-free)."""
         fit = self._robust_fit(dent.threshold_mm)
 
         def size_free() -> Contact:
@@ -607,6 +632,11 @@ class ContactPlaneFitter:
 
         if part_diameter_mm is None:
             (used, plane), rival = size_free(), None
+        elif every_placement:
+            found = self._placement_search(dent, part_diameter_mm / 2.0, fit, size_free)
+            if not found:
+                return found
+            (used, plane), rival = found
         else:
             found = self._contact_under_known_face(dent, part_diameter_mm / 2.0, fit, size_free)
             if not found:
@@ -683,6 +713,59 @@ class ContactPlaneFitter:
                 "pushed-in markers lie under it (sensing.min_points); is the part's size right?"
             )
         return searches[0], rival
+
+    def _placement_search(
+        self, dent: Dent, radius_mm: float, fit: PlaneFitFunction, size_free: Callable[[], Contact]
+    ) -> tuple[Contact, SplitCheck | None] | Refusal:
+        """The contact under a face of ``radius_mm`` found by :meth:`_contact_under_known_face`, or, where
+        markers contradict that one, searched (:meth:`_search_face`) from every placement of a grid over
+        the clearly pushed-in markers (:func:`placement_grid`); and its rival's agreement (``None`` when
+        there is none).
+
+        The two searches from the axis and the dent's centroid miss a small, steeply tilted face far off
+        the axis, whose contact is a few markers beside a wall of as many. But a contact that no marker
+        contradicts stays: a grid contact is no better evidence (a strip of wall beside a small face is
+        often larger than the face's contact). Else the contacts are ranked by the markers that
+        contradict their plane (:func:`~softjig.sensing.contact.contact_violations`), then by their size,
+        then by their markers' RMS distance from their plane; the first is the contact. A rival is
+        another contact that no marker contradicts whose normal disagrees with the first's beyond their
+        noise (:meth:`_rival`), as between the two searches of :meth:`_contact_under_known_face`, whose
+        own rival stands when its contact is ranked first.
+        """
+        points_J, candidates = dent.points_J, dent.candidates
+
+        def violations(contact: Contact) -> int:
+            used, plane = contact
+            return contact_violations(
+                points_J,
+                used,
+                plane,
+                threshold_mm=dent.threshold_mm,
+                pitch_mm=self._pitch,
+                dent=dent.indentation,
+            )
+
+        first = self._contact_under_known_face(dent, radius_mm, fit, size_free)
+        if first and violations(first[0]) == 0:
+            return first
+        contacts = [first[0]] if first else []
+        spacing = max(self._pitch, PLACEMENT_GRID_RADII * radius_mm)
+        for start in placement_grid(points_J[candidates, :2], spacing):
+            search = self._search_face(dent, radius_mm, fit, start)
+            if search and not any(np.array_equal(search[0], used) for used, _ in contacts):
+                contacts.append(search)
+        if not contacts:
+            return first
+        scores = [(violations(c), -int(c[0].sum()), c[1].rms_residual_mm) for c in contacts]
+        ranked = sorted(range(len(contacts)), key=scores.__getitem__)
+        best = contacts[ranked[0]]
+        if first and ranked[0] == 0 and first[1] is not None:  # its own rival stands
+            return first
+        for k in ranked[1:]:
+            rival = None if scores[k][0] else self._rival(points_J, best, contacts[k], dent.threshold_mm)
+            if rival is not None:
+                return best, rival
+        return best, None
 
     def _rival_search(
         self, dent: Dent, radius_mm: float, fit: PlaneFitFunction, search: Contact, start_xy: np.ndarray
