@@ -130,9 +130,9 @@ def test_a_marker_of_unknown_indentation_is_no_hole_beside():
 
 
 def _flat_contact_with_markers_above(heights_mm: list[float]):
-    """A flat contact of a 30 mm face on the axis, 4 mm deep, with its central markers raised by
-    ``heights_mm`` (taken out of the contact, as a fit would leave them)."""
-    xy = _grid(30.0)
+    """A flat contact of a 20 mm face on the axis (21 markers), 4 mm deep, with its central markers
+    raised by ``heights_mm`` (taken out of the contact, as a fit would leave them)."""
+    xy = _grid(20.0)
     z = np.full(len(xy), REST_Z - 4.0)
     central = np.argsort(np.hypot(*xy.T))[: len(heights_mm)]
     z[central] += heights_mm
@@ -143,11 +143,11 @@ def _flat_contact_with_markers_above(heights_mm: list[float]):
 
 
 def test_markers_far_above_the_plane_are_tolerated_once():
-    """Inside the contact's core, two markers just above the plane (within two inlier thresholds) are
-    noise, and so is one far above it (a mismatched marker); two far above are one violation: no face
-    leaves a rise of membrane that pierces it."""
+    """Inside the core of a contact of under 40 markers, two markers just above the plane (within two
+    inlier thresholds) are noise, and so is one far above it (a mismatched marker); two far above are
+    one violation: no face leaves a rise of membrane that pierces it."""
     near, far = 1.5 * THRESHOLD, 2.5 * THRESHOLD
-    for heights, expected in [([near, near], 0), ([far], 0), ([far, far], 1), ([far, far, far], 2)]:
+    for heights, expected in [([near, near], 0), ([far], 0), ([far, far], 1)]:
         points, contact, plane = _flat_contact_with_markers_above(heights)
         count = contact_violations(points, contact, plane, threshold_mm=THRESHOLD, pitch_mm=PITCH)
         assert count == expected, (heights, count)

@@ -320,12 +320,14 @@ def violations(
     below: np.ndarray,
     radius: float,
     tolerated: int,
+    far_tolerated: int,
 ) -> int:
     """How many markers contradict a contact beyond the ``tolerated`` few: those ``above`` inside the hull
     of the contact's core (its markers with at least :data:`CORE_NEIGHBOURS` other contact markers within
     ``radius``, 1.5 pitches; all of them if fewer than 3 are) plus those ``below`` inside the contact's
-    hull, less ``tolerated``, plus those of the first that are also ``far_above`` but one (a marker is
-    never both above and below; none for a contact of fewer than 3 markers)."""
+    hull, less ``tolerated``; but at least those of the first that are also ``far_above``, less
+    ``far_tolerated`` (a marker is never both above and below; none for a contact of fewer than 3
+    markers)."""
     n = xy.shape[0]
     index = np.empty(n, dtype=np.int64)  # the contact's markers, in order
     m, n_upper, n_lower = 0, 0, 0
@@ -358,7 +360,7 @@ def violations(
                 j += 1
     if n_lower and m >= 3:
         count += _count_inside(members, _flagged_rows(xy, below, n_lower))
-    return max(0, count - tolerated) + max(0, far - 1)
+    return max(0, count + far - tolerated, far - far_tolerated)
 
 
 @numba.njit  # no cache of its own: compiled into its callers'

@@ -406,15 +406,23 @@ def _violations(
     # The markers' heights above the plane are computed once, and the core and both hull tests made in
     # one compiled pass (``_contact_kernels.violations``), only for the markers above or below.
     # Markers as far above the plane as a hole lies below it (:data:`HOLE_THRESHOLDS` thresholds, 5
-    # sigmas) are not noise: one may be a mismatched marker, every other one counts. A ring of wall
-    # markers around a rise of membrane fits a plane that the rise pierces.
+    # sigmas) are not noise but mismatched markers, one or 5 % of the contact; beyond those, each counts
+    # whatever else is tolerated. A ring of wall markers around a rise of membrane fits a plane that the
+    # rise pierces.
     height = (points_J - plane.centroid_mm) @ plane.normal
     above = height > threshold_mm
     far_above = height > HOLE_THRESHOLDS * threshold_mm
     below = (height < -HOLE_THRESHOLDS * threshold_mm) & ~contact
     xy = np.ascontiguousarray(points_J[:, :2], dtype=float)
     count = kernels.violations(
-        xy, contact, above, far_above, below, NEIGHBOUR_RADIUS_PITCHES * pitch_mm, tolerated
+        xy,
+        contact,
+        above,
+        far_above,
+        below,
+        NEIGHBOUR_RADIUS_PITCHES * pitch_mm,
+        tolerated,
+        max(1, int(TOLERATED_VIOLATION_SHARE * contact.sum())),
     )
     # A hole beside the contact is 3.75-5 sigmas below a plane that would press there, and deeper than
     # the contact beside it, where the membrane can only be above it: noise does not explain one, and
