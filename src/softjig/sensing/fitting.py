@@ -676,20 +676,7 @@ class ContactPlaneFitter:
         searches = [s for s in (self._search_face(dent, radius_mm, fit, start) for start in starts) if s]
         rival = None
         if len(searches) > 1:  # the one whose plane fewer markers contradict, then the larger contact
-            scores = [
-                (
-                    contact_violations(
-                        points_J,
-                        used,
-                        plane,
-                        threshold_mm=dent.threshold_mm,
-                        pitch_mm=self._pitch,
-                        dent=dent.indentation,
-                    ),
-                    -used.sum(),
-                )
-                for used, plane in searches
-            ]
+            scores = [(self._contradicting(dent, search), -search[0].sum()) for search in searches]
             best = min(range(len(scores)), key=scores.__getitem__)
             if scores[1 - best][0] == 0:  # the other one no marker contradicts either
                 rival = self._rival(points_J, searches[best], searches[1 - best], dent.threshold_mm)
@@ -714,6 +701,19 @@ class ContactPlaneFitter:
             )
         return searches[0], rival
 
+    def _contradicting(self, dent: Dent, contact: Contact) -> int:
+        """How many markers contradict ``contact``'s plane being the face, as the choice between contacts
+        counts them (:func:`~softjig.sensing.contact.contact_violations`)."""
+        used, plane = contact
+        return contact_violations(
+            dent.points_J,
+            used,
+            plane,
+            threshold_mm=dent.threshold_mm,
+            pitch_mm=self._pitch,
+            dent=dent.indentation,
+        )
+
     def _placement_search(
         self, dent: Dent, radius_mm: float, fit: PlaneFitFunction, size_free: Callable[[], Contact]
     ) -> tuple[Contact, SplitCheck | None] | Refusal:
@@ -733,20 +733,8 @@ class ContactPlaneFitter:
         own rival stands when its contact is ranked first.
         """
         points_J, candidates = dent.points_J, dent.candidates
-
-        def violations(contact: Contact) -> int:
-            used, plane = contact
-            return contact_violations(
-                points_J,
-                used,
-                plane,
-                threshold_mm=dent.threshold_mm,
-                pitch_mm=self._pitch,
-                dent=dent.indentation,
-            )
-
         first = self._contact_under_known_face(dent, radius_mm, fit, size_free)
-        if first and violations(first[0]) == 0:
+        if first and self._contradicting(dent, first[0]) == 0:
             return first
         contacts = [first[0]] if first else []
         spacing = max(self._pitch, PLACEMENT_GRID_RADII * radius_mm)
@@ -756,7 +744,7 @@ class ContactPlaneFitter:
                 contacts.append(search)
         if not contacts:
             return first
-        scores = [(violations(c), -int(c[0].sum()), c[1].rms_residual_mm) for c in contacts]
+        scores = [(self._contradicting(dent, c), -int(c[0].sum()), c[1].rms_residual_mm) for c in contacts]
         ranked = sorted(range(len(contacts)), key=scores.__getitem__)
         best = contacts[ranked[0]]
         if first and ranked[0] == 0 and first[1] is not None:  # its own rival stands
@@ -788,21 +776,20 @@ class ContactPlaneFitter:
         other = (used, plane)
         if used.sum() < self._minimum or self._rival(points_J, search, other, dent.threshold_mm) is None:
             return None  # they agree: the violations (0.2 ms) are not counted
-        violations = contact_violations(
-            points_J, used, plane, threshold_mm=dent.threshold_mm, pitch_mm=self._pitch, dent=dent.indentation
+        return (
+            None if self._contradicting(dent, other) else self._plausible_rival(points_J, search, other, dent)
         )
-        return None if violations else self._plausible_rival(points_J, search, other, dent)
 
     def _plausible_rival(
         self, points_J: np.ndarray, search: Contact, cut: Contact, dent: Dent
     ) -> SplitCheck | None:
         """The ``search``'s face's disagreement with the ``cut`` (:meth:`_rival`), when no marker
         contradicts the search's face either; else ``None``."""
-        used, plane = search
-        violations = contact_violations(
-            points_J, used, plane, threshold_mm=dent.threshold_mm, pitch_mm=self._pitch, dent=dent.indentation
+        return (
+            None
+            if self._contradicting(dent, search)
+            else self._rival(points_J, cut, search, dent.threshold_mm)
         )
-        return None if violations else self._rival(points_J, cut, search, dent.threshold_mm)
 
     def _rival(
         self, points_J: np.ndarray, chosen: Contact, other: Contact, threshold_mm: float
@@ -857,10 +844,7 @@ class ContactPlaneFitter:
             point_sigma_mm=dent.threshold_mm / CONTACT_INLIER_SIGMAS,
             noise_factor=MODEL_ERROR_FACTOR,
         )
-        violations = contact_violations(
-            points_J, *cut, threshold_mm=dent.threshold_mm, pitch_mm=self._pitch, dent=dent.indentation
-        )
-        if check is None or check.suspect or violations > 0:
+        if check is None or check.suspect or self._contradicting(dent, cut) > 0:
             return Refusal("the grown contact under the face fails the self-check")
         return cut  # a larger contact that passes the self-check
 
