@@ -180,6 +180,12 @@ def _distinct_planes(a: Estimate, b: Estimate) -> bool:
     return angle_deg > DISTINCT_PLANE_SIGMAS * math.hypot(a.tilt_sigma_deg, b.tilt_sigma_deg)
 
 
+def fewest_to_check(min_points: int) -> int:
+    """The fewest fitted markers whose flatness the self-check can check (:data:`SELF_CHECK_MIN_POINTS`,
+    or twice ``sensing.min_points``: a split half needs as many as a fit)."""
+    return max(SELF_CHECK_MIN_POINTS, 2 * min_points)
+
+
 def suspicions(
     split: SplitCheck | None,
     violations: int,
@@ -193,7 +199,7 @@ def suspicions(
     own evidence (:mod:`softjig.sensing.selfcheck`); none for an estimate that passed every check. An
     estimate the checks cannot verify (too few markers to split) is suspect too."""
     reasons = []
-    fewest = max(SELF_CHECK_MIN_POINTS, 2 * jig.sensing.min_points)
+    fewest = fewest_to_check(jig.sensing.min_points)
     if n_used < fewest or split is None:
         reasons.append(
             f"suspect: only {n_used} markers were fitted, too few to check that they are one flat face "
@@ -465,7 +471,11 @@ class ContactPlaneFitter:
 
     def _size_free_instead(self, measured: _Measured, suspect: SensingResult) -> SensingResult:
         """The size-free contact's estimate of the ``measured`` frame, with a warning, where it passes every
-        check and found another plane than the ``suspect`` estimate under the known face; else that one."""
+        check and found another plane than the ``suspect`` estimate under the known face; else that one.
+
+        Where that suspect estimate's one doubt is its few markers
+        (:meth:`_doubted_only_for_its_few_markers`), nothing contradicts either contact: the size-free
+        one, whose flatness was checked, is reported, but suspect, with the other as its rival."""
         try:
             size_free = self._fit(measured, search_size_mm=None)
         except EstimationError:  # no plane grows without the size: the suspect estimate stands
@@ -474,14 +484,34 @@ class ContactPlaneFitter:
             return suspect
         if not _distinct_planes(suspect.estimate, size_free.estimate):  # one plane, doubted with the size
             return suspect
+        size = measured.part_diameter_mm
+        if self._doubted_only_for_its_few_markers(suspect.estimate):  # two contacts, neither contradicted
+            angle_deg = math.degrees(
+                math.acos(min(1.0, abs(float(np.dot(suspect.estimate.normal, size_free.estimate.normal)))))
+            )
+            doubt = (
+                f"{SUSPECT_PREFIX}the contact under the part's {size:g} mm face, {suspect.estimate.n_points} "
+                f"markers that nothing contradicts (too few to check), lies {angle_deg:.1f} deg from this "
+                "one: the frame may show the membrane's wall beside a small contact"
+            )
+            estimate = replace(
+                size_free.estimate, quality="suspect", warnings=(*size_free.estimate.warnings, doubt)
+            )
+            return replace(size_free, estimate=estimate)
         reason = next(w for w in suspect.estimate.warnings if w.startswith(SUSPECT_PREFIX))
         note = (
-            f"the contact searched under the part's {measured.part_diameter_mm:g} mm face failed its checks "
+            f"the contact searched under the part's {size:g} mm face failed its checks "
             f"({reason.removeprefix(SUSPECT_PREFIX)}); the contact found without the size, which passes "
             "them, is reported"
         )
         estimate = replace(size_free.estimate, warnings=(*size_free.estimate.warnings, note))
         return replace(size_free, estimate=estimate)
+
+    def _doubted_only_for_its_few_markers(self, estimate: Estimate) -> bool:
+        """Whether the one reason ``estimate`` is suspect is that it has too few markers to check
+        (:func:`suspicions`): no marker contradicts its contact, nor does a rival."""
+        reasons = sum(w.startswith(SUSPECT_PREFIX) for w in estimate.warnings)
+        return reasons == 1 and estimate.n_points < fewest_to_check(self._minimum)
 
     def _fit(
         self, measured: _Measured, *, search_size_mm: float | None, every_placement: bool = False
