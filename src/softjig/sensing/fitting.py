@@ -101,9 +101,10 @@ RIVAL_SEARCH_PITCHES = 1.0
 CENTRED_SHARE = 0.5
 # Rounds of (robust fit of the markers under the face, the face's footprint from that plane).
 UNDER_FACE_ROUNDS = 3
-# When the face found under the known size is suspect, it is searched again from every placement on a
-# square grid over the clearly pushed-in markers, this many part radii apart (at least one pitch): a
-# search moves its face to where its contact puts it, so starts half a radius apart reach every face.
+# When the face found under the known size is suspect and markers contradict it, it is searched again
+# from every placement on a square grid over the clearly pushed-in markers, this many part radii apart
+# (at least one pitch): a search moves its face to where its contact puts it, so starts half a radius
+# apart reach every face.
 PLACEMENT_GRID_RADII = 0.5
 # Identities: a marker keeps the nearest reference marker within this share of the pitch sideways.
 IDENTITY_REACH_PITCHES = 0.5
@@ -431,13 +432,14 @@ class ContactPlaneFitter:
         order, :func:`canonical_order`), drop the lifted-off markers, and describe the result.
 
         With the part's size, the contact is searched under the known face; when that estimate fails its
-        self-checks, the face is searched again from every placement (:meth:`_placement_search`), whose
-        estimate is reported instead (more contacts, ranked by the same evidence). When
-        that one fails its checks too, the contact is searched without the size as well, and reported
-        instead (with a warning that says so) when it passes every check, the part's size included (its
-        area), and its plane is another one (:func:`_distinct_planes`): two searches that rest on
-        different evidence, one of them confident. Where both found the same plane, the doubt the
-        search with the size raised stands (a rival contact, say), and so does the suspect estimate.
+        self-checks and markers contradict its contact, the face is searched again from every placement
+        (:meth:`_placement_search`), and that estimate is reported instead. When it fails its checks
+        too, the contact is searched without the size as well, and reported instead (with a warning that
+        says so) when it passes every check, the part's size included (its area), and its plane is
+        another one (:func:`_distinct_planes`): two searches that rest on different evidence, one of
+        them confident (:meth:`_size_free_instead`; suspect where nothing contradicts the other either).
+        Where both found the same plane, the doubt the search with the size raised stands (a rival
+        contact, say), and so does the suspect estimate.
         """
         identities = identify_markers(
             points_J, self._reference.markers, max_lateral_mm=IDENTITY_REACH_PITCHES * self._pitch
