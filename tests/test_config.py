@@ -89,6 +89,8 @@ def _with(section: str, **changes):
         ("cameras.left", {"fx_px": "wide"}, "cameras.left.fx_px"),
         ("tolerances", {"camera_position_mm": -1.0}, "tolerances.camera_position_mm"),
         ("sensing", {"min_points": 2}, "sensing.min_points"),
+        ("sensing", {"min_points": 10**40}, "sensing.min_points"),  # no frame could have so many markers
+        ("markers", {"pitch_mm": 10**400}, "markers.pitch_mm"),  # an int beyond the floats: no OverflowError
         ("sensing", {"extrinsics": "guess"}, "sensing.extrinsics"),
     ],
 )

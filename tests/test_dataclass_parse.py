@@ -117,9 +117,10 @@ def test_the_same_configs_give_the_same_values(case):
 
 
 # Values that do not fit a field: both refuse them (1e300 and 2.5 fit a float field, and are compared
-# there). A bool or a string where a number belongs is refused by us always (pydantic reads True as 1 and
-# "8" as 8 in its lax mode); a float with no fractional part in an int field is read by both.
-WRONG = [None, "x", math.nan, math.inf, -math.inf, 1e300, 2.5, [1.0], {"a": 1}]
+# there; 10**400, an integer beyond the floats, fits an int field). A bool or a string where a number
+# belongs is refused by us always (pydantic reads True as 1 and "8" as 8 in its lax mode); a float with
+# no fractional part in an int field is read by both.
+WRONG = [None, "x", math.nan, math.inf, -math.inf, 1e300, 2.5, 10**400, [1.0], {"a": 1}]
 
 
 @pytest.mark.agreement

@@ -820,6 +820,12 @@ def _validate_sensing(s: SensingConfig) -> None:
     _non_negative(s.disparity_margin_px, "sensing.disparity_margin_px")
     if s.min_points < MIN_PLANE_POINTS:
         _fail("sensing.min_points", f"a plane needs at least {MIN_PLANE_POINTS} points, got {s.min_points}")
+    if s.min_points > MAX_MARKERS:
+        _fail(
+            "sensing.min_points",
+            f"{s.min_points}, more than the {MAX_MARKERS} markers softjig handles: no frame could give an "
+            "estimate",
+        )
 
 
 def _validate_image_model(md: MediumConfig, im: ImagingConfig) -> None:

@@ -102,7 +102,12 @@ def _convert(annotation: Any, value: Any) -> Any:
 def _convert_float(value: Any) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise _FieldError((), f"must be a number, got {value!r}")
-    number = float(value)
+    try:
+        number = float(value)
+    except OverflowError:  # an int beyond the floats (TOML integers have any number of digits here)
+        raise _FieldError(
+            (), f"must be a finite number, got an integer of {len(str(value))} digits"
+        ) from None
     if not math.isfinite(number):
         raise _FieldError((), f"must be a finite number, got {value!r}")
     return number

@@ -749,10 +749,11 @@ class ContactPlaneFitter:
     def _placement_search(
         self, dent: Dent, radius_mm: float, fit: PlaneFitFunction, size_free: Callable[[], Contact]
     ) -> tuple[Contact, SplitCheck | None] | Refusal:
-        """The contact under a face of ``radius_mm`` found by :meth:`_contact_under_known_face`, or, where
-        markers contradict that one, searched (:meth:`_search_face`) from every placement of a grid over
-        the clearly pushed-in markers (:func:`placement_grid`); and its rival's agreement (``None`` when
-        there is none).
+        """The contact under a face of ``radius_mm`` searched (:meth:`_search_face`) from every placement
+        of a grid over the clearly pushed-in markers (:func:`placement_grid`) where markers contradict
+        the one :meth:`_contact_under_known_face` finds, and its rival's agreement (``None`` when there is
+        none); a :class:`~softjig.sensing.results.Refusal` where nothing contradicts that one (the
+        estimate made of it stands) or no search finds a face.
 
         The two searches from the axis and the dent's centroid miss a small, steeply tilted face far off
         the axis, whose contact is a few markers beside a wall of as many. But a contact that no marker
@@ -766,8 +767,8 @@ class ContactPlaneFitter:
         """
         points_J, candidates = dent.points_J, dent.candidates
         first = self._contact_under_known_face(dent, radius_mm, fit, size_free)
-        if first and self._contradicting(dent, first[0]) == 0:
-            return first
+        if first and self._contradicting(dent, first[0]) == 0:  # the estimate made of it stands
+            return Refusal("no marker contradicts the contact found first: no placement is searched")
         contacts = [first[0]] if first else []
         spacing = max(self._pitch, PLACEMENT_GRID_RADII * radius_mm)
         for start in placement_grid(points_J[candidates, :2], spacing):
