@@ -4,11 +4,13 @@ the face does not (issue 13 item 6)."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from softjig.config import default_jig
+from softjig.errors import InputError
 from softjig.geometry import fit_plane_svd
 from softjig.jig_shape import rest_inner_height_mm
-from softjig.sensing.selfcheck import SPLIT_SUSPECT_MIN_DEG, agreement, split_halves
+from softjig.sensing.selfcheck import SPLIT_SUSPECT_MIN_DEG, agreement, rougher, split_halves
 
 
 def _grid(centre, radius, pitch=5.0):
@@ -72,3 +74,25 @@ def test_a_face_and_the_wall_beside_it_disagree():
     check = agreement(pf, _fit(pf), pw, _fit(pw), point_sigma_mm=sigma_mm, noise_factor=1.5)
     assert check.suspect and abs(np.degrees(check.angle_rad) - 15.0) < 2.0
     assert agreement(pf[:3], _fit(pf), pw, _fit(pw), point_sigma_mm=sigma_mm) is None  # too few
+
+
+def test_a_curved_wall_is_rougher_than_a_flat_face():
+    """:func:`rougher`: the p-value is small where the first set scatters about its plane more than the
+    second (a wall curving up to the rest shape beside a flat face), about one half for two flat faces of
+    the same noise, and large the other way round."""
+    rng = np.random.default_rng(3)
+    xy = rng.uniform(-15.0, 15.0, size=(20, 2))
+    face = np.c_[xy, 0.2 * xy[:, 0] + rng.normal(0.0, 0.2, 20)]
+    wall = np.c_[xy, 0.2 * xy[:, 0] + 0.02 * xy[:, 0] ** 2 + rng.normal(0.0, 0.2, 20)]
+    twin = np.c_[xy, 0.2 * xy[:, 0] + rng.normal(0.0, 0.2, 20)]
+    plane = {name: fit_plane_svd(points) for name, points in (("face", face), ("wall", wall), ("twin", twin))}
+    assert rougher(wall, plane["wall"], face, plane["face"]) < 0.01
+    assert rougher(face, plane["face"], wall, plane["wall"]) > 0.99
+    assert 0.05 < rougher(twin, plane["twin"], face, plane["face"]) < 0.95
+
+
+def test_roughness_needs_four_markers():
+    points = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    plane = fit_plane_svd(np.r_[points, [[1.0, 1.0, 0.0]]])
+    with pytest.raises(InputError, match="4 markers or more"):
+        rougher(points, plane, points, plane)

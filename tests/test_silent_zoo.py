@@ -96,6 +96,19 @@ def test_a_wall_beside_an_off_centre_contact_is_not_a_silent_answer(design, fram
         assert any(w.startswith("suspect: ") for w in estimate.warnings)
 
 
+@pytest.mark.parametrize("with_reference", [True, False], ids=["reference", "rest-shape"])
+def test_the_wall_beside_a_lowered_edge_has_the_face_as_its_rival(with_reference):
+    """Zoo seed 3, design 34, frame 20, size-free: a 44 mm box 7.5 mm off the axis, tilted 16 deg. The
+    wall beside the face's lowered edge (16 markers) and the face's four deepest markers make a contact
+    of 20 markers that no marker contradicts, 25 deg off: the face's other markers lie above its plane,
+    where the membrane outside a face may lie. It was "ok" with a sigma of 1.2-1.6 deg. The face (the
+    other arm of the V, 15-16 markers, as flat) is now its rival, and the estimate is suspect."""
+    error, estimate = _estimate(34, 20, with_size=False, with_reference=with_reference, seed=3)
+    if error > SILENT_ERROR_DEG:  # the wall (nothing ranks the two arms of the V): suspect, and why
+        assert estimate.quality == "suspect", (error, estimate.tilt_sigma_deg)
+        assert any("another contact fits the frame as well" in w for w in estimate.warnings)
+
+
 def test_a_rise_inside_a_ring_of_wall_markers_is_a_violation():
     """Zoo seed 2, design 23, frame 8, size-free: the contact grew into a ring of wall markers around a rise
     of membrane, whose plane lay 18 deg off the face's; the rise's markers inside the contact's core lay

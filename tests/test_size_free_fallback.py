@@ -70,19 +70,29 @@ def test_a_wall_strip_pierced_by_a_rise_gives_way_to_the_face():
 
 
 @pytest.mark.accuracy
-@pytest.mark.parametrize(
-    ("seed", "design", "frame"), [(3, 34, 20), (3, 17, 5)], ids=["s3d34f20-size-free-wrong", "s3d17f5-right"]
-)
-def test_a_face_doubted_only_for_its_few_markers_rivals_the_size_free_contact(seed, design, frame):
-    """The face found under the known size (7-10 markers) is suspect only because so few markers cannot be
-    checked; no marker contradicts it. The size-free contact (16-20 markers) passes its checks and lies
-    25-28 deg from it. Nothing ranks the two: the size-free estimate, whose flatness was checked, is
-    reported suspect, with the face as its rival. In s3d34f20 it is the wrong one (25 deg off; it had
-    been reported "ok", a silent failure); in s3d17f5 the right one."""
-    error, sized = _estimate(design, frame, with_size=True, with_reference=True, seed=seed)
-    error_free, free = _estimate(design, frame, with_size=False, with_reference=True, seed=seed)
+def test_a_face_doubted_only_for_its_few_markers_rivals_the_size_free_contact():
+    """Zoo seed 3, design 17, frame 5: the face found under the known size (7 markers) is suspect only
+    because so few markers cannot be checked; no marker contradicts it. The size-free contact (16
+    markers) passes its checks and lies 28 deg from it. Nothing ranks the two: the size-free estimate,
+    whose flatness was checked, is reported suspect, with the face as its rival (here it is the right
+    one, 0.5 deg off)."""
+    error, sized = _estimate(17, 5, with_size=True, with_reference=True, seed=3)
+    error_free, free = _estimate(17, 5, with_size=False, with_reference=True, seed=3)
     assert sized.quality == "suspect"
     assert any("that nothing contradicts (too few to check)" in w for w in sized.warnings)
     assert not any(FALLBACK_NOTE in warning for warning in sized.warnings)
     assert sized.normal == pytest.approx(free.normal)
-    assert error == pytest.approx(error_free)
+    assert error == pytest.approx(error_free) and error < 1.0
+
+
+@pytest.mark.accuracy
+def test_a_size_free_contact_with_a_rival_does_not_replace_the_few_marker_face():
+    """Zoo seed 3, design 34, frame 20: the face under the known size (10 markers, too few to check) is
+    right; the size-free contact is the wall beside its lowered edge, 25 deg off, and has the face as
+    its rival (:meth:`ContactPlaneFitter._size_free_rival`). Suspect too, it does not replace the face,
+    whose estimate stands, suspect (the size-free one had been reported in its place, 25 deg off)."""
+    error, sized = _estimate(34, 20, with_size=True, with_reference=True, seed=3)
+    assert error < 1.0, (error, sized.warnings)
+    assert sized.quality == "suspect"
+    assert not any(FALLBACK_NOTE in warning for warning in sized.warnings)
+    assert not any("that nothing contradicts (too few to check)" in w for w in sized.warnings)

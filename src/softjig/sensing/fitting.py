@@ -43,7 +43,7 @@ from softjig.sensing.contact import (
 from softjig.sensing.identities import MarkerIdentities, identify_markers
 from softjig.sensing.results import SUSPECT_PREFIX, Estimate, Observation, Refusal, SensingResult
 from softjig.sensing.robust import fit_plane_robust
-from softjig.sensing.selfcheck import MIN_HALF_POINTS, SplitCheck, agreement, split_halves
+from softjig.sensing.selfcheck import MIN_HALF_POINTS, SplitCheck, agreement, rougher, split_halves
 from softjig.sensing.setup import JigModel, ReferenceModel
 from softjig.sensing.uncertainty import (
     NormalUncertainty,
@@ -106,6 +106,13 @@ UNDER_FACE_ROUNDS = 3
 # (at least one pitch): a search moves its face to where its contact puts it, so starts half a radius
 # apart reach every face.
 PLACEMENT_GRID_RADII = 0.5
+# Size-free, the contact grown from the pushed-in markers above the contact's plane is its rival when it
+# has at least this share of the contact's markers (two arms of a V, neither much the larger: a V's arms
+# are a tilted face and the wall beside its lowered edge, as deep as each other) ...
+SIZE_FREE_RIVAL_SHARE = 2.0 / 3.0
+# ... and is not rougher than the contact at this significance (one-sided F test of their residuals'
+# variances): a wall curves up to the rest shape, a face is flat.
+ROUGHER_SIGNIFICANCE = 0.05
 # Identities: a marker keeps the nearest reference marker within this share of the pitch sideways.
 IDENTITY_REACH_PITCHES = 0.5
 
@@ -648,7 +655,8 @@ class ContactPlaneFitter:
     ) -> tuple[Contact, SplitCheck | None] | Refusal:
         """The contact's markers (canonical order) and plane, under the known face (searched from every
         placement with ``every_placement``) or size-free, and its rival's agreement
-        (:meth:`_contact_under_known_face`, :meth:`_placement_search`; ``None`` size-free)."""
+        (:meth:`_contact_under_known_face`, :meth:`_placement_search`; size-free,
+        :meth:`_size_free_rival`)."""
         fit = self._robust_fit(dent.threshold_mm)
 
         def size_free() -> Contact:
@@ -663,7 +671,8 @@ class ContactPlaneFitter:
             )
 
         if part_diameter_mm is None:
-            (used, plane), rival = size_free(), None
+            (used, plane) = size_free()
+            rival = self._size_free_rival(dent, (used, plane), fit)
         elif every_placement:
             found = self._placement_search(dent, part_diameter_mm / 2.0, fit, size_free)
             if not found:
@@ -680,6 +689,45 @@ class ContactPlaneFitter:
                 "(sensing.min_points)"
             )
         return (used, plane), rival
+
+    def _size_free_rival(self, dent: Dent, chosen: Contact, fit: PlaneFitFunction) -> SplitCheck | None:
+        """The other arm of a V, as the ``chosen`` size-free contact's rival: the contact grown from the
+        clearly pushed-in markers that lie above ``chosen``'s plane beyond the inlier distance, where it
+        has at least :data:`SIZE_FREE_RIVAL_SHARE` of ``chosen``'s markers, no marker contradicts it, it is
+        as flat as ``chosen`` (:func:`~softjig.sensing.selfcheck.rougher`, at
+        :data:`ROUGHER_SIGNIFICANCE`) and its normal disagrees beyond their noise (:meth:`_rival`); else
+        ``None``.
+
+        Why: beside the lowered edge of a tilted face, the membrane's wall rises from the face's deepest
+        markers as the face does, and the two meet in a V. The growth takes the arm with more markers
+        (its seed's robust fit), which can be the wall; the face's markers then lie above the wall's
+        plane, where the membrane outside a face may lie, so no marker contradicts it (zoo seed 3, design
+        34, frame 20: "ok" and 25 deg off). Seen from the face instead, the wall is a rougher surface (it
+        curves up to the rest shape) or a smaller one, and is not a rival."""
+        points_J = dent.points_J
+        used, plane = chosen
+        above = points_J @ plane.normal + plane.offset_mm > dent.threshold_mm
+        seed = dent.candidates & ~used & above
+        if seed.sum() < max(self._minimum, SIZE_FREE_RIVAL_SHARE * used.sum()):
+            return None
+        try:
+            other = grow_contact(
+                points_J,
+                dent.indentation,
+                seed,
+                pitch_mm=self._pitch,
+                fit_plane=fit,
+                threshold_mm=dent.threshold_mm,
+                min_points=self._minimum,
+            )
+        except EstimationError:  # no plane grows there: no rival (never a reason to refuse the estimate)
+            return None
+        if other[0].sum() < SIZE_FREE_RIVAL_SHARE * used.sum():
+            return None
+        if rougher(points_J[other[0]], other[1], points_J[used], plane) < ROUGHER_SIGNIFICANCE:
+            return None  # a curved wall beside the face
+        rival = self._rival(points_J, chosen, other, dent.threshold_mm)
+        return None if rival is None or self._contradicting(dent, other) else rival
 
     def _contact_under_known_face(
         self, dent: Dent, radius_mm: float, fit: PlaneFitFunction, size_free: Callable[[], Contact]

@@ -21,6 +21,9 @@ and from the dent's centroid, or the size-free contact cut to the face) both giv
 marker contradicts, their normals are compared the same way (:func:`agreement`): normals farther
 apart than their noise allows mean that the frame holds two plausible faces (the part's and a strip of
 the membrane's wall beside a small contact), and whichever is reported, the estimate is suspect.
+Without the part's size, the rival is the other arm of a V (a tilted face and the wall beside its
+lowered edge meet at the deepest markers), unless it is the rougher surface of the two (:func:`rougher`:
+a wall curves up to the rest shape, a face is flat).
 
 The other checks (the contact's consistency with its plane, its area against the part's, a plane too
 steep for a part on a soft jig) are made where their quantities are (:mod:`softjig.sensing.contact`,
@@ -33,6 +36,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import stats
 
 from softjig.errors import InputError
 from softjig.geometry import PlaneFit
@@ -177,6 +181,30 @@ def agreement(
         normal_a=a.copy(),
         normal_b=b.copy(),
     )
+
+
+def rougher(points_a: np.ndarray, plane_a: PlaneFit, points_b: np.ndarray, plane_b: PlaneFit) -> float:
+    """How well the noise explains that the markers ``points_a`` scatter about their ``plane_a`` more than
+    ``points_b`` about ``plane_b``: the one-sided p-value of the F test of their residual variances
+    (each the sum of squared distances over ``N - 3``, for a plane's three parameters).
+
+    Small when ``a`` is the rougher surface (a curved strip of the membrane's wall beside a flat face);
+    about one half for two flat faces of the same noise. Both sets need four markers or more
+    (``InputError`` otherwise).
+    """
+    variances, dofs = [], []
+    for points, plane in ((points_a, plane_a), (points_b, plane_b)):
+        pts = np.asarray(points, dtype=float)
+        if len(pts) < 4:
+            raise InputError(
+                f"the F test of two planes' roughness needs 4 markers or more in each, got {len(pts)}"
+            )
+        residuals = pts @ np.asarray(plane.normal, dtype=float) + plane.offset_mm
+        dofs.append(len(pts) - 3)
+        variances.append(float(residuals @ residuals) / dofs[-1])
+    if variances[1] == 0.0:
+        return 0.0 if variances[0] > 0.0 else 0.5
+    return float(stats.f.sf(variances[0] / variances[1], dofs[0], dofs[1]))
 
 
 def _angle_between(a: list[float], b: list[float]) -> float:
