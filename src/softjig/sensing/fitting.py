@@ -464,14 +464,17 @@ class ContactPlaneFitter:
         in_order = Indentation(dent.depth_mm[order], dent.zero_mm, dent.noise_mm)
         ordered = Dent(points_J[order], in_order, candidates[order], noise, noise.inlier_mm)
         measured = _Measured(observation, points_J, identities, dent, ordered, order, part_diameter_mm)
-        result = self._fit(measured, search_size_mm=part_diameter_mm)
+        first = self._contact(ordered, part_diameter_mm)
+        result = self._fit(measured, first, search_size_mm=part_diameter_mm)
         if (
             part_diameter_mm is None
             or not isinstance(result, SensingResult)
             or result.estimate.quality == "ok"
         ):
             return result
-        searched = self._fit(measured, search_size_mm=part_diameter_mm, every_placement=True)
+        searched = self._fit(
+            measured, self._contact(ordered, part_diameter_mm, first=first), search_size_mm=part_diameter_mm
+        )
         if isinstance(searched, SensingResult):
             result = searched
             if result.estimate.quality == "ok":
@@ -484,37 +487,57 @@ class ContactPlaneFitter:
 
         Where that suspect estimate's one doubt is its few markers
         (:meth:`_doubted_only_for_its_few_markers`), nothing contradicts either contact: the size-free
-        one, whose flatness was checked, is reported, but suspect, with the other as its rival."""
+        one, whose flatness was checked, is reported, but suspect, with the other as its rival. A
+        size-free estimate whose one doubt is the other arm of its V (:meth:`_size_free_rival`) is
+        reported too, suspect, unless the face under the known size is that other arm: two searches then
+        found it, and the estimate under the face stands."""
         try:
-            size_free = self._fit(measured, search_size_mm=None)
+            found = self._contact(measured.ordered, None)
         except EstimationError:  # no plane grows without the size: the suspect estimate stands
             return suspect
-        if not isinstance(size_free, SensingResult) or size_free.estimate.quality != "ok":
+        size_free = self._fit(measured, found, search_size_mm=None)
+        if not isinstance(size_free, SensingResult):
             return suspect
-        if not _distinct_planes(suspect.estimate, size_free.estimate):  # one plane, doubted with the size
+        free = size_free.estimate
+        if free.quality != "ok" and not self._doubted_only_for_an_arm_the_face_is_not(free, found, suspect):
+            return suspect
+        if not _distinct_planes(suspect.estimate, free):  # one plane, doubted with the size
             return suspect
         size = measured.part_diameter_mm
         if self._doubted_only_for_its_few_markers(suspect.estimate):  # two contacts, neither contradicted
             angle_deg = math.degrees(
-                math.acos(min(1.0, abs(float(np.dot(suspect.estimate.normal, size_free.estimate.normal)))))
+                math.acos(min(1.0, abs(float(np.dot(suspect.estimate.normal, free.normal)))))
             )
             doubt = (
                 f"{SUSPECT_PREFIX}the contact under the part's {size:g} mm face, {suspect.estimate.n_points} "
                 f"markers that nothing contradicts (too few to check), lies {angle_deg:.1f} deg from this "
                 "one: the frame may show the membrane's wall beside a small contact"
             )
-            estimate = replace(
-                size_free.estimate, quality="suspect", warnings=(*size_free.estimate.warnings, doubt)
+            return replace(
+                size_free, estimate=replace(free, quality="suspect", warnings=(*free.warnings, doubt))
             )
-            return replace(size_free, estimate=estimate)
         reason = next(w for w in suspect.estimate.warnings if w.startswith(SUSPECT_PREFIX))
+        passed = "which passes them" if free.quality == "ok" else "doubted only for another contact beside it"
         note = (
             f"the contact searched under the part's {size:g} mm face failed its checks "
-            f"({reason.removeprefix(SUSPECT_PREFIX)}); the contact found without the size, which passes "
-            "them, is reported"
+            f"({reason.removeprefix(SUSPECT_PREFIX)}); the contact found without the size, {passed}, is "
+            "reported"
         )
-        estimate = replace(size_free.estimate, warnings=(*size_free.estimate.warnings, note))
-        return replace(size_free, estimate=estimate)
+        return replace(size_free, estimate=replace(free, warnings=(*free.warnings, note)))
+
+    def _doubted_only_for_an_arm_the_face_is_not(
+        self, free: Estimate, found: tuple[Contact, SplitCheck | None], suspect: SensingResult
+    ) -> bool:
+        """Whether the one reason the size-free estimate ``free`` is suspect is its rival, the other arm of
+        its V (``found[1]``, :meth:`_size_free_rival`), and the ``suspect`` face under the known size is
+        another plane than that arm (their normals further apart than :data:`DISTINCT_PLANE_SIGMAS` times
+        their combined noise)."""
+        rival = found[1]
+        if rival is None or sum(w.startswith(SUSPECT_PREFIX) for w in free.warnings) != 1:
+            return False
+        face = suspect.estimate
+        angle = math.acos(min(1.0, abs(float(np.dot(face.normal, rival.normal_b)))))
+        return angle > DISTINCT_PLANE_SIGMAS * math.hypot(math.radians(face.tilt_sigma_deg), rival.noise_rad)
 
     def _doubted_only_for_its_few_markers(self, estimate: Estimate) -> bool:
         """Whether the one reason ``estimate`` is suspect is that it has too few markers to check
@@ -523,16 +546,19 @@ class ContactPlaneFitter:
         return reasons == 1 and estimate.n_points < fewest_to_check(self._minimum)
 
     def _fit(
-        self, measured: _Measured, *, search_size_mm: float | None, every_placement: bool = False
+        self,
+        measured: _Measured,
+        found: tuple[Contact, SplitCheck | None] | Refusal,
+        *,
+        search_size_mm: float | None,
     ) -> SensingResult | Refusal:
-        """:meth:`fit`'s estimate of the ``measured`` frame with the contact searched under a face of
-        ``search_size_mm`` (or without a size: ``None``; ``every_placement``: from every placement,
-        :meth:`_placement_search`), checked and described with the part's size."""
+        """:meth:`fit`'s estimate of the ``measured`` frame from the contact ``found`` by :meth:`_contact`
+        (searched under a face of ``search_size_mm``, or without a size: ``None``), checked and described
+        with the part's size."""
         observation, points_J, dent, ordered = (
             measured.observation, measured.points_J, measured.dent, measured.ordered
         )  # fmt: skip
         part_diameter_mm, noise, order = measured.part_diameter_mm, ordered.noise, measured.order
-        found = self._contact(ordered, search_size_mm, every_placement=every_placement)
         if not found:
             return found
         (used_in_order, plane), rival = found
@@ -651,10 +677,14 @@ class ContactPlaneFitter:
         return fit
 
     def _contact(
-        self, dent: Dent, part_diameter_mm: float | None, *, every_placement: bool = False
+        self,
+        dent: Dent,
+        part_diameter_mm: float | None,
+        *,
+        first: tuple[Contact, SplitCheck | None] | Refusal | None = None,
     ) -> tuple[Contact, SplitCheck | None] | Refusal:
         """The contact's markers (canonical order) and plane, under the known face (searched from every
-        placement with ``every_placement``) or size-free, and its rival's agreement
+        placement, given the ``first`` contact found under it) or size-free, and its rival's agreement
         (:meth:`_contact_under_known_face`, :meth:`_placement_search`; size-free,
         :meth:`_size_free_rival`)."""
         fit = self._robust_fit(dent.threshold_mm)
@@ -673,8 +703,8 @@ class ContactPlaneFitter:
         if part_diameter_mm is None:
             (used, plane) = size_free()
             rival = self._size_free_rival(dent, (used, plane), fit)
-        elif every_placement:
-            found = self._placement_search(dent, part_diameter_mm / 2.0, fit, size_free)
+        elif first is not None:
+            found = self._placement_search(dent, part_diameter_mm / 2.0, fit, first)
             if not found:
                 return found
             (used, plane), rival = found
@@ -795,13 +825,17 @@ class ContactPlaneFitter:
         )
 
     def _placement_search(
-        self, dent: Dent, radius_mm: float, fit: PlaneFitFunction, size_free: Callable[[], Contact]
+        self,
+        dent: Dent,
+        radius_mm: float,
+        fit: PlaneFitFunction,
+        first: tuple[Contact, SplitCheck | None] | Refusal,
     ) -> tuple[Contact, SplitCheck | None] | Refusal:
         """The contact under a face of ``radius_mm`` searched (:meth:`_search_face`) from every placement
         of a grid over the clearly pushed-in markers (:func:`placement_grid`) where markers contradict
-        the one :meth:`_contact_under_known_face` finds, and its rival's agreement (``None`` when there is
-        none); a :class:`~softjig.sensing.results.Refusal` where nothing contradicts that one (the
-        estimate made of it stands) or no search finds a face.
+        the ``first`` one (:meth:`_contact_under_known_face`'s, with its rival), and its rival's agreement
+        (``None`` when there is none); a :class:`~softjig.sensing.results.Refusal` where nothing
+        contradicts that one (the estimate made of it stands) or no search finds a face.
 
         The two searches from the axis and the dent's centroid miss a small, steeply tilted face far off
         the axis, whose contact is a few markers beside a wall of as many. But a contact that no marker
@@ -814,7 +848,6 @@ class ContactPlaneFitter:
         own rival stands when its contact is ranked first.
         """
         points_J, candidates = dent.points_J, dent.candidates
-        first = self._contact_under_known_face(dent, radius_mm, fit, size_free)
         if first and self._contradicting(dent, first[0]) == 0:  # the estimate made of it stands
             return Refusal("no marker contradicts the contact found first: no placement is searched")
         contacts = [first[0]] if first else []
