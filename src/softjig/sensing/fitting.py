@@ -118,6 +118,7 @@ IDENTITY_REACH_PITCHES = 0.5
 
 PlaneFitFunction = Callable[[np.ndarray], "tuple[np.ndarray, PlaneFit]"]
 Contact = tuple[np.ndarray, PlaneFit]  # which markers (bool mask) and their plane
+Found = tuple[Contact, SplitCheck | None] | Refusal  # a contact with its rival's agreement, or why none
 
 
 # ------------------------------------------------------------------------------------------ shared
@@ -548,7 +549,7 @@ class ContactPlaneFitter:
     def _fit(
         self,
         measured: _Measured,
-        found: tuple[Contact, SplitCheck | None] | Refusal,
+        found: Found,
         *,
         search_size_mm: float | None,
     ) -> SensingResult | Refusal:
@@ -681,8 +682,8 @@ class ContactPlaneFitter:
         dent: Dent,
         part_diameter_mm: float | None,
         *,
-        first: tuple[Contact, SplitCheck | None] | Refusal | None = None,
-    ) -> tuple[Contact, SplitCheck | None] | Refusal:
+        first: Found | None = None,
+    ) -> Found:
         """The contact's markers (canonical order) and plane, under the known face (searched from every
         placement, given the ``first`` contact found under it) or size-free, and its rival's agreement
         (:meth:`_contact_under_known_face`, :meth:`_placement_search`; size-free,
@@ -701,7 +702,7 @@ class ContactPlaneFitter:
             )
 
         if part_diameter_mm is None:
-            (used, plane) = size_free()
+            used, plane = size_free()
             rival = self._size_free_rival(dent, (used, plane), fit)
         elif first is not None:
             found = self._placement_search(dent, part_diameter_mm / 2.0, fit, first)
@@ -761,7 +762,7 @@ class ContactPlaneFitter:
 
     def _contact_under_known_face(
         self, dent: Dent, radius_mm: float, fit: PlaneFitFunction, size_free: Callable[[], Contact]
-    ) -> tuple[Contact, SplitCheck | None] | Refusal:
+    ) -> Found:
         """The contact when the part's base radius is known, wherever the part stands on the jig, and the
         agreement with a rival contact that no marker contradicts either but whose normal is far from it
         (``None`` when there is none: the estimate is suspect when there is).
@@ -829,8 +830,8 @@ class ContactPlaneFitter:
         dent: Dent,
         radius_mm: float,
         fit: PlaneFitFunction,
-        first: tuple[Contact, SplitCheck | None] | Refusal,
-    ) -> tuple[Contact, SplitCheck | None] | Refusal:
+        first: Found,
+    ) -> Found:
         """The contact under a face of ``radius_mm`` searched (:meth:`_search_face`) from every placement
         of a grid over the clearly pushed-in markers (:func:`placement_grid`) where markers contradict
         the ``first`` one (:meth:`_contact_under_known_face`'s, with its rival), and its rival's agreement
