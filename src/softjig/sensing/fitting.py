@@ -20,7 +20,7 @@ import numpy as np
 
 from softjig.config import JigConfig
 from softjig.errors import EstimationError, InputError
-from softjig.geometry import PlaneFit, fit_plane_svd, normal_from_tilt_angles, tilt_angles
+from softjig.geometry import PlaneFit, angle_between, fit_plane_svd, normal_from_tilt_angles, tilt_angles
 from softjig.jig_shape import rest_inner_height_mm
 from softjig.sensing.contact import (
     BESIDE_HOLE_THRESHOLDS,
@@ -537,7 +537,7 @@ class ContactPlaneFitter:
         if rival is None or sum(w.startswith(SUSPECT_PREFIX) for w in free.warnings) != 1:
             return False
         face = suspect.estimate
-        angle = math.acos(min(1.0, abs(float(np.dot(face.normal, rival.normal_b)))))
+        angle = float(angle_between(face.normal, rival.normal_b))
         return angle > DISTINCT_PLANE_SIGMAS * math.hypot(math.radians(face.tilt_sigma_deg), rival.noise_rad)
 
     def _doubted_only_for_its_few_markers(self, estimate: Estimate) -> bool:
@@ -755,10 +755,13 @@ class ContactPlaneFitter:
             return None
         if other[0].sum() < SIZE_FREE_RIVAL_SHARE * used.sum():
             return None
-        if rougher(points_J[other[0]], other[1], points_J[used], plane) < ROUGHER_SIGNIFICANCE:
-            return None  # a curved wall beside the face
-        rival = self._rival(points_J, chosen, other, dent.threshold_mm)
-        return None if rival is None or self._contradicting(dent, other) else rival
+        rival = self._rival(points_J, chosen, other, dent.threshold_mm)  # None below 4 markers a side
+        if (
+            rival is None
+            or rougher(points_J[other[0]], other[1], points_J[used], plane) < ROUGHER_SIGNIFICANCE
+        ):
+            return None  # they agree, or the other is a curved wall beside the face
+        return None if self._contradicting(dent, other) else rival
 
     def _contact_under_known_face(
         self, dent: Dent, radius_mm: float, fit: PlaneFitFunction, size_free: Callable[[], Contact]
