@@ -7,7 +7,13 @@ import pytest
 
 from softjig.config import default_jig
 from softjig.geometry import fit_plane_svd, normal_from_tilt_angles
-from softjig.sensing.contact import Indentation, describe_contact, drop_lifted_off, face_centre_xy
+from softjig.sensing.contact import (
+    Indentation,
+    describe_contact,
+    drop_lifted_off,
+    face_centre_xy,
+    off_the_membrane,
+)
 
 PITCH = 8.0
 REST_Z = 30.0  # a flat unloaded membrane, for the synthetic cases
@@ -270,3 +276,56 @@ def test_indentation_refuses_references_and_markers_of_another_shape():
         indentations(points, (), pitch_mm=6.0)
     with pytest.raises(InputError, match=r"\(M, 3\) markers"):
         indentation(points[:, :2], np.zeros(n), pitch_mm=6.0)
+
+
+def _steep_dent(xy: np.ndarray) -> np.ndarray:
+    """Depths (mm) of a 40-deg face pressed 6 mm in over a 25 mm disc (tilted towards +x), with a wall
+    that falls at 70 deg from its edge: markers on a steep wall and a steep face, both on the membrane."""
+    face = 6.0 + np.tan(np.radians(40.0)) * xy[:, 0]
+    outside = np.maximum(np.hypot(*xy.T) - 25.0, 0.0)
+    return np.maximum(np.where(outside > 0, face - np.tan(np.radians(70.0)) * outside, face), 0.0)
+
+
+def test_points_off_the_membrane_are_the_mismatched_ones():
+    """Two neighbouring markers of a row matched to their row's next markers lie 20 mm too deep (they
+    support each other), one lies 15 mm too high; a marker of unknown depth and a lone marker with no
+    neighbour are not judged. The steep face and wall stay: each marker is within a 45-deg step of a
+    neighbour."""
+    xy = _grid(60.0)
+    depth = _steep_dent(xy)
+    rng = np.random.default_rng(3)
+    depth += rng.normal(0.0, 0.05, len(depth))
+    row = np.flatnonzero((xy[:, 1] == 4.0) & np.isin(xy[:, 0], [-12.0, -4.0]))  # under the face
+    high = int(np.flatnonzero((xy[:, 0] == 36.0) & (xy[:, 1] == 20.0))[0])  # on the wall
+    unknown = int(np.flatnonzero((xy[:, 0] == 4.0) & (xy[:, 1] == 36.0))[0])
+    depth[row] += 20.0
+    depth[high] -= 15.0
+    depth[unknown] = np.nan
+    # a lone marker and a lone pair, at the edge of the view: no neighbour outside them to judge them by
+    xy = np.vstack([xy, [[200.0, 0.0], [300.0, 0.0], [300.0 + PITCH, 0.0]]])
+    depth = np.append(depth, [25.0, 20.0, 19.0])
+    points = np.column_stack([xy, REST_Z - depth])
+    off = off_the_membrane(points, depth, pitch_mm=PITCH, noise_mm=0.05, min_points=6)
+    assert len(row) == 2
+    assert sorted(np.flatnonzero(off)) == sorted([*row, high])
+
+
+def test_a_block_of_mismatched_points_larger_than_a_contact_is_off_the_membrane_inside_the_plate():
+    """Two rows of three mismatched points, each within a 45-deg step of the next: a group as large as
+    a contact may be, but four of them triangulate inside the base plate (z < 0), which leaves two."""
+    xy = _grid(60.0)
+    depth = _steep_dent(xy)
+    block = np.flatnonzero(np.isin(xy[:, 1], [-4.0, 4.0]) & np.isin(xy[:, 0], [-20.0, -12.0, -4.0]))
+    points = np.column_stack([xy, REST_Z - depth])
+    points[block, 2] = [-2.0, 1.0, -3.0, -1.5, 0.5, -2.5]
+    depth = REST_Z - points[:, 2]
+    assert len(block) == 6
+    off = off_the_membrane(points, depth, pitch_mm=PITCH, noise_mm=0.05, min_points=6)
+    assert sorted(np.flatnonzero(off)) == sorted(block)
+
+
+def test_no_point_is_off_the_membrane_at_rest_or_under_a_steep_face():
+    xy = _grid(60.0)
+    for depth in (np.zeros(len(xy)), _steep_dent(xy)):
+        points = np.column_stack([xy, REST_Z - depth])
+        assert not off_the_membrane(points, depth, pitch_mm=PITCH, noise_mm=0.05, min_points=6).any()

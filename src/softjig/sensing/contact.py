@@ -66,6 +66,10 @@ NEIGHBOUR_RADIUS_PITCHES = 1.5
 NOISE_RADIUS_PITCHES = 2.5
 #: The steepest plausible contact plane (deg): no part pressed into a soft jig stands steeper.
 MAX_TILT_DEG = 45.0
+#: Two neighbouring markers are a step apart on the membrane (:func:`off_the_membrane`) when their depths
+#: differ by less than :data:`MAX_TILT_DEG`'s slope over their distance plus this many sigmas of the
+#: difference (beyond it one-sided, 3e-5 by noise alone).
+OFF_MEMBRANE_SIGMAS = 4.0
 #: Violations of a contact's plane that noise explains: at least this many ...
 TOLERATED_VIOLATIONS = 2
 #: ... or this share of the contact's markers.
@@ -190,6 +194,57 @@ def _near(xy: np.ndarray, members: np.ndarray, radius: float) -> np.ndarray:
     query with ``distance_upper_bound`` finds)."""
     xy = np.ascontiguousarray(xy, dtype=float)
     return kernels.count_within(xy, xy[members], float(radius), False) > 0
+
+
+def off_the_membrane(
+    points_J: np.ndarray, depth_mm: np.ndarray, *, pitch_mm: float, noise_mm: float, min_points: int
+) -> np.ndarray:
+    """Markers off the membrane, as booleans: those inside the base plate (below ``z = 0`` by more than
+    :data:`OFF_MEMBRANE_SIGMAS` times ``noise_mm``), and of the others those in a group of fewer than
+    ``min_points`` that has neighbours outside it but no step to one, a step being a depth
+    difference a face tilted :data:`MAX_TILT_DEG` explains over the two markers' distance, plus
+    :data:`OFF_MEMBRANE_SIGMAS` times the difference's noise. Such a group is no contact (too few to fit)
+    and no part of one, since a face leaves each marker it presses within that slope of its neighbours
+    in contact: the points are not where their markers are.
+
+    Why: on a rectified pair, a marker whose partner was not detected in the other image can be matched to
+    the next marker along its row (the disparity window spans the membrane's whole depth, more than a
+    pitch in the image), and its neighbours along the row after it: the points then lie ``pitch * Z / B``
+    off the membrane (the cameras' distance over their baseline: 2-12 pitches), 20-30 mm deep for a jig
+    145 mm from cameras 43 mm apart. Six such points outvoted the contact's markers in zoo seed 4,
+    design 32, frames 6 and 9 ("ok" and 15-17 deg off); two of them were neighbours, so a test of each
+    marker against its neighbours alone keeps them. A block of such points can be larger than a contact
+    (six, two rows of three, in seed 4, design 17, frame 4), but most of it then lies inside the plate.
+
+    Parameters
+    ----------
+    points_J : (M, 3) the markers (mm, J).
+    depth_mm : (M,) their indentations (mm); NaN where unknown (never flagged, nor a neighbour).
+    pitch_mm : the markers' pitch (mm): neighbours lie within :data:`NEIGHBOUR_RADIUS_PITCHES` of it.
+    noise_mm : one marker's depth noise (mm).
+    min_points : the fewest markers a contact may have (``sensing.min_points``).
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree  # on first use: scipy.spatial costs 0.2 s to import
+
+    depth = np.asarray(depth_mm, dtype=float)
+    off = points_J[:, 2] < -OFF_MEMBRANE_SIGMAS * noise_mm  # inside the base plate (its top face: z = 0)
+    known = np.flatnonzero(np.isfinite(depth) & ~off)
+    if len(known) < 2:
+        return off
+    radius = NEIGHBOUR_RADIUS_PITCHES * pitch_mm
+    pairs = cKDTree(points_J[known, :2]).query_pairs(radius, output_type="ndarray")
+    i, j = pairs[:, 0], pairs[:, 1]
+    distance = np.hypot(*(points_J[known[i], :2] - points_J[known[j], :2]).T)
+    reach = distance * np.tan(np.radians(MAX_TILT_DEG)) + OFF_MEMBRANE_SIGMAS * np.sqrt(2.0) * noise_mm
+    step = np.abs(depth[known[i]] - depth[known[j]]) <= reach
+    n = len(known)
+    _, group = connected_components(coo_matrix((np.ones(step.sum()), (i[step], j[step])), shape=(n, n)))
+    cut_off = np.zeros(group.max() + 1, dtype=bool)  # a group with a neighbour it steps to nowhere
+    cut_off[group[i[~step]]] = cut_off[group[j[~step]]] = True
+    off[known] = cut_off[group] & (np.bincount(group)[group] < min_points)
+    return off
 
 
 def contact_candidates(dent: Indentation, *, sigmas: float = 4.0, min_depth_mm: float = 0.3) -> np.ndarray:
@@ -393,7 +448,8 @@ def _violations(
 ) -> int:
     """Markers that contradict ``plane`` being the face of ``contact`` (penetrating it, or holes in it,
     and with ``dent`` the holes beside it, ``beside_thresholds`` inlier thresholds deep), beyond the few
-    that noise explains; a plane steeper than ``max_tilt_rad`` counts as the worst."""
+    that noise explains; a plane steeper than ``max_tilt_rad`` counts as the worst. With ``dent``, the
+    markers of unknown depth (NaN, :func:`off_the_membrane`) are not judged."""
     if plane.normal[2] < np.cos(max_tilt_rad):
         return len(points_J) + 1
     # A marker or two of a large contact lie above the plane by noise alone (the threshold is a few
@@ -410,6 +466,8 @@ def _violations(
     # whatever else is tolerated. A ring of wall markers around a rise of membrane fits a plane that the
     # rise pierces.
     height = (points_J - plane.centroid_mm) @ plane.normal
+    if dent is not None:  # a marker of unknown depth (off the membrane: a mismatch) is no evidence
+        height = np.where(np.isnan(dent.depth_mm), np.nan, height)
     above = height > threshold_mm
     far_above = height > HOLE_THRESHOLDS * threshold_mm
     below = (height < -HOLE_THRESHOLDS * threshold_mm) & ~contact

@@ -38,6 +38,7 @@ from softjig.sensing.contact import (
     indentation,
     indentations,
     just_outside,
+    off_the_membrane,
     under_face,
 )
 from softjig.sensing.identities import MarkerIdentities, identify_markers
@@ -453,6 +454,10 @@ class ContactPlaneFitter:
             points_J, self._reference.markers, max_lateral_mm=IDENTITY_REACH_PITCHES * self._pitch
         )
         dent, absolute = self._indentation(points_J, identities.ids)
+        noise = noise_scales(dent, absolute, self._reference)
+        dent, absolute, observation = self._without_points_off_the_membrane(
+            points_J, dent, absolute, observation, noise
+        )
         candidates = contact_candidates(dent)
         if candidates.sum() < self._minimum:
             return Refusal(
@@ -460,7 +465,6 @@ class ContactPlaneFitter:
                 f"beyond the noise ({_mm(dent.noise_mm)}); at least {self._minimum} are needed "
                 "(sensing.min_points). Is a part pressed onto the jig?"
             )
-        noise = noise_scales(dent, absolute, self._reference)
         order = canonical_order(identities.ids, points_J)
         in_order = Indentation(dent.depth_mm[order], dent.zero_mm, dent.noise_mm)
         ordered = Dent(points_J[order], in_order, candidates[order], noise, noise.inlier_mm)
@@ -481,6 +485,37 @@ class ContactPlaneFitter:
             if result.estimate.quality == "ok":
                 return result
         return self._size_free_instead(measured, result)
+
+    def _without_points_off_the_membrane(
+        self,
+        points_J: np.ndarray,
+        dent: Indentation,
+        absolute: Indentation | None,
+        observation: Observation,
+        noise: NoiseScales,
+    ) -> tuple[Indentation, Indentation | None, Observation]:
+        """The indentations with the points off the membrane unknown (NaN: neither in contact nor
+        contradicting it; :func:`~softjig.sensing.contact.off_the_membrane`, at the noise of a marker's
+        height, ``noise.plane_sigma_mm``), and the observation with a warning that counts them."""
+        off = off_the_membrane(
+            points_J,
+            dent.depth_mm,
+            pitch_mm=self._pitch,
+            noise_mm=noise.plane_sigma_mm,
+            min_points=self._minimum,
+        )
+        if not off.any():
+            return dent, absolute, observation
+        dent, absolute = (
+            None if d is None else replace(d, depth_mm=np.where(off, np.nan, d.depth_mm))
+            for d in (dent, absolute)
+        )
+        warning = (
+            f"{int(off.sum())} matched markers were left out: they lie off the membrane (deeper or higher "
+            f"than their neighbours by more than a face tilted {MAX_TILT_DEG:g} deg explains; stereo "
+            "mismatches along a row?)"
+        )
+        return dent, absolute, replace(observation, warnings=(*observation.warnings, warning))
 
     def _size_free_instead(self, measured: _Measured, suspect: SensingResult) -> SensingResult:
         """The size-free contact's estimate of the ``measured`` frame, with a warning, where it passes every
