@@ -197,7 +197,7 @@ def _near(xy: np.ndarray, members: np.ndarray, radius: float) -> np.ndarray:
 
 
 def off_the_membrane(
-    points_J: np.ndarray, depth_mm: np.ndarray, *, pitch_mm: float, noise_mm: float, min_points: int
+    points_J: np.ndarray, depth_mm: np.ndarray, *, pitch_mm: float, noise_mm: float, min_points: int | None
 ) -> np.ndarray:
     """Markers off the membrane, as booleans: those inside the base plate (below ``z = 0`` by more than
     :data:`OFF_MEMBRANE_SIGMAS` times ``noise_mm``), and of the others those in a group of fewer than
@@ -222,7 +222,8 @@ def off_the_membrane(
     depth_mm : (M,) their indentations (mm); NaN where unknown (never flagged, nor a neighbour).
     pitch_mm : the markers' pitch (mm): neighbours lie within :data:`NEIGHBOUR_RADIUS_PITCHES` of it.
     noise_mm : one marker's depth noise (mm).
-    min_points : the fewest markers a contact may have (``sensing.min_points``).
+    min_points : the fewest markers a contact may have (``sensing.min_points``); ``None`` for an unloaded
+        membrane, one smooth sheet: every group but the largest is off it.
     """
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
@@ -243,8 +244,28 @@ def off_the_membrane(
     _, group = connected_components(coo_matrix((np.ones(step.sum()), (i[step], j[step])), shape=(n, n)))
     cut_off = np.zeros(group.max() + 1, dtype=bool)  # a group with a neighbour it steps to nowhere
     cut_off[group[i[~step]]] = cut_off[group[j[~step]]] = True
-    off[known] = cut_off[group] & (np.bincount(group)[group] < min_points)
+    size = np.bincount(group)
+    off[known] = cut_off[group] & (size[group] < (size.max() if min_points is None else min_points))
     return off
+
+
+def off_the_rest_membrane(points_J: np.ndarray, jig: JigConfig) -> np.ndarray:
+    """:func:`off_the_membrane` for a frame of the unloaded jig, one smooth sheet (every group but the
+    largest is off it), from the markers' depths below the config's rest shape and their noise
+    (:func:`indentation`), as booleans. A reference frame's mismatched points would otherwise be the
+    reference of the markers beside them (zoo seed 4: 9 and 11 points in two designs' reference frames,
+    six of them a block two rows by three just above the plate)."""
+    rest_z = rest_inner_height_mm(jig, points_J[:, 0], points_J[:, 1])
+    at_rest = indentation(points_J, rest_z, pitch_mm=jig.markers.pitch_mm)
+    if not np.isfinite(at_rest.noise_mm):  # too few markers to measure the noise: none judged
+        return np.zeros(len(points_J), dtype=bool)
+    return off_the_membrane(
+        points_J,
+        at_rest.depth_mm,
+        pitch_mm=jig.markers.pitch_mm,
+        noise_mm=at_rest.noise_mm,
+        min_points=None,
+    )
 
 
 def contact_candidates(dent: Indentation, *, sigmas: float = 4.0, min_depth_mm: float = 0.3) -> np.ndarray:

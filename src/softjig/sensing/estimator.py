@@ -27,6 +27,7 @@ import numpy as np
 
 from softjig.config import JigConfig
 from softjig.errors import EstimationError, InputError
+from softjig.sensing.contact import off_the_rest_membrane
 from softjig.sensing.detect import (
     Markers,
     check_image_content,
@@ -278,7 +279,8 @@ class Estimator:
         corrected so the markers lie on the rest markers) and the markers are triangulated with the
         levelled poses. When they are found, their pose is kept. Either way the reference carries the
         head's measured pose (``head_level``), which estimators built with it use for the frames whose
-        fiducials are not found.
+        fiducials are not found. Points off the membrane (stereo mismatches,
+        :func:`~softjig.sensing.contact.off_the_rest_membrane`) are left out.
 
         Raises
         ------
@@ -308,6 +310,7 @@ class Estimator:
                 frame = config
                 note = f"the stereo head could not be levelled on the reference frame: {measured}"
         points = triangulate(frame)
+        points = points[~off_the_rest_membrane(points, self.jig)]  # mismatches along a row
         if len(points) < self.jig.sensing.min_points:
             raise EstimationError(
                 f"the reference pair gave only {len(points)} markers: is it a pair of the unloaded jig?"
