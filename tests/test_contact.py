@@ -7,12 +7,14 @@ import pytest
 
 from softjig.config import default_jig
 from softjig.geometry import fit_plane_svd, normal_from_tilt_angles
+from softjig.jig_shape import marker_layout_xy, rest_inner_height_mm
 from softjig.sensing.contact import (
     Indentation,
     describe_contact,
     drop_lifted_off,
     face_centre_xy,
     off_the_membrane,
+    off_the_rest_membrane,
 )
 
 PITCH = 8.0
@@ -329,3 +331,20 @@ def test_no_point_is_off_the_membrane_at_rest_or_under_a_steep_face():
     for depth in (np.zeros(len(xy)), _steep_dent(xy)):
         points = np.column_stack([xy, REST_Z - depth])
         assert not off_the_membrane(points, depth, pitch_mm=PITCH, noise_mm=0.05, min_points=6).any()
+
+
+def test_a_block_of_mismatched_points_just_above_the_plate_is_off_the_unloaded_membrane():
+    """An unloaded membrane is one smooth sheet: a block of six points (two rows of three) that
+    triangulate 1-3 mm above the plate, under the dome's top, is off it although it is as large as a
+    contact may be; every other marker, on the rest shape with 0.05 mm noise, stays."""
+    jig = default_jig()
+    xy = marker_layout_xy(jig)
+    rng = np.random.default_rng(5)
+    points = np.column_stack(
+        [xy, rest_inner_height_mm(jig, xy[:, 0], xy[:, 1]) + rng.normal(0, 0.05, len(xy))]
+    )
+    pitch = jig.markers.pitch_mm
+    block = np.argsort(np.hypot(xy[:, 0] - pitch, xy[:, 1] - pitch / 2))[:6]
+    points[block, 2] = rng.uniform(1.0, 3.0, 6)
+    assert not off_the_rest_membrane(np.delete(points, block, axis=0), jig).any()
+    assert sorted(np.flatnonzero(off_the_rest_membrane(points, jig))) == sorted(block)

@@ -166,3 +166,22 @@ def test_points_matched_to_the_next_marker_of_their_row_are_left_out(frame, with
         and error > SILENT_SIGMAS * estimate.tilt_sigma_deg
     )
     assert not silent, (error, estimate.tilt_sigma_deg, estimate.n_points)
+
+
+@pytest.mark.parametrize("design_index", [17, 32])
+def test_a_reference_frame_keeps_no_point_off_the_membrane(design_index):
+    """Zoo seed 4, designs 17 and 32: their unloaded reference frames held 11 and 9 mismatched points,
+    20-30 mm from every marker (six of design 17's in a block just above the plate), which were the
+    reference of the markers beside them. Every reference marker now lies where a marker is."""
+    design = _draw_design(design_index, 4, ZOO_FRAMES, ZooRanges())
+    as_built = draw_as_built(
+        design.jig, np.random.default_rng(np.random.SeedSequence(design.seed, spawn_key=(0,)))
+    )
+    rng = np.random.default_rng(np.random.SeedSequence(design.seed, spawn_key=(1, 0)))
+    unloaded = render_pair(as_built, design.specs[0].part, design.specs[0].pose, rng)
+    reference = reference_from_pair(unloaded.left, unloaded.right, design.jig)
+    gap = np.linalg.norm(reference.xyz_mm[:, None, :] - unloaded.markers.xyz_mm[None, :, :], axis=2).min(
+        axis=1
+    )
+    assert len(reference.xyz_mm) > 300
+    assert gap.max() < 5.0, f"{int((gap >= 5.0).sum())} reference points lie 5 mm or more from every marker"
