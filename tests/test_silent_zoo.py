@@ -185,3 +185,15 @@ def test_a_reference_frame_keeps_no_point_off_the_membrane(design_index):
     )
     assert len(reference.xyz_mm) > 300
     assert gap.max() < 5.0, f"{int((gap >= 5.0).sum())} reference points lie 5 mm or more from every marker"
+
+
+def test_the_wall_beside_a_deep_level_face_has_the_face_as_its_rival():
+    """Zoo seed 5, design 32, frame 4, with the part's size and the reference: a 42 x 52 mm box 19 mm
+    off the axis, level (1 deg), pushed 7.8 mm. The search from the jig axis settled on 27 markers of
+    the wall beside its edge, which meet the face in a V: the face's markers lie above that plane, and
+    nothing contradicted it ("ok", 18 deg off, sigma 1.5 deg). The face, deeper than most of the wall's
+    markers, is now its rival."""
+    error, estimate = _estimate(32, 4, with_size=True, with_reference=True, seed=5)
+    if error > SILENT_ERROR_DEG:
+        assert estimate.quality == "suspect", (error, estimate.tilt_sigma_deg)
+        assert any("another contact fits the frame as well" in w for w in estimate.warnings)

@@ -89,7 +89,7 @@ def test_a_face_doubted_only_for_its_few_markers_rivals_the_size_free_contact():
 def test_a_size_free_contact_with_a_rival_does_not_replace_the_few_marker_face():
     """Zoo seed 3, design 34, frame 20: the face under the known size (10 markers, too few to check) is
     right; the size-free contact is the wall beside its lowered edge, 25 deg off, and has the face as
-    its rival (:meth:`ContactPlaneFitter._size_free_rival`). Suspect too, it does not replace the face,
+    its rival (:meth:`ContactPlaneFitter._other_arm`). Suspect too, it does not replace the face,
     whose estimate stands, suspect (the size-free one had been reported in its place, 25 deg off)."""
     error, sized = _estimate(34, 20, with_size=True, with_reference=True, seed=3)
     assert error < 1.0, (error, sized.warnings)
