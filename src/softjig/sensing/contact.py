@@ -225,26 +225,21 @@ def off_the_membrane(
     min_points : the fewest markers a contact may have (``sensing.min_points``); ``None`` for an unloaded
         membrane, one smooth sheet: every group but the largest is off it.
     """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-    from scipy.spatial import cKDTree  # on first use: scipy.spatial costs 0.2 s to import
-
     depth = np.asarray(depth_mm, dtype=float)
     off = points_J[:, 2] < -OFF_MEMBRANE_SIGMAS * noise_mm  # inside the base plate (its top face: z = 0)
     known = np.flatnonzero(np.isfinite(depth) & ~off)
     if len(known) < 2:
         return off
-    radius = NEIGHBOUR_RADIUS_PITCHES * pitch_mm
-    pairs = cKDTree(points_J[known, :2]).query_pairs(radius, output_type="ndarray")
-    i, j = pairs[:, 0], pairs[:, 1]
-    distance = np.hypot(*(points_J[known[i], :2] - points_J[known[j], :2]).T)
-    reach = distance * np.tan(np.radians(MAX_TILT_DEG)) + OFF_MEMBRANE_SIGMAS * np.sqrt(2.0) * noise_mm
-    step = np.abs(depth[known[i]] - depth[known[j]]) <= reach
-    n = len(known)
-    _, group = connected_components(coo_matrix((np.ones(step.sum()), (i[step], j[step])), shape=(n, n)))
-    cut_off = np.zeros(group.max() + 1, dtype=bool)  # a group with a neighbour it steps to nowhere
-    cut_off[group[i[~step]]] = cut_off[group[j[~step]]] = True
+    group, cut = kernels.membrane_groups(
+        np.ascontiguousarray(points_J[known, :2], dtype=float),
+        np.ascontiguousarray(depth[known]),
+        NEIGHBOUR_RADIUS_PITCHES * pitch_mm,
+        float(np.tan(np.radians(MAX_TILT_DEG))),
+        OFF_MEMBRANE_SIGMAS * np.sqrt(2.0) * noise_mm,
+    )
     size = np.bincount(group)
+    cut_off = np.zeros(len(size), dtype=bool)  # a group with a neighbour it steps to nowhere
+    cut_off[group[cut]] = True
     off[known] = cut_off[group] & (size[group] < (size.max() if min_points is None else min_points))
     return off
 

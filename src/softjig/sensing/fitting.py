@@ -511,9 +511,9 @@ class ContactPlaneFitter:
             for d in (dent, absolute)
         )
         warning = (
-            f"{int(off.sum())} matched markers were left out: they lie off the membrane (deeper or higher "
-            f"than their neighbours by more than a face tilted {MAX_TILT_DEG:g} deg explains; stereo "
-            "mismatches along a row?)"
+            f"{int(off.sum())} matched markers were left out: they lie off the membrane (inside the base "
+            f"plate, or deeper or higher than their neighbours by more than a face tilted {MAX_TILT_DEG:g} "
+            "deg explains): stereo mismatches along a row?"
         )
         return dent, absolute, replace(observation, warnings=(*observation.warnings, warning))
 
