@@ -348,3 +348,31 @@ def test_a_block_of_mismatched_points_just_above_the_plate_is_off_the_unloaded_m
     points[block, 2] = rng.uniform(1.0, 3.0, 6)
     assert not off_the_rest_membrane(np.delete(points, block, axis=0), jig).any()
     assert sorted(np.flatnonzero(off_the_rest_membrane(points, jig))) == sorted(block)
+
+
+def test_membrane_groups_are_the_components_of_the_step_graph():
+    """The compiled groups of :func:`off_the_membrane` against scipy's k-d tree pairs and sparse
+    connected components: the same partition, and the same markers with a neighbour they do not step to."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    from softjig.sensing._contact_kernels import membrane_groups
+
+    rng = np.random.default_rng(8)
+    for trial in range(20):
+        xy = _marker_cloud(rng, 150 + trial)
+        depth = np.where(rng.random(len(xy)) < 0.1, rng.uniform(5, 30, len(xy)), rng.normal(0, 0.1, len(xy)))
+        group, cut = membrane_groups(xy, depth, 12.0, 1.0, 0.5)
+        pairs = cKDTree(xy).query_pairs(12.0, output_type="ndarray")
+        i, j = pairs.T
+        step = np.abs(depth[i] - depth[j]) <= np.hypot(*(xy[i] - xy[j]).T) + 0.5
+        n = len(xy)
+        _, expected = connected_components(
+            coo_matrix((np.ones(step.sum()), (i[step], j[step])), shape=(n, n))
+        )
+        same = expected[:, None] == expected[None, :]
+        assert np.array_equal(group[:, None] == group[None, :], same)
+        expected_cut = np.zeros(n, dtype=bool)
+        expected_cut[i[~step]] = expected_cut[j[~step]] = True
+        assert np.array_equal(cut, expected_cut)

@@ -429,7 +429,8 @@ def membrane_groups(
                         d2 = dx * dx + dy * dy
                         if j == i or d2 > r2:
                             continue
-                        if abs(depth[i] - depth[j]) <= np.sqrt(d2) * slope + margin:
+                        change = abs(depth[i] - depth[j])
+                        if change <= margin or change <= np.sqrt(d2) * slope + margin:
                             if group[j] < 0:
                                 group[j] = label
                                 queue[tail] = j

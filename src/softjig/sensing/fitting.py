@@ -864,10 +864,12 @@ class ContactPlaneFitter:
         off). A face that covers the deepest of its dent, as every centred part's does, is not looked at
         again (the growth costs as much as the search: 65 % of the default pair's time, measured)."""
         used, plane = face
-        depth = np.nan_to_num(dent.indentation.depth_mm, nan=-np.inf)  # unknown: not deeper
-        above = dent.points_J @ plane.normal + plane.offset_mm > dent.threshold_mm
-        deeper = dent.candidates & ~used & above & (depth > np.median(depth[used]))
-        return self._other_arm(dent, face, fit) if deeper.sum() >= OTHER_ARM_SHARE * used.sum() else None
+        depth = dent.indentation.depth_mm  # NaN (unknown) is neither a candidate nor deeper
+        deeper = dent.candidates & ~used & (depth > np.median(depth[used]))
+        if deeper.sum() < OTHER_ARM_SHARE * used.sum():
+            return None
+        above = dent.points_J[deeper] @ plane.normal + plane.offset_mm > dent.threshold_mm
+        return self._other_arm(dent, face, fit) if above.sum() >= OTHER_ARM_SHARE * used.sum() else None
 
     def _contradicting(self, dent: Dent, contact: Contact) -> int:
         """How many markers contradict ``contact``'s plane being the face, as the choice between contacts
