@@ -288,6 +288,20 @@ def indentation(
 
 
 @numba.njit(cache=True)
+def neighbour_scatter(xy: np.ndarray, values: np.ndarray, radius: float) -> float:
+    """The MAD-scaled sigma of ``values`` (``(m,)``) about a quadratic fitted to each point's neighbours
+    within ``radius`` (:func:`quadratic_residuals`), or :data:`NO_NOISE` where fewer than
+    :data:`MIN_NOISE_MARKERS` points have enough neighbours."""
+    residual, enough = quadratic_residuals(xy, values.reshape(-1, 1), radius)
+    if enough < MIN_NOISE_MARKERS:
+        return NO_NOISE
+    column = np.empty(enough)
+    for i in range(enough):
+        column[i] = abs(residual[i, 0])
+    return MAD_TO_SIGMA * median_in_place(column)
+
+
+@numba.njit(cache=True)
 def count_within(query: np.ndarray, points: np.ndarray, radius: float, inclusive: bool) -> np.ndarray:
     """How many of ``points`` lie within ``radius`` of each ``query`` point (``<=`` when ``inclusive``,
     else ``<``, as a k-d tree's ``query_ball_point`` and ``distance_upper_bound``)."""
