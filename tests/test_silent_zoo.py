@@ -124,6 +124,31 @@ def test_a_large_face_whose_markers_the_beads_ripple_is_fitted_whole(with_refere
     assert any("the pushed-in markers' own scatter" in w for w in estimate.warnings)
 
 
+@pytest.mark.parametrize("frame", [32, 85])
+def test_the_drapes_curvature_does_not_widen_a_small_contacts_band(frame):
+    """The paper sweep (azimuth step 30 deg), size-free: a 30 mm part at 15 deg (frame 32) and a 40 mm part
+    at 20 deg (frame 85) on the default 8 mm grid, 8-14 markers fitted (suspect: a small share of the
+    dent). The pushed-in markers' scatter there is the drape's curvature (a band of 0.8-1.5 mm against
+    0.3), not a face's ripple: the contact they grow holds under ``FACE_SCATTER_MIN_POINTS`` markers and
+    is not taken (taken, it moved the sweep's size-free RMSE from 3.778 to 3.823 deg)."""
+    specs = list(paper_sweep(theta_step_deg=30.0))
+    jig = default_jig()
+    as_built = draw_as_built(jig, np.random.default_rng(np.random.SeedSequence(0, spawn_key=(0,))))
+    unloaded, pair = (
+        render_pair(
+            as_built,
+            specs[index].part,
+            specs[index].pose,
+            np.random.default_rng(np.random.SeedSequence(0, spawn_key=(1, index))),
+        )
+        for index in (0, frame)
+    )
+    assert specs[0].part is None  # the sweep's unloaded reference frame
+    reference = reference_from_pair(unloaded.left, unloaded.right, jig)
+    estimate = estimate_pair(pair.left, pair.right, jig, reference=reference).estimate
+    assert not any("own scatter" in w for w in estimate.warnings), estimate.warnings
+
+
 def test_a_rise_inside_a_ring_of_wall_markers_is_a_violation():
     """Zoo seed 2, design 23, frame 8, size-free: the contact grew into a ring of wall markers around a rise
     of membrane, whose plane lay 18 deg off the face's; the rise's markers inside the contact's core lay
