@@ -276,8 +276,8 @@ def pushed_in_scatter_mm(
 ) -> float:
     """The scatter (mm, 1 sigma) of the ``pushed_in`` markers' heights about a smooth surface: each one's
     height (``heights``, an indentation) minus a quadratic fitted to its pushed-in neighbours within
-    :data:`NOISE_RADIUS_PITCHES` pitches, MAD-scaled; NaN where fewer than 10 of them have enough
-    neighbours.
+    :data:`NOISE_RADIUS_PITCHES` pitches, MAD-scaled; NaN where fewer than :data:`MIN_SCATTER_MARKERS` of
+    them are known or have enough neighbours.
 
     Why: :func:`indentation`'s noise is the median over every marker, most of them at rest. Where the
     membrane is pressed onto a rigid face, the beads behind it press through it (a ripple of 0.1-0.2 mm,
@@ -285,10 +285,10 @@ def pushed_in_scatter_mm(
     membrane at rest does; the contact plane's inlier band must be set from theirs. A band set from the
     membrane at rest keeps a strip of a large face and the plane of a strip is any plane through it (zoo
     seed 4, design 30, frame 5: 14 of 163 markers in contact, 35 deg off)."""
-    if pushed_in.sum() < MIN_SCATTER_MARKERS:
-        return float("nan")
     depth = heights.depth_mm[pushed_in]
     known = np.isfinite(depth)
+    if known.sum() < MIN_SCATTER_MARKERS:
+        return float("nan")
     scatter = kernels.neighbour_scatter(
         np.ascontiguousarray(points_J[pushed_in][known, :2], dtype=float),
         np.ascontiguousarray(depth[known], dtype=float),

@@ -329,8 +329,9 @@ class NoiseScales:
         which markers are pushed in at all.
     plane_sigma_mm : the absolute 3-D scatter of this frame's markers about a smooth surface (their
         neighbour-differenced heights above the nominal rest shape), at least the indentation's noise and
-        :data:`UNCERTAINTY_FLOOR_MM`, and at least the clearly pushed-in markers' own scatter
-        (:func:`on_the_face`): the inlier band of the contact plane.
+        :data:`UNCERTAINTY_FLOOR_MM`: the inlier band of the contact plane (raised to the clearly pushed-in
+        markers' own scatter, :func:`on_the_face`, where a size-free contact is grown again:
+        :meth:`ContactPlaneFitter._grown_with_the_face_scatter`).
     face_depth_sigma_mm : the noise of a face depth (:func:`~softjig.sensing.contact.face_depth_mm`,
         ``reference_z - zero - plane_z``, in which the loaded marker's own height cancels): the reference's
         own scatter about the rest shape (a reference frame's; the indentation noise for the rest shape),
