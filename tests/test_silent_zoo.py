@@ -149,6 +149,18 @@ def test_the_drapes_curvature_does_not_widen_a_small_contacts_band(frame):
     assert not any("own scatter" in w for w in estimate.warnings), estimate.warnings
 
 
+def test_a_large_face_a_few_markers_contradict_is_still_the_walls_rival():
+    """Zoo seed 7, design 1, frame 10, size-free with the reference (a noisy 4.6 mm grid): a 74 mm square
+    13 mm off the axis, tilted 14 deg, 133 markers in contact. The growth took the wall beside its lowered
+    edge (67 markers); the other arm of the V, the face (160 markers), had 12 markers above its plane
+    where 8 are tolerated, so it was no rival: "ok", 20 deg off, sigma 1.05 deg. A rival is a doubt, not a
+    choice: contradicted by no more than 5 % of its markers beyond the tolerated ones, it stays one."""
+    error, estimate = _estimate(1, 10, with_size=False, with_reference=True, seed=7)
+    if error > SILENT_ERROR_DEG:
+        assert estimate.quality == "suspect", (error, estimate.tilt_sigma_deg)
+        assert any("another contact fits the frame as well" in w for w in estimate.warnings)
+
+
 def test_a_rise_inside_a_ring_of_wall_markers_is_a_violation():
     """Zoo seed 2, design 23, frame 8, size-free: the contact grew into a ring of wall markers around a rise
     of membrane, whose plane lay 18 deg off the face's; the rise's markers inside the contact's core lay
