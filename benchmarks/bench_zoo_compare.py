@@ -41,7 +41,7 @@ def load_rows(path: Path) -> dict[tuple[int, int, str], Row]:
             continue
         try:
             row = Row(**{k: v for k, v in json.loads(line).items() if k in _FIELDS})
-        except (json.JSONDecodeError, TypeError) as exc:
+        except (json.JSONDecodeError, TypeError, AttributeError) as exc:
             raise SystemExit(
                 f"error: {path}:{number} is not a row of bench_zoo.py --json-out ({exc})"
             ) from None
