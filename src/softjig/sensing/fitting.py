@@ -198,6 +198,13 @@ def _distinct_planes(a: Estimate, b: Estimate) -> bool:
     return angle_deg > DISTINCT_PLANE_SIGMAS * math.hypot(a.tilt_sigma_deg, b.tilt_sigma_deg)
 
 
+def holds_too_few_of_the_dent(n_used: int, n_candidates: int) -> bool:
+    """Whether a size-free contact of ``n_used`` markers holds under :data:`MIN_CANDIDATE_SHARE` of the
+    ``n_candidates`` clearly pushed-in markers: a strip (of the membrane's wall, or of a face whose
+    markers fell out of the band), not a face, which presses most of its dent."""
+    return n_used < MIN_CANDIDATE_SHARE * n_candidates
+
+
 def fewest_to_check(min_points: int) -> int:
     """The fewest fitted markers whose flatness the self-check can check (:data:`SELF_CHECK_MIN_POINTS`,
     or twice ``sensing.min_points``: a split half needs as many as a fit)."""
@@ -426,12 +433,15 @@ class Dent:
 class _Measured:
     """What :meth:`ContactPlaneFitter.fit` measures of a frame once, whatever size its contact is searched
     with: the markers' identities, their indentation (as matched, and in the canonical ``order`` as
-    ``ordered``) and the part's size given (mm, or ``None``)."""
+    ``ordered``), their heights above the rest shape where the indentation is against a reference frame
+    (``absolute``, as matched; ``None`` against the rest shape) and the part's size given (mm, or
+    ``None``)."""
 
     observation: Observation
     points_J: np.ndarray
     identities: MarkerIdentities
     dent: Indentation
+    absolute: Indentation | None
     ordered: Dent
     order: np.ndarray
     part_diameter_mm: float | None
@@ -492,11 +502,13 @@ class ContactPlaneFitter:
         order = canonical_order(identities.ids, points_J)
         in_order = Indentation(dent.depth_mm[order], dent.zero_mm, dent.noise_mm)
         ordered = Dent(points_J[order], in_order, candidates[order], noise, noise.inlier_mm)
-        measured = _Measured(observation, points_J, identities, dent, ordered, order, part_diameter_mm)
+        measured = _Measured(
+            observation, points_J, identities, dent, absolute, ordered, order, part_diameter_mm
+        )
         first = self._contact(ordered, part_diameter_mm)
         result = self._fit(measured, first, search_size_mm=part_diameter_mm)
         if part_diameter_mm is None and isinstance(result, SensingResult):
-            return self._grown_with_the_face_scatter(measured, result, absolute)
+            return self._grown_with_the_face_scatter(measured, result)
         if not isinstance(result, SensingResult) or result.estimate.quality == "ok":
             return result
         searched = self._fit(
@@ -508,9 +520,7 @@ class ContactPlaneFitter:
                 return result
         return self._size_free_instead(measured, result)
 
-    def _grown_with_the_face_scatter(
-        self, measured: _Measured, grown: SensingResult, absolute: Indentation | None
-    ) -> SensingResult:
+    def _grown_with_the_face_scatter(self, measured: _Measured, grown: SensingResult) -> SensingResult:
         """The size-free contact grown again with an inlier band set from the clearly pushed-in markers'
         own scatter (:func:`on_the_face`), where the ``grown`` one kept too few of them (under
         :data:`MIN_CANDIDATE_SHARE`) and they scatter more than the band allowed; reported when that
@@ -528,9 +538,9 @@ class ContactPlaneFitter:
         estimate stays suspect."""
         ordered = measured.ordered
         n_candidates = int(ordered.candidates.sum())
-        if grown.estimate.n_points >= MIN_CANDIDATE_SHARE * n_candidates:
+        if not holds_too_few_of_the_dent(grown.estimate.n_points, n_candidates):
             return grown
-        heights = absolute if absolute is not None else measured.dent
+        heights = measured.absolute if measured.absolute is not None else measured.dent
         heights = replace(heights, depth_mm=heights.depth_mm[measured.order])  # in the canonical order
         noise = on_the_face(ordered.noise, ordered.points_J, heights, ordered.candidates, self._pitch)
         if noise == ordered.noise:
@@ -1291,7 +1301,7 @@ class ContactPlaneFitter:
                 f"{np.degrees(rival.angle_rad):.1f} deg from this one's ({rival.sigmas:.0f} times their "
                 "noise): the frame may show the membrane's wall beside a small contact"
             )
-        if size_free_search and n_used < MIN_CANDIDATE_SHARE * n_candidates:
+        if size_free_search and holds_too_few_of_the_dent(n_used, n_candidates):
             suspect.append(
                 f"suspect: only {n_used} of the {n_candidates} clearly pushed-in markers were fitted: a face "
                 "presses most of its dent, the plane may be a strip of the membrane's wall"
