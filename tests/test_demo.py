@@ -222,6 +222,22 @@ def test_report_text_is_escaped_in_html():
     )
 
 
+def test_a_ctrl_c_inside_a_compiled_kernel_stops_the_run_as_a_ctrl_c(tmp_path):
+    """SIGINT while a Numba kernel calls back into Python reaches the caller as a SystemError caused by the
+    KeyboardInterrupt (seen in CI: the interrupted run exited 1 with a traceback instead of 130); the run
+    raises the KeyboardInterrupt, as it documents, and stays resumable."""
+
+    def interrupted_in_a_kernel(text: str) -> None:
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as exc:
+            raise SystemError("CPUDispatcher(...) returned a result with an exception set") from exc
+
+    with pytest.raises(KeyboardInterrupt):
+        experiment.run_experiment(_tiny(tmp_path / "run", workers=1), on_stage=interrupted_in_a_kernel)
+    assert _manifest(tmp_path / "run")["status"] == "running"
+
+
 _RUN_SCRIPT = """
 import sys
 from softjig.evaluation.experiment import ExperimentSettings

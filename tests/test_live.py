@@ -195,6 +195,24 @@ def test_stop_ends_an_endless_loop_cleanly(sweep):
     assert summary.final.captured >= 1
 
 
+def test_a_ctrl_c_inside_a_compiled_kernel_ends_the_loop_as_a_ctrl_c(sweep):
+    """SIGINT while a Numba kernel calls back into Python arrives as a SystemError caused by the
+    KeyboardInterrupt; the loop ends interrupted, with its summary, as on any other Ctrl-C."""
+
+    def interrupted_in_a_kernel(outcome, message):
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as exc:
+            raise SystemError("CPUDispatcher(...) returned a result with an exception set") from exc
+
+    summary = LiveLoop(
+        _Endless(sweep),
+        LiveSettings(jig=sweep.jig, part_diameter_mm=50.0),
+        on_outcome=interrupted_in_a_kernel,
+    ).run()
+    assert summary.interrupted and summary.final.processed == 1
+
+
 def test_max_frames_limits_the_captured_pairs(sweep):
     summary = LiveLoop(
         ReplaySource(sweep, rate="fast"), LiveSettings(jig=sweep.jig, part_diameter_mm=50.0, max_frames=2)

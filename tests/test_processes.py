@@ -20,7 +20,7 @@ import pytest
 
 from softjig.config import default_jig
 from softjig.io.simulated import simulate_dataset
-from softjig.io.workers import Terminated, terminate_raises
+from softjig.io.workers import Terminated, signals_unwrapped, terminate_raises
 from softjig.sim.scenarios import paper_sweep
 
 pytestmark = pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs Linux /proc")
@@ -181,6 +181,23 @@ def test_terminate_raises_turns_sigterm_into_an_exception_and_restores_the_handl
             cleaned = True
     assert cleaned and info.value.exit_code == 143
     assert signal.getsignal(signal.SIGTERM) is before
+
+
+@pytest.mark.parametrize("signal_exc", [KeyboardInterrupt(), Terminated(signal.SIGTERM)])
+def test_signals_unwrapped_raises_the_signal_behind_a_kernels_system_error(signal_exc):
+    with pytest.raises(type(signal_exc)) as raised, signals_unwrapped():
+        try:
+            raise signal_exc
+        except KeyboardInterrupt as exc:
+            raise SystemError("returned a result with an exception set") from exc
+    assert raised.value is signal_exc
+
+
+def test_signals_unwrapped_passes_other_system_errors_and_follows_a_looping_chain_once():
+    first, second = SystemError("a bug"), ValueError("its cause")
+    first.__cause__, second.__cause__ = second, first
+    with pytest.raises(SystemError, match="a bug"), signals_unwrapped():
+        raise first
 
 
 @pytest.mark.parametrize("signum", [signal.SIGKILL, signal.SIGTERM])

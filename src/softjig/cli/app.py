@@ -42,7 +42,7 @@ import typer.main
 from softjig import __version__
 from softjig.cli import coercion
 from softjig.errors import EstimationError, InputError, SoftjigError
-from softjig.io.workers import Terminated, terminate_raises
+from softjig.io.workers import Terminated, signals_unwrapped, terminate_raises
 
 if TYPE_CHECKING:
     import numpy as np
@@ -290,7 +290,9 @@ def handle_errors(func: _F) -> _F:
     @functools.wraps(func)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
         try:
-            with terminate_raises():  # SIGTERM: an exception, so every `finally` runs (io.workers)
+            # SIGTERM: an exception, so every `finally` runs; a signal inside a compiled kernel's callback
+            # arrives as a SystemError (io.workers)
+            with terminate_raises(), signals_unwrapped():
                 return func(*args, **kwargs)
         except EstimationError as exc:
             error(str(exc), EXIT_NO_ESTIMATE)
@@ -302,26 +304,8 @@ def handle_errors(func: _F) -> _F:
             _exit_after_signal(str(exc), exc.exit_code)
         except KeyboardInterrupt:
             error("interrupted", EXIT_INTERRUPTED)
-        except SystemError as exc:
-            _exit_if_interrupted(exc)
-            raise
 
     return wrapper  # type: ignore[return-value]
-
-
-def _exit_if_interrupted(exc: BaseException) -> None:
-    """End the command as its signal would if ``exc`` was caused by one: a signal handler's exception
-    raised while a compiled kernel called back into Python (Numba's ``_numba_unpickle``) reaches us as a
-    ``SystemError`` whose cause is the :class:`~softjig.io.workers.Terminated` or ``KeyboardInterrupt``."""
-    seen: BaseException | None = exc
-    visited: set[int] = set()  # a chain may loop (``raise a from b`` with ``b`` caused by ``a``)
-    while seen is not None and id(seen) not in visited:
-        visited.add(id(seen))
-        if isinstance(seen, Terminated):
-            _exit_after_signal(str(seen), seen.exit_code)
-        if isinstance(seen, KeyboardInterrupt):
-            error("interrupted", EXIT_INTERRUPTED)
-        seen = seen.__cause__ or seen.__context__
 
 
 def parse_numbers(text: str, option: str) -> list[float]:

@@ -88,6 +88,7 @@ from softjig.io.dataset import (
     encode_png,
 )
 from softjig.io.simulated import simulate_dataset
+from softjig.io.workers import signals_unwrapped
 from softjig.sensing.estimator import Estimator
 from softjig.sim.scenarios import FrameSpec, cube_experiment, paper_sweep
 
@@ -559,6 +560,7 @@ def _rendered_disk_use(run: RunFolder) -> DiskUse:
     )
 
 
+@signals_unwrapped()  # a Ctrl-C inside a compiled kernel is a KeyboardInterrupt here too, resumable
 def run_experiment(
     settings: ExperimentSettings, *, on_stage: Callable[[str], None] | None = None
 ) -> ExperimentResult:

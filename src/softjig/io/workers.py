@@ -41,6 +41,7 @@ __all__ = [
     "Terminated",
     "die_with_parent",
     "init_worker",
+    "signals_unwrapped",
     "stderr_progress",
     "stop_pool",
     "terminate_raises",
@@ -95,6 +96,36 @@ def terminate_raises(signums: tuple[int, ...] = (signal.SIGTERM, signal.SIGHUP))
     finally:
         for signum, old in previous.items():
             signal.signal(signum, old)
+
+
+@contextlib.contextmanager
+def signals_unwrapped() -> Iterator[None]:
+    """Inside: a ``SystemError`` caused by Ctrl-C or :class:`Terminated` is raised as that exception.
+
+    A signal handler's exception raised while a compiled kernel calls back into Python (Numba's
+    ``_numba_unpickle``) reaches the caller as ``SystemError: ... returned a result with an exception
+    set`` whose cause is the ``KeyboardInterrupt``; code that stops cleanly on Ctrl-C (and says how to
+    resume) would take it for a bug. Any other ``SystemError`` passes unchanged.
+    """
+    try:
+        yield
+    except SystemError as exc:
+        signal_exc = _signal_behind(exc)
+        if signal_exc is None:
+            raise
+        raise signal_exc from None
+
+
+def _signal_behind(exc: BaseException) -> KeyboardInterrupt | None:
+    """The ``KeyboardInterrupt`` (or :class:`Terminated`) among ``exc``'s causes and contexts, if any."""
+    seen: BaseException | None = exc
+    visited: set[int] = set()  # a chain may loop (``raise a from b`` with ``b`` caused by ``a``)
+    while seen is not None and id(seen) not in visited:
+        visited.add(id(seen))
+        if isinstance(seen, KeyboardInterrupt):
+            return seen
+        seen = seen.__cause__ or seen.__context__
+    return None
 
 
 def die_with_parent(parent_pid: int) -> None:

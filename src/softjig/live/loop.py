@@ -45,6 +45,7 @@ from softjig.calibration.tilt import TiltCalibration
 from softjig.config import JigConfig
 from softjig.errors import EstimationError, InputError
 from softjig.io.cameras import BadFrame, SourceExhausted, StereoFrame, StereoSource
+from softjig.io.workers import signals_unwrapped
 from softjig.sensing.identities import ReferenceMarkers
 
 __all__ = [
@@ -716,7 +717,8 @@ class LiveLoop:
                     self._publish_health()
                     next_health = time.monotonic() + self.settings.health_period_s
                 if frame is not None:
-                    self._handle(frame)
+                    with signals_unwrapped():  # a Ctrl-C inside a compiled kernel: a KeyboardInterrupt
+                        self._handle(frame)
                     with self._cond:
                         self._busy = False
                         self._cond.notify_all()
