@@ -75,6 +75,12 @@ LIFT_OFF_SIGMAS = 1.5
 # check's power grows with them), and such an estimate is suspect: a few markers of the membrane's wall
 # beside a small part pass the split check.
 SELF_CHECK_MIN_POINTS = 15
+# A partial contact found without the part's size is suspect under this many markers: there, the wall
+# beside a small part's lowered edge and a few of its face's markers pass the split check as one face.
+# Measured on the design zoo (seeds 0-13, 28,000 size-free estimates): "ok" partial contacts of 15-18
+# markers were over 3 deg off 2.8 % of the time (12 of them silent failures), of 19-24 markers 0.8 %
+# (none silent), of more 0.3 % (benchmarks/RESULTS.md, ninth session).
+PARTIAL_CONTACT_MIN_POINTS = 19
 # A contact of fewer than this share of the clearly pushed-in markers is suspect: a face presses most of
 # its dent (the drape around it is shallower), a strip of wall fitted instead of a large face is a few
 # of them. Size-free only: with the size, the contact is cut to the face and a steep part's drape is most
@@ -222,13 +228,26 @@ def suspicions(
 ) -> list[str]:
     """The reasons (warnings starting with ``"suspect: "``) why an estimate may be wrong, from the frame's
     own evidence (:mod:`softjig.sensing.selfcheck`); none for an estimate that passed every check. An
-    estimate the checks cannot verify (too few markers to split) is suspect too."""
+    estimate the checks cannot verify (too few markers to split) is suspect too, and so is a partial
+    contact found without the part's size (``part_diameter_mm`` None) of under
+    :data:`PARTIAL_CONTACT_MIN_POINTS` markers."""
     reasons = []
     fewest = fewest_to_check(jig.sensing.min_points)
     if n_used < fewest or split is None:
         reasons.append(
             f"suspect: only {n_used} markers were fitted, too few to check that they are one flat face "
             f"(at least {fewest} are needed): a few markers of the membrane's wall fit a plane as well"
+        )
+    elif (
+        part_diameter_mm is None
+        and contact is not None
+        and contact.partial
+        and n_used < PARTIAL_CONTACT_MIN_POINTS
+    ):
+        reasons.append(
+            f"suspect: only {n_used} markers are in partial contact, found without the part's size: too few "
+            "to tell the part's face from the membrane's wall beside its lowered edge (at least "
+            f"{PARTIAL_CONTACT_MIN_POINTS} are needed; the part's size settles it)"
         )
     if split is not None and split.suspect:
         reasons.append(
