@@ -128,3 +128,50 @@ def test_without_the_fiducials_sigma_carries_the_stereo_heads_rotation_tolerance
         2 * (n_oil * 0.5) ** 2, rel=1e-6
     )
     assert sigma("fiducials", 0.5) == sigma("fiducials", 0.0)
+
+
+def _flat_plane():
+    from softjig.geometry import fit_plane_svd
+
+    xy = np.stack(np.meshgrid(np.arange(6.0), np.arange(6.0)), axis=-1).reshape(-1, 2) * 8.0
+    return fit_plane_svd(np.column_stack([xy, np.zeros(len(xy))]))
+
+
+def _contact(partial):
+    from softjig.sensing.contact import ContactRegion
+
+    return ContactRegion(1000.0, (0.0, 0.0), np.zeros((3, 2)), partial, 90.0 if partial else None, 0.0)
+
+
+@pytest.mark.parametrize(
+    ("violations", "words"), [(1, "1 marker in or beside the contact lies"), (3, "3 markers")]
+)
+def test_the_violations_reason_counts_its_markers_in_words(violations, words):
+    from softjig.config import default_jig
+    from softjig.sensing.fitting import suspicions
+    from softjig.sensing.selfcheck import split_halves
+
+    plane = _flat_plane()
+    split = split_halves(
+        np.column_stack([np.random.default_rng(0).uniform(0, 40, (30, 2)), np.zeros(30)]), point_sigma_mm=0.05
+    )
+    reasons = suspicions(split, violations, plane, None, None, default_jig(), 30)
+    assert any(words in r for r in reasons), reasons
+
+
+@pytest.mark.parametrize(
+    ("n_used", "partial", "size_mm", "suspect"),
+    [(18, True, None, True), (19, True, None, False), (18, False, None, False), (18, True, 40.0, False)],
+)
+def test_a_small_partial_contact_is_suspect_only_without_the_size(n_used, partial, size_mm, suspect):
+    """``PARTIAL_CONTACT_MIN_POINTS`` (19): under it, a partial contact found without the part's size is
+    suspect; a full contact, or one with the size, is not for that reason."""
+    from softjig.config import default_jig
+    from softjig.sensing.fitting import PARTIAL_CONTACT_MIN_POINTS, suspicions
+    from softjig.sensing.selfcheck import split_halves
+
+    assert PARTIAL_CONTACT_MIN_POINTS == 19
+    points = np.column_stack([np.random.default_rng(1).uniform(0, 40, (n_used, 2)), np.zeros(n_used)])
+    split = split_halves(points, point_sigma_mm=0.05)
+    reasons = suspicions(split, 0, _flat_plane(), _contact(partial), size_mm, default_jig(), n_used)
+    assert any("in partial contact, found without the part's size" in r for r in reasons) == suspect, reasons

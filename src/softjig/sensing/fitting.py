@@ -257,8 +257,9 @@ def suspicions(
         )
     if violations > 0:
         reasons.append(
-            f"suspect: {violations} markers in or beside the contact lie above the fitted face or far below "
-            "it, beyond what the noise explains: the plane may not be the part's face"
+            f"suspect: {violations} {'marker' if violations == 1 else 'markers'} in or beside the contact "
+            f"{'lies' if violations == 1 else 'lie'} above the fitted face or far below it, beyond what the "
+            "noise explains: the plane may not be the part's face"
         )
     if plane.normal[2] < np.cos(np.radians(MAX_TILT_DEG)):
         reasons.append(
