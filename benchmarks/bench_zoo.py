@@ -31,7 +31,10 @@ What it does
      ``s sqrt(2)``, ``P = 1 - exp(-1) = 63 %``. Frames without a sigma count as not covered.
 
    and the time per pair (estimate only, median ms) against the number of markers in contact (truth:
-   in contact and visible in both images), in bins.
+   in contact and visible in both images), in bins; and, per way, **why estimates were suspect**: each
+   self-check's reason (its words up to the first comma or colon, numbers as ``N``), how many estimates
+   gave it, how many of those were within 1 deg (false alarms) or over 3 deg off, and how many gave it
+   alone.
 4. The paper sweep on the default jig (diameters 30-80 mm, tilts 5-20 deg, azimuth step
    ``--sweep-step``): RMSE per diameter and tilt, with the part's size and the reference frame (what
    ``softjig demo`` does), and the four ways overall.
@@ -55,6 +58,7 @@ import itertools  # noqa: E402
 import json  # noqa: E402
 import math  # noqa: E402
 import platform  # noqa: E402
+import re  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 from collections import defaultdict  # noqa: E402
@@ -82,6 +86,8 @@ WAYS = (
     ("no size+rest shape", False, False),
 )
 SILENT_ERROR_DEG = 3.0
+RIGHT_DEG = 1.0  # a suspect estimate within this of the truth is a false alarm (the reasons' table)
+SUSPECT_PREFIX = "suspect: "  # softjig.sensing.results.SUSPECT_PREFIX
 SILENT_SIGMAS = 4.0
 CONTACT_BINS = (0, 20, 40, 80, 150, 300, 100_000)
 SECTION = "## Jig zoo (benchmarks/bench_zoo.py)"
@@ -108,6 +114,7 @@ class Row:
     failure: str | None
     frame_source: str | None = None
     bound_deg: float | None = None
+    reasons: tuple[str, ...] = ()  # the suspect estimate's reasons (reason_kind of each)
 
     @property
     def silent(self) -> bool:
@@ -234,6 +241,7 @@ def evaluate_design(
                     failure=None,
                     frame_source=est.frame_source,
                     bound_deg=scatter_bound_deg(est),
+                    reasons=tuple(reason_kind(w) for w in est.warnings if w.startswith(SUSPECT_PREFIX)),
                 )
             )
     return rows
@@ -249,6 +257,38 @@ def scatter_bound_deg(estimate) -> float | None:
         return None
     per_axis = estimate.rms_residual_mm / math.sqrt(estimate.n_points * area / (4.0 * math.pi))
     return math.degrees(math.sqrt(2.0) * per_axis)
+
+
+def reason_kind(warning: str) -> str:
+    """A suspect reason without its numbers: ``"suspect: only 16 markers were fitted, too few ..."`` ->
+    ``"only N markers were fitted"`` (the words up to the first comma or colon, numbers as ``N``)."""
+    text = re.sub(r"\d+(\.\d+)?", "N", warning.removeprefix(SUSPECT_PREFIX))
+    text = re.sub(r"\bN marker (.*?) lies\b", r"N markers \1 lie", text)  # one kind, singular or plural
+    return re.split(r"[,:]", text, maxsplit=1)[0].strip()
+
+
+def reasons_table(rows: Sequence[Row]) -> list[str]:
+    """Per way, each suspect reason: the estimates that gave it, those within :data:`RIGHT_DEG` (false
+    alarms) and over :data:`SILENT_ERROR_DEG` (caught), and those that gave no other reason."""
+    out = [
+        "**Zoo: why estimates were suspect (every part)**",
+        "",
+        f"| way | reason | estimates | within {RIGHT_DEG:g} deg | over {SILENT_ERROR_DEG:g} deg | alone |",
+        "|---|---|---|---|---|---|",
+    ]
+    for way, *_ in WAYS:
+        sel = [r for r in rows if r.way == way and r.quality == "suspect" and r.error_deg is not None]
+        counts: dict[str, list[int]] = defaultdict(lambda: [0, 0, 0, 0])
+        for r in sel:
+            for kind in set(r.reasons):
+                c = counts[kind]
+                c[0] += 1
+                c[1] += r.error_deg <= RIGHT_DEG
+                c[2] += r.error_deg > SILENT_ERROR_DEG
+                c[3] += len(set(r.reasons)) == 1
+        for kind, (n, right, wrong, alone) in sorted(counts.items(), key=lambda kv: -kv[1][0]):
+            out.append(f"| {way} | {kind} | {n} | {right} | {wrong} | {alone} |")
+    return [*out, ""]
 
 
 def summary(rows: Sequence[Row]) -> dict[str, float]:
@@ -438,6 +478,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         lines += table_by(zoo, lambda r: r.family, "Zoo, per design family")
         lines += accuracy_table(zoo)
         lines += timing_table(zoo)
+        lines += reasons_table(zoo)
     if sweep:
         lines += sweep_tables(sweep)
     print("\n".join(lines))

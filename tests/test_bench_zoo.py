@@ -67,3 +67,28 @@ def test_one_tiny_design_four_ways(bench, tmp_path):
     text = out.read_text()
     assert text.count(bench.SECTION) == 1 and "## Other\n\nkept" in text
     json.dumps([r.__dict__ for r in rows])
+
+
+def test_suspect_reasons_are_counted_by_kind_with_their_false_alarms(bench):
+    assert (
+        bench.reason_kind("suspect: only 16 markers were fitted, too few to check (at least 15 are needed)")
+        == "only N markers were fitted"
+    )
+    assert bench.reason_kind("suspect: the plane is tilted 41 deg: steep") == "the plane is tilted N deg"
+    assert bench.reason_kind(
+        "suspect: 1 marker in or beside the contact lies above it, so"
+    ) == bench.reason_kind("suspect: 3 markers in or beside the contact lie above it, so")
+    base = dict(
+        design=0, family="f", frame=1, way="no size+reference", part="box", part_size_mm=40.0,
+        alpha_deg=10.0, offset_mm=0.0, sigma_deg=0.5, n_contact=20, n_points=16, time_ms=5.0, failure=None,
+    )  # fmt: skip
+    partial = "only N markers are in partial contact"
+    rows = [
+        bench.Row(**base, error_deg=0.4, quality="suspect", reasons=(partial,)),
+        bench.Row(**base, error_deg=12.0, quality="suspect", reasons=(partial, "another contact fits")),
+        bench.Row(**base, error_deg=2.0, quality="suspect", reasons=("another contact fits",)),
+        bench.Row(**base, error_deg=0.2, quality="ok"),
+    ]
+    lines = bench.reasons_table(rows)
+    assert f"| no size+reference | {partial} | 2 | 1 | 1 | 1 |" in lines
+    assert "| no size+reference | another contact fits | 2 | 0 | 1 | 1 |" in lines

@@ -160,12 +160,20 @@ def test_the_violations_reason_counts_its_markers_in_words(violations, words):
 
 
 @pytest.mark.parametrize(
-    ("n_used", "partial", "size_mm", "suspect"),
-    [(18, True, None, True), (19, True, None, False), (18, False, None, False), (18, True, 40.0, False)],
+    ("n_used", "partial", "size_mm", "size_free_search", "suspect"),
+    [
+        (18, True, None, True, True),
+        (19, True, None, True, False),
+        (18, False, None, True, False),
+        (18, True, 40.0, True, True),  # the size-free fallback of a face under the known size
+        (18, True, 40.0, False, False),
+    ],
 )
-def test_a_small_partial_contact_is_suspect_only_without_the_size(n_used, partial, size_mm, suspect):
-    """``PARTIAL_CONTACT_MIN_POINTS`` (19): under it, a partial contact found without the part's size is
-    suspect; a full contact, or one with the size, is not for that reason."""
+def test_a_small_partial_contact_is_suspect_only_when_grown_without_the_size(
+    n_used, partial, size_mm, size_free_search, suspect
+):
+    """``PARTIAL_CONTACT_MIN_POINTS`` (19): under it, a partial contact grown without the part's size is
+    suspect; a full contact, or one searched under the known face, is not for that reason."""
     from softjig.config import default_jig
     from softjig.sensing.fitting import PARTIAL_CONTACT_MIN_POINTS, suspicions
     from softjig.sensing.selfcheck import split_halves
@@ -173,5 +181,14 @@ def test_a_small_partial_contact_is_suspect_only_without_the_size(n_used, partia
     assert PARTIAL_CONTACT_MIN_POINTS == 19
     points = np.column_stack([np.random.default_rng(1).uniform(0, 40, (n_used, 2)), np.zeros(n_used)])
     split = split_halves(points, point_sigma_mm=0.05)
-    reasons = suspicions(split, 0, _flat_plane(), _contact(partial), size_mm, default_jig(), n_used)
+    reasons = suspicions(
+        split,
+        0,
+        _flat_plane(),
+        _contact(partial),
+        size_mm,
+        default_jig(),
+        n_used,
+        size_free_search=size_free_search,
+    )
     assert any("in partial contact, found without the part's size" in r for r in reasons) == suspect, reasons

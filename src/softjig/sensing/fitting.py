@@ -81,6 +81,8 @@ SELF_CHECK_MIN_POINTS = 15
 # markers were over 3 deg off 2.8 % of the time (12 of them silent failures), of 19-24 markers 0.8 %
 # (none silent), of more 0.3 % (benchmarks/RESULTS.md, ninth session).
 PARTIAL_CONTACT_MIN_POINTS = 19
+# The words of that doubt (suspicions), by which the size-free fallback under a known size tells it apart.
+PARTIAL_CONTACT_DOUBT = "in partial contact, found without the part's size"
 # A contact of fewer than this share of the clearly pushed-in markers is suspect: a face presses most of
 # its dent (the drape around it is shallower), a strip of wall fitted instead of a large face is a few
 # of them. Size-free only: with the size, the contact is cut to the face and a steep part's drape is most
@@ -211,6 +213,14 @@ def holds_too_few_of_the_dent(n_used: int, n_candidates: int) -> bool:
     return n_used < MIN_CANDIDATE_SHARE * n_candidates
 
 
+def _doubts_beyond_a_small_partial_contact(estimate: Estimate) -> int:
+    """How many of ``estimate``'s suspect reasons are not that of a small partial contact grown without
+    the size (:data:`PARTIAL_CONTACT_MIN_POINTS`). That doubt alone does not keep the size-free contact
+    from replacing a face under the known size that failed its checks; it keeps it suspect (the face
+    kept instead was the worse estimate on the zoo: benchmarks/RESULTS.md, ninth session)."""
+    return sum(w.startswith(SUSPECT_PREFIX) and PARTIAL_CONTACT_DOUBT not in w for w in estimate.warnings)
+
+
 def fewest_to_check(min_points: int) -> int:
     """The fewest fitted markers whose flatness the self-check can check (:data:`SELF_CHECK_MIN_POINTS`,
     or twice ``sensing.min_points``: a split half needs as many as a fit)."""
@@ -225,12 +235,15 @@ def suspicions(
     part_diameter_mm: float | None,
     jig: JigConfig,
     n_used: int,
+    *,
+    size_free_search: bool = False,
 ) -> list[str]:
     """The reasons (warnings starting with ``"suspect: "``) why an estimate may be wrong, from the frame's
     own evidence (:mod:`softjig.sensing.selfcheck`); none for an estimate that passed every check. An
     estimate the checks cannot verify (too few markers to split) is suspect too, and so is a partial
-    contact found without the part's size (``part_diameter_mm`` None) of under
-    :data:`PARTIAL_CONTACT_MIN_POINTS` markers."""
+    contact of under :data:`PARTIAL_CONTACT_MIN_POINTS` markers grown without the part's size
+    (``size_free_search``: without a size, or as the fallback of a face under the known size that
+    failed its checks)."""
     reasons = []
     fewest = fewest_to_check(jig.sensing.min_points)
     if n_used < fewest or split is None:
@@ -238,16 +251,12 @@ def suspicions(
             f"suspect: only {n_used} markers were fitted, too few to check that they are one flat face "
             f"(at least {fewest} are needed): a few markers of the membrane's wall fit a plane as well"
         )
-    elif (
-        part_diameter_mm is None
-        and contact is not None
-        and contact.partial
-        and n_used < PARTIAL_CONTACT_MIN_POINTS
-    ):
+    elif size_free_search and contact is not None and contact.partial and n_used < PARTIAL_CONTACT_MIN_POINTS:
+        hint = "; the part's size settles it" if part_diameter_mm is None else ""
         reasons.append(
-            f"suspect: only {n_used} markers are in partial contact, found without the part's size: too few "
-            "to tell the part's face from the membrane's wall beside its lowered edge (at least "
-            f"{PARTIAL_CONTACT_MIN_POINTS} are needed; the part's size settles it)"
+            f"suspect: only {n_used} markers are {PARTIAL_CONTACT_DOUBT}: too few to tell the part's face "
+            f"from the membrane's wall beside its lowered edge (at least {PARTIAL_CONTACT_MIN_POINTS} are "
+            f"needed{hint})"
         )
     if split is not None and split.suspect:
         reasons.append(
@@ -635,7 +644,8 @@ class ContactPlaneFitter:
         if not isinstance(size_free, SensingResult):
             return suspect
         free = size_free.estimate
-        if free.quality != "ok" and not self._doubted_only_for_an_arm_the_face_is_not(free, found, suspect):
+        doubts = _doubts_beyond_a_small_partial_contact(free)
+        if doubts and not self._doubted_only_for_an_arm_the_face_is_not(free, found, suspect):
             return suspect
         if not _distinct_planes(suspect.estimate, free):  # one plane, doubted with the size
             return suspect
@@ -653,7 +663,13 @@ class ContactPlaneFitter:
                 size_free, estimate=replace(free, quality="suspect", warnings=(*free.warnings, doubt))
             )
         reason = next(w for w in suspect.estimate.warnings if w.startswith(SUSPECT_PREFIX))
-        passed = "which passes them" if free.quality == "ok" else "doubted only for another contact beside it"
+        passed = (
+            "which passes them"
+            if free.quality == "ok"
+            else "doubted only for another contact beside it"
+            if doubts
+            else "doubted only for its few markers in partial contact"
+        )
         note = (
             f"the contact searched under the part's {size:g} mm face failed its checks "
             f"({reason.removeprefix(SUSPECT_PREFIX)}); the contact found without the size, {passed}, is "
@@ -669,7 +685,7 @@ class ContactPlaneFitter:
         another plane than that arm (their normals further apart than :data:`DISTINCT_PLANE_SIGMAS` times
         their combined noise)."""
         rival = found[1]
-        if rival is None or sum(w.startswith(SUSPECT_PREFIX) for w in free.warnings) != 1:
+        if rival is None or _doubts_beyond_a_small_partial_contact(free) != 1:
             return False
         face = suspect.estimate
         angle = float(angle_between(face.normal, rival.normal_b))
@@ -1314,7 +1330,16 @@ class ContactPlaneFitter:
                 f"partial contact: the part lifts off towards azimuth {contact.lift_azimuth_deg:.0f} deg; "
                 "only the markers in contact were fitted"
             )
-        suspect = suspicions(split, violations, plane, contact, part_diameter_mm, self._jig, n_used)
+        suspect = suspicions(
+            split,
+            violations,
+            plane,
+            contact,
+            part_diameter_mm,
+            self._jig,
+            n_used,
+            size_free_search=size_free_search,
+        )
         if rival is not None:
             suspect.append(
                 f"suspect: another contact fits the frame as well, its normal "
