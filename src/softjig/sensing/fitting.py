@@ -75,7 +75,8 @@ LIFT_OFF_SIGMAS = 1.5
 # check's power grows with them), and such an estimate is suspect: a few markers of the membrane's wall
 # beside a small part pass the split check.
 SELF_CHECK_MIN_POINTS = 15
-# A partial contact found without the part's size is suspect under this many markers: there, the wall
+# A partial contact grown without the part's size (with no size given, or as the fallback of a face under
+# the known size that failed its checks) is suspect under this many markers: there, the wall
 # beside a small part's lowered edge and a few of its face's markers pass the split check as one face.
 # Measured on the design zoo (seeds 0-13, 28,000 size-free estimates): "ok" partial contacts of 15-18
 # markers were over 3 deg off 2.8 % of the time (12 of them silent failures), of 19-24 markers 0.8 %
