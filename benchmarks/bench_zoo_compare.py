@@ -35,8 +35,12 @@ def load_rows(path: Path) -> dict[tuple[int, int, str], Row]:
     """``bench_zoo --json-out``'s rows by ``(design, frame, way)``."""
     if not path.is_file():
         raise SystemExit(f"error: {path} is not a file: give bench_zoo.py --json-out's output")
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError:
+        raise SystemExit(f"error: {path} is not text: give bench_zoo.py --json-out's output") from None
     rows = {}
-    for number, line in enumerate(path.read_text().splitlines(), start=1):
+    for number, line in enumerate(text.splitlines(), start=1):
         if not line.strip():
             continue
         try:
@@ -45,7 +49,13 @@ def load_rows(path: Path) -> dict[tuple[int, int, str], Row]:
             raise SystemExit(
                 f"error: {path}:{number} is not a row of bench_zoo.py --json-out ({exc})"
             ) from None
-        rows[(row.design, row.frame, row.way)] = row
+        key = (row.design, row.frame, row.way)
+        if key in rows:  # two zoos in one file (the rows name no seed): one would hide the other
+            raise SystemExit(
+                f"error: {path}:{number} repeats design {row.design}, frame {row.frame}, {row.way}: "
+                "give one zoo (one --seed) per file"
+            )
+        rows[key] = row
     return rows
 
 
@@ -109,6 +119,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("new", type=Path, help="bench_zoo.py --json-out of the new tree, on the same zoo")
     parser.add_argument("--threshold", type=float, default=0.5, help="list rows whose error moved more (deg)")
     args = parser.parse_args(argv)
+    if not (math.isfinite(args.threshold) and args.threshold >= 0):
+        raise SystemExit(f"error: --threshold must be a finite angle >= 0 deg, got {args.threshold}")
     old, new = load_rows(args.old), load_rows(args.new)
     shared = old.keys() & new.keys()
     if not shared:

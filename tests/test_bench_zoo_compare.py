@@ -19,10 +19,10 @@ def _row(frame: int, way: str, error: float | None, quality: str | None, size: f
     }  # fmt: skip
 
 
-def _run(tmp_path: Path, old: list[dict], new: list[dict]) -> subprocess.CompletedProcess:
+def _run(tmp_path: Path, old: list[dict], new: list[dict], *options: str) -> subprocess.CompletedProcess:
     for name, rows in (("old", old), ("new", new)):
         (tmp_path / f"{name}.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
-    argv = [sys.executable, str(SCRIPT), str(tmp_path / "old.jsonl"), str(tmp_path / "new.jsonl")]
+    argv = [sys.executable, str(SCRIPT), str(tmp_path / "old.jsonl"), str(tmp_path / "new.jsonl"), *options]
     return subprocess.run(argv, capture_output=True, text=True, timeout=300)
 
 
@@ -55,3 +55,27 @@ def test_rows_of_another_zoo_are_refused(tmp_path):
     done = _run(tmp_path, [_row(1, "size+reference", 0.3, "ok")], [_row(2, "size+reference", 0.3, "ok")])
     assert done.returncode != 0
     assert "share no (design, frame, way)" in done.stderr
+
+
+def test_two_zoos_in_one_file_are_refused(tmp_path):
+    """The rows name no seed: two seeds' rows in one file would silently hide each other."""
+    row = _row(1, "size+reference", 0.3, "ok")
+    done = _run(tmp_path, [row], [row, {**row, "error_deg": 9.0}])
+    assert done.returncode != 0 and "Traceback" not in done.stderr
+    assert "new.jsonl:2 repeats design 3, frame 1, size+reference" in done.stderr
+
+
+def test_a_file_that_is_not_text_is_refused(tmp_path):
+    (tmp_path / "old.jsonl").write_bytes(bytes(range(128, 256)))
+    (tmp_path / "new.jsonl").write_text(json.dumps(_row(1, "size+reference", 0.3, "ok")) + "\n")
+    argv = [sys.executable, str(SCRIPT), str(tmp_path / "old.jsonl"), str(tmp_path / "new.jsonl")]
+    done = subprocess.run(argv, capture_output=True, text=True, timeout=300)
+    assert done.returncode != 0 and "Traceback" not in done.stderr
+    assert "is not text" in done.stderr
+
+
+def test_a_threshold_that_is_not_an_angle_is_refused(tmp_path):
+    rows = [_row(1, "size+reference", 0.3, "ok")]
+    for value in ("nan", "-1"):
+        done = _run(tmp_path, rows, rows, "--threshold", value)
+        assert done.returncode != 0 and "--threshold must be a finite angle" in done.stderr

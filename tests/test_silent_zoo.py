@@ -266,9 +266,7 @@ SMALL_PARTIAL_CONTACTS = [
 
 
 @pytest.mark.parametrize(("seed", "design", "frame", "with_reference"), SMALL_PARTIAL_CONTACTS)
-def test_a_weakly_checked_partial_contact_found_without_the_size_is_suspect(
-    seed, design, frame, with_reference
-):
+def test_a_small_partial_contact_found_without_the_size_is_suspect(seed, design, frame, with_reference):
     """Under ``PARTIAL_CONTACT_MIN_POINTS`` markers, a partial contact grown without the part's size is
     suspect, and says the part's size settles it; with the size, that reason is never given (or no face
     of that size is found, and the frame is refused)."""

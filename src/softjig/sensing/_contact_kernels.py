@@ -276,9 +276,7 @@ def indentation(
         return raw, zero, noise
     column = np.empty(m)
     for f in range(k):
-        for i in range(enough):
-            column[i] = abs(residual[i, f])
-        noise[f] = max(MAD_TO_SIGMA * median_in_place(column[:enough]), NOISE_FLOOR_MM)
+        noise[f] = max(_mad_sigma(residual, f, enough, column), NOISE_FLOOR_MM)
         for i in range(m):
             column[i] = raw_finite[i, f]
         zero[f] = settle_zero(column, noise[f], ZERO_ROUNDS)
@@ -295,10 +293,16 @@ def neighbour_scatter(xy: np.ndarray, values: np.ndarray, radius: float) -> floa
     residual, enough = quadratic_residuals(xy, values.reshape(-1, 1), radius)
     if enough < MIN_NOISE_MARKERS:
         return NO_NOISE
-    column = np.empty(enough)
-    for i in range(enough):
-        column[i] = abs(residual[i, 0])
-    return MAD_TO_SIGMA * median_in_place(column)
+    return _mad_sigma(residual, 0, enough, np.empty(enough))
+
+
+@numba.njit  # no cache of its own: compiled into its callers'
+def _mad_sigma(residual: np.ndarray, column: int, count: int, scratch: np.ndarray) -> float:
+    """The MAD-scaled sigma of the first ``count`` residuals of ``column`` (``scratch``: at least ``count``
+    long, overwritten)."""
+    for i in range(count):
+        scratch[i] = abs(residual[i, column])
+    return MAD_TO_SIGMA * median_in_place(scratch[:count])
 
 
 @numba.njit(cache=True)

@@ -664,13 +664,12 @@ class ContactPlaneFitter:
                 size_free, estimate=replace(free, quality="suspect", warnings=(*free.warnings, doubt))
             )
         reason = next(w for w in suspect.estimate.warnings if w.startswith(SUSPECT_PREFIX))
-        passed = (
-            "which passes them"
-            if free.quality == "ok"
-            else "doubted only for another contact beside it"
-            if doubts
-            else "doubted only for its few markers in partial contact"
-        )
+        if doubts:  # the other arm of its V, the one doubt let through above
+            passed = "doubted only for another contact beside it"
+        elif free.quality == "ok":
+            passed = "which passes them"
+        else:
+            passed = "doubted only for its few markers in partial contact"
         note = (
             f"the contact searched under the part's {size:g} mm face failed its checks "
             f"({reason.removeprefix(SUSPECT_PREFIX)}); the contact found without the size, {passed}, is "
