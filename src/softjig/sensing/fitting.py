@@ -15,6 +15,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
+from typing import NamedTuple
 
 import numpy as np
 
@@ -200,11 +201,27 @@ def _common_fields(
 DISTINCT_PLANE_SIGMAS = 3.0
 
 
+def _angle_deg(a: np.ndarray | tuple, b: np.ndarray | tuple) -> float:
+    """The angle between two unit normals, or between one and the other's opposite, whichever is smaller
+    (deg)."""
+    return math.degrees(math.acos(min(1.0, abs(float(np.dot(a, b))))))
+
+
 def _distinct_planes(a: Estimate, b: Estimate) -> bool:
     """Whether two estimates of one frame found different planes: their normals further apart than
     :data:`DISTINCT_PLANE_SIGMAS` times their combined ``tilt_sigma_deg``."""
-    angle_deg = math.degrees(math.acos(min(1.0, abs(float(np.dot(a.normal, b.normal))))))
-    return angle_deg > DISTINCT_PLANE_SIGMAS * math.hypot(a.tilt_sigma_deg, b.tilt_sigma_deg)
+    return _angle_deg(a.normal, b.normal) > DISTINCT_PLANE_SIGMAS * math.hypot(
+        a.tilt_sigma_deg, b.tilt_sigma_deg
+    )
+
+
+def _confident_and_distinct(free: SensingResult | Refusal, sized: Estimate) -> bool:
+    """Whether the size-free ``free`` result is an "ok" estimate of another plane than ``sized``'s."""
+    return (
+        isinstance(free, SensingResult)
+        and free.estimate.quality == "ok"
+        and _distinct_planes(sized, free.estimate)
+    )
 
 
 def holds_too_few_of_the_dent(n_used: int, n_candidates: int) -> bool:
@@ -477,6 +494,15 @@ class _Measured:
     part_diameter_mm: float | None
 
 
+class _InContact(NamedTuple):
+    """A contact as matched: its markers as found (``grown``), those left once the lifted-off ones are
+    dropped (``used``), and their plane."""
+
+    grown: np.ndarray
+    used: np.ndarray
+    plane: PlaneFit
+
+
 class ContactPlaneFitter:
     """Ours: the contact from the indentation, its plane fitted robustly, lifted-off markers dropped.
 
@@ -539,16 +565,68 @@ class ContactPlaneFitter:
         result = self._fit(measured, first, search_size_mm=part_diameter_mm)
         if part_diameter_mm is None and isinstance(result, SensingResult):
             return self._grown_with_the_face_scatter(measured, result)
-        if not isinstance(result, SensingResult) or result.estimate.quality == "ok":
+        if not isinstance(result, SensingResult):
             return result
+        if result.estimate.quality == "ok":
+            return self._checked_without_the_size(measured, result)
         searched = self._fit(
             measured, self._contact(ordered, part_diameter_mm, first=first), search_size_mm=part_diameter_mm
         )
         if isinstance(searched, SensingResult):
             result = searched
             if result.estimate.quality == "ok":
-                return result
+                return self._checked_without_the_size(measured, result)
         return self._size_free_instead(measured, result)
+
+    def _checked_without_the_size(self, measured: _Measured, sized: SensingResult) -> SensingResult:
+        """The ``sized`` estimate (under the known face, "ok"), made suspect where the contact found
+        without the size passes every check too, the part's size included, and lies on another plane
+        (:func:`_distinct_planes`); else ``sized`` as it is.
+
+        Why: the two searches rest on different evidence (a face of the known size placed where the
+        indentation puts it; a plane grown from the deepest markers), and where both pass every check
+        yet disagree beyond their noise, one of them is not the part's face (the size-free estimate is
+        checked without the size, as the size-free way would report it). Under the known size, the
+        search can settle on a face made of a few of the face's markers and the membrane draped beside
+        its lifted edge, which nothing contradicts (zoo seed 15, design 0, frame 12: a 42 mm cylinder
+        20 mm off the axis, 7 deg tilt; 12 of its 34 markers in contact and 19 of the drape, "ok" and
+        10.7 deg off with a sigma of 2.5 deg; the size-free estimate, "ok", was 1.3 deg off). The
+        size-free contact's rival (:meth:`_other_arm`, most of its cost) is looked for only where the
+        two disagree without it.
+        """
+        ordered = measured.ordered
+        without_the_size = replace(measured, part_diameter_mm=None)  # checked on its own evidence
+        try:
+            found = self._contact(ordered, None, other_arm=False)
+            if not found:
+                return sized
+            in_contact = self._in_contact(without_the_size, found[0], None)
+        except EstimationError:  # no plane grows without the size: nothing to check against
+            return sized
+        # Two planes within 3 of the sized estimate's sigmas are no two planes whatever the size-free
+        # estimate's sigma (the description, half the cost, is skipped: the usual case).
+        normal = _calibrated(in_contact.plane, self._calibration)[4]
+        if _angle_deg(normal, sized.estimate.normal) <= DISTINCT_PLANE_SIGMAS * sized.estimate.tilt_sigma_deg:
+            return sized
+        free = self._described(without_the_size, in_contact, None, None)
+        if not _confident_and_distinct(free, sized.estimate):
+            return sized
+        rival = self._other_arm(ordered, found[0], self._robust_fit(ordered.threshold_mm))
+        if rival is not None:  # the size-free estimate is doubted too: is it still confident?
+            free = self._described(without_the_size, in_contact, rival, None)
+            if not _confident_and_distinct(free, sized.estimate):
+                return sized
+        estimate, other = sized.estimate, free.estimate
+        angle_deg = _angle_deg(estimate.normal, other.normal)
+        sigmas = angle_deg / math.hypot(estimate.tilt_sigma_deg, other.tilt_sigma_deg)
+        doubt = (
+            f"{SUSPECT_PREFIX}the contact found without the part's size ({other.n_points} markers) passes "
+            f"every check too and lies {angle_deg:.1f} deg from this one ({sigmas:.0f} times their noise): "
+            "one of the two is not the part's face"
+        )
+        return replace(
+            sized, estimate=replace(estimate, quality="suspect", warnings=(*estimate.warnings, doubt))
+        )
 
     def _grown_with_the_face_scatter(self, measured: _Measured, grown: SensingResult) -> SensingResult:
         """The size-free contact grown again with an inlier band set from the clearly pushed-in markers'
@@ -652,9 +730,7 @@ class ContactPlaneFitter:
             return suspect
         size = measured.part_diameter_mm
         if self._doubted_only_for_its_few_markers(suspect.estimate):  # two contacts, neither contradicted
-            angle_deg = math.degrees(
-                math.acos(min(1.0, abs(float(np.dot(suspect.estimate.normal, free.normal)))))
-            )
+            angle_deg = _angle_deg(suspect.estimate.normal, free.normal)
             doubt = (
                 f"{SUSPECT_PREFIX}the contact under the part's {size:g} mm face, {suspect.estimate.n_points} "
                 f"markers that nothing contradicts (too few to check), lies {angle_deg:.1f} deg from this "
@@ -707,28 +783,45 @@ class ContactPlaneFitter:
         """:meth:`fit`'s estimate of the ``measured`` frame from the contact ``found`` by :meth:`_contact`
         (searched under a face of ``search_size_mm``, or without a size: ``None``), checked and described
         with the part's size."""
-        observation, points_J, dent, ordered = (
-            measured.observation, measured.points_J, measured.dent, measured.ordered
-        )  # fmt: skip
-        part_diameter_mm, noise, order = measured.part_diameter_mm, ordered.noise, measured.order
         if not found:
             return found
-        (used_in_order, plane), rival = found
+        return self._described(
+            measured, self._in_contact(measured, found[0], search_size_mm), found[1], search_size_mm
+        )
+
+    def _in_contact(self, measured: _Measured, contact: Contact, search_size_mm: float | None) -> _InContact:
+        """The ``contact``'s markers as matched (it is in the canonical order) and plane, its lifted-off
+        markers dropped (:func:`~softjig.sensing.contact.drop_lifted_off`)."""
+        points_J, order = measured.points_J, measured.order
+        used_in_order, plane = contact
         used = np.empty_like(used_in_order)
         used[order] = used_in_order
         if search_size_mm is None:  # under a known face, the plane is already the SVD fit of points_J[used]
             plane = fit_or_fail(points_J[used], self._minimum)
-        grown = used
-        clearance = LIFT_OFF_SIGMAS * noise.face_depth_sigma_mm
-        used, plane = drop_lifted_off(
+        kept, plane = drop_lifted_off(
             points_J,
-            dent,
+            measured.dent,
             used,
             plane,
-            clearance_mm=clearance,
+            clearance_mm=LIFT_OFF_SIGMAS * measured.ordered.noise.face_depth_sigma_mm,
             fit_plane=lambda points: fit_or_fail(points, self._minimum),
             min_points=self._minimum,
         )
+        return _InContact(used, kept, plane)
+
+    def _described(
+        self,
+        measured: _Measured,
+        in_contact: _InContact,
+        rival: SplitCheck | None,
+        search_size_mm: float | None,
+    ) -> SensingResult:
+        """The estimate of the markers ``in_contact``, checked and described (:meth:`_fit`)."""
+        observation, points_J, dent, ordered = (
+            measured.observation, measured.points_J, measured.dent, measured.ordered
+        )  # fmt: skip
+        part_diameter_mm, noise = measured.part_diameter_mm, ordered.noise
+        grown, used, plane = in_contact
         plane_depth = face_depth_mm(points_J, dent, plane)
         uncertainty, split = self._uncertainty(points_J, dent, used, grown, plane, plane_depth, noise)
         uncertainty = self._without_measured_frame(uncertainty, plane, observation)
@@ -834,11 +927,12 @@ class ContactPlaneFitter:
         part_diameter_mm: float | None,
         *,
         first: Found | None = None,
+        other_arm: bool = True,
     ) -> Found:
         """The contact's markers (canonical order) and plane, under the known face (searched from every
         placement, given the ``first`` contact found under it) or size-free, and its rival's agreement
         (:meth:`_contact_under_known_face`, :meth:`_placement_search`; size-free,
-        :meth:`_other_arm`)."""
+        :meth:`_other_arm`, unless ``other_arm`` is false)."""
         fit = self._robust_fit(dent.threshold_mm)
 
         def size_free() -> Contact:
@@ -854,7 +948,7 @@ class ContactPlaneFitter:
 
         if part_diameter_mm is None:
             used, plane = size_free()
-            rival = self._other_arm(dent, (used, plane), fit)
+            rival = self._other_arm(dent, (used, plane), fit) if other_arm else None
         elif first is not None:
             found = self._placement_search(dent, part_diameter_mm / 2.0, fit, first)
             if not found:
