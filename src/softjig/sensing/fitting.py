@@ -536,7 +536,9 @@ class ContactPlaneFitter:
         another one (:func:`_distinct_planes`): two searches that rest on different evidence, one of
         them confident (:meth:`_size_free_instead`; suspect where nothing contradicts the other either).
         Where both found the same plane, the doubt the search with the size raised stands (a rival
-        contact, say), and so does the suspect estimate. Without the size, a contact that kept too few of
+        contact, say), and so does the suspect estimate. An "ok" estimate under the known size is made
+        suspect where the size-free contact passes every check too and lies on another plane
+        (:meth:`_checked_without_the_size`). Without the size, a contact that kept too few of
         the pushed-in markers may be grown again with a band set from their own scatter
         (:meth:`_grown_with_the_face_scatter`).
         """
