@@ -582,8 +582,8 @@ class ContactPlaneFitter:
 
     def _checked_without_the_size(self, measured: _Measured, sized: SensingResult) -> SensingResult:
         """The ``sized`` estimate (under the known face, "ok"), made suspect where the contact found
-        without the size passes every check too, the part's size included, and lies on another plane
-        (:func:`_distinct_planes`); else ``sized`` as it is.
+        without the size passes every check too and lies on another plane (:func:`_distinct_planes`);
+        else ``sized`` as it is.
 
         Why: the two searches rest on different evidence (a face of the known size placed where the
         indentation puts it; a plane grown from the deepest markers), and where both pass every check
