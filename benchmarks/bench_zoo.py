@@ -63,7 +63,7 @@ import sys  # noqa: E402
 import time  # noqa: E402
 from collections import defaultdict  # noqa: E402
 from collections.abc import Iterable, Sequence  # noqa: E402
-from dataclasses import dataclass, replace  # noqa: E402
+from dataclasses import dataclass  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import cv2  # noqa: E402
@@ -75,6 +75,7 @@ from softjig.sensing.estimator import Estimator  # noqa: E402
 from softjig.sim.asbuilt import draw_as_built  # noqa: E402
 from softjig.sim.render import render_pair  # noqa: E402
 from softjig.sim.scenarios import FrameSpec, frame_truth, paper_sweep  # noqa: E402
+from softjig.sim.zoo import stirred_image_model  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from results_section import replace_section  # noqa: E402
@@ -126,22 +127,6 @@ class Row:
     @property
     def covered(self) -> bool:
         return self.error_deg is not None and self.sigma_deg is not None and self.error_deg <= self.sigma_deg
-
-
-def old_image_model(jig: JigConfig) -> JigConfig:
-    """The simulator's image model before the bead pack's statistics: a new speckle every frame, identical
-    markers, illumination centred, identical cameras."""
-    return jig.replace(
-        medium=replace(jig.medium, speckle_static=False),
-        imaging=replace(
-            jig.imaging,
-            marker_brightness_spread=0.0,
-            marker_appearance="hemisphere",
-            illumination_center=(0.0, 0.0),
-            exposure=(1.0, 1.0),
-            gain=(1.0, 1.0),
-        ),
-    )
 
 
 def _angle_deg(a: Sequence[float], b: Sequence[float]) -> float:
@@ -455,7 +440,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--write", type=Path, help="replace this benchmark's section of this Markdown file")
     args = parser.parse_args(argv)
     cv2.setNumThreads(1)
-    render_jig = old_image_model if args.image_model == "stirred" else None
+    render_jig = stirred_image_model if args.image_model == "stirred" else None
     t0 = time.perf_counter()
     zoo = [] if args.no_zoo else run_zoo(args.designs, args.frames, args.seed, render_jig)
     t_zoo = time.perf_counter() - t0

@@ -11,18 +11,19 @@ be right, honest about its error, or suspect.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 import pytest
 
-from softjig.config import default_jig
+from softjig.config import JigConfig, default_jig
 from softjig.errors import EstimationError
 from softjig.sensing.fitting import PARTIAL_CONTACT_MIN_POINTS
 from softjig.sensing.pipeline import estimate_pair, reference_from_pair
 from softjig.sim.asbuilt import draw_as_built
 from softjig.sim.render import render_pair
 from softjig.sim.scenarios import frame_truth, paper_sweep
-from softjig.sim.zoo import ZooRanges, _draw_design
+from softjig.sim.zoo import ZooRanges, _draw_design, stirred_image_model
 
 ZOO_SEED = 0
 ZOO_FRAMES = 20  # the benchmark's frames per design: the frames are drawn in sequence
@@ -30,12 +31,22 @@ SILENT_ERROR_DEG = 3.0  # bench_zoo's definition of a silent failure
 SILENT_SIGMAS = 4.0
 
 
-def _estimate(design_index: int, frame: int, *, with_size: bool, with_reference: bool, seed: int = ZOO_SEED):
-    """Render a zoo design's reference frame and one loaded frame as ``bench_zoo.evaluate_design`` does,
-    and estimate it: ``(error_deg, estimate)``."""
+def _estimate(
+    design_index: int,
+    frame: int,
+    *,
+    with_size: bool,
+    with_reference: bool,
+    seed: int = ZOO_SEED,
+    render_jig: Callable[[JigConfig], JigConfig] | None = None,
+):
+    """Render a zoo design's reference frame and one loaded frame as ``bench_zoo.evaluate_design`` does
+    (with the image model ``render_jig`` makes of the design's jig, default its own), and estimate it:
+    ``(error_deg, estimate)``."""
     design = _draw_design(design_index, seed, ZOO_FRAMES, ZooRanges())
+    rendered_jig = render_jig(design.jig) if render_jig else design.jig
     as_built = draw_as_built(
-        design.jig, np.random.default_rng(np.random.SeedSequence(design.seed, spawn_key=(0,)))
+        rendered_jig, np.random.default_rng(np.random.SeedSequence(design.seed, spawn_key=(0,)))
     )
 
     def rendered(index):
@@ -322,3 +333,45 @@ def test_a_sized_face_that_the_size_free_contact_contradicts_is_suspect(seed, de
         assert any("passes every check too" in w for w in estimate.warnings), estimate.warnings
     free_error, free = _estimate(design_index, frame, with_size=False, with_reference=True, seed=seed)
     assert free.quality == "ok" and free_error < SILENT_ERROR_DEG, (free_error, free.warnings)
+
+
+# The silent failures left (benchmarks/RESULTS.md, 7 Dec 2026; seed, design, frame, with the size, with
+# the reference, stirred image model): in each, the membrane's wall beside a steeply tilted part's
+# lowered edge and a few of the face's markers are fitted as one plane that nothing contradicts, "ok".
+# Strict: a fix makes one pass, and then it moves to the tests above. Two more of the bead-pack zoo,
+# size-free, are left out: seed 9, design 48, frame 11 (3.0 deg off) and seed 13, design 4, frame 20
+# (4.7 deg off, 4.05 sigmas) lie a hair over the line, where a last-digit change would flip them.
+SILENT_FAILURES_LEFT = [
+    pytest.param(15, 15, 10, False, True, False, id="s15d15f10-nosize-reference-32deg"),
+    pytest.param(3, 37, 2, False, False, False, id="s3d37f2-nosize-rest-19deg"),
+    pytest.param(2, 43, 9, True, True, True, id="stirred-s2d43f9-size-reference-13deg"),
+    pytest.param(5, 47, 18, True, True, True, id="stirred-s5d47f18-size-reference-19deg"),
+    pytest.param(5, 32, 2, False, False, True, id="stirred-s5d32f2-nosize-rest-16deg"),
+]
+
+
+@pytest.mark.xfail(
+    strict=True,
+    raises=AssertionError,
+    reason="issue 13: silent failures not yet caught (benchmarks/RESULTS.md)",
+)
+@pytest.mark.parametrize(
+    ("seed", "design_index", "frame", "with_size", "with_reference", "stirred"), SILENT_FAILURES_LEFT
+)
+def test_the_silent_failures_left_are_not_silent(
+    seed, design_index, frame, with_size, with_reference, stirred
+):
+    error, estimate = _estimate(
+        design_index,
+        frame,
+        with_size=with_size,
+        with_reference=with_reference,
+        seed=seed,
+        render_jig=stirred_image_model if stirred else None,
+    )
+    silent = (
+        estimate.quality == "ok"
+        and error > SILENT_ERROR_DEG
+        and error > SILENT_SIGMAS * estimate.tilt_sigma_deg
+    )
+    assert not silent, (error, estimate.tilt_sigma_deg, estimate.n_points)

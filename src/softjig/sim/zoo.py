@@ -213,6 +213,24 @@ def draw_designs(
         yield _draw_design(index, int(seed), int(frames), ranges)
 
 
+def stirred_image_model(jig: JigConfig) -> JigConfig:
+    """``jig`` rendered with the simulator's image model from before the bead pack's statistics: a new
+    speckle in every frame (which a reference frame cannot cancel), identical markers, the illumination
+    centred on the axis and identical cameras. A variant to check the estimator on image statistics
+    other than the default ones (``benchmarks/bench_zoo.py --image-model stirred``)."""
+    return jig.replace(
+        medium=replace(jig.medium, speckle_static=False),
+        imaging=replace(
+            jig.imaging,
+            marker_brightness_spread=0.0,
+            marker_appearance="hemisphere",
+            illumination_center=(0.0, 0.0),
+            exposure=(1.0, 1.0),
+            gain=(1.0, 1.0),
+        ),
+    )
+
+
 def _is_count(value: object, least: int) -> bool:
     """Whether ``value`` is an integer (not a bool) of at least ``least``."""
     return not isinstance(value, bool) and isinstance(value, int | np.integer) and value >= least
