@@ -40,7 +40,8 @@ What it does
    ``softjig demo`` does), and the four ways overall.
 
 ``--json-out FILE`` writes one JSON object per line and per frame and way (design, family, frame, way,
-error, sigma, quality, contact markers, time, failure reason), for iterating on the estimator.
+error, sigma, quality, contact markers, time, failure reason, suspect reasons, the estimated normal), for
+iterating on the estimator (two ways' normals of a frame say how far apart they lie).
 ``--write FILE`` replaces (or appends) this benchmark's section of ``benchmarks/RESULTS.md``.
 ``--image-model stirred`` renders with the simulator's old image model (a new speckle every frame and
 none of the bead-pack effects), for comparison.
@@ -116,6 +117,7 @@ class Row:
     frame_source: str | None = None
     bound_deg: float | None = None
     reasons: tuple[str, ...] = ()  # the suspect estimate's reasons (reason_kind of each)
+    normal: tuple[float, ...] | None = None  # the estimated normal (J): to compare two ways of a frame
 
     @property
     def silent(self) -> bool:
@@ -227,6 +229,7 @@ def evaluate_design(
                     frame_source=est.frame_source,
                     bound_deg=scatter_bound_deg(est),
                     reasons=tuple(reason_kind(w) for w in est.warnings if w.startswith(SUSPECT_PREFIX)),
+                    normal=tuple(float(v) for v in est.normal),
                 )
             )
     return rows

@@ -58,7 +58,9 @@ def test_one_tiny_design_four_ways(bench, tmp_path):
     rows = bench.evaluate_design(design.jig, design.specs, design.seed, design=0, family=design.family)
     assert [r.way for r in rows] == [w for w, *_ in bench.WAYS]
     for r in rows:
-        assert (r.error_deg is None) == (r.failure is not None)
+        assert (r.error_deg is None) == (r.failure is not None) == (r.normal is None)
+        if r.normal is not None:  # the estimate's unit normal, pointing up into the membrane
+            assert abs(sum(v * v for v in r.normal) - 1.0) < 1e-9 and r.normal[2] > 0
     lines = bench.table_by(rows, lambda r: r.family, "t") + bench.timing_table(rows)
     out = tmp_path / "RESULTS.md"
     out.write_text("# softjig benchmark results\n\n## Other\n\nkept\n")
