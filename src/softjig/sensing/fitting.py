@@ -201,10 +201,9 @@ def _common_fields(
 DISTINCT_PLANE_SIGMAS = 3.0
 
 
-def _angle_deg(a: np.ndarray | tuple, b: np.ndarray | tuple) -> float:
-    """The angle between two unit normals, or between one and the other's opposite, whichever is smaller
-    (deg)."""
-    return math.degrees(math.acos(min(1.0, abs(float(np.dot(a, b))))))
+def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
+    """The angle between two unit normals (deg; every normal here has ``n_z > 0``)."""
+    return math.degrees(float(angle_between(a, b)))
 
 
 def _distinct_planes(a: Estimate, b: Estimate) -> bool:
@@ -215,12 +214,16 @@ def _distinct_planes(a: Estimate, b: Estimate) -> bool:
     )
 
 
-def _confident_and_distinct(free: SensingResult | Refusal, sized: Estimate) -> bool:
-    """Whether the size-free ``free`` result is an "ok" estimate of another plane than ``sized``'s."""
-    return (
-        isinstance(free, SensingResult)
-        and free.estimate.quality == "ok"
-        and _distinct_planes(sized, free.estimate)
+def _confident_and_distinct(free: Estimate, sized: Estimate) -> bool:
+    """Whether the size-free estimate ``free`` is "ok" and of another plane than ``sized``."""
+    return free.quality == "ok" and _distinct_planes(sized, free)
+
+
+def _made_suspect(result: SensingResult, doubt: str) -> SensingResult:
+    """``result`` with its estimate suspect for the reason ``doubt`` (a warning that says so)."""
+    estimate = result.estimate
+    return replace(
+        result, estimate=replace(estimate, quality="suspect", warnings=(*estimate.warnings, doubt))
     )
 
 
@@ -607,27 +610,25 @@ class ContactPlaneFitter:
             return sized
         # Two planes within 3 of the sized estimate's sigmas are no two planes whatever the size-free
         # estimate's sigma (the description, half the cost, is skipped: the usual case).
-        normal = _calibrated(in_contact.plane, self._calibration)[4]
-        if _angle_deg(normal, sized.estimate.normal) <= DISTINCT_PLANE_SIGMAS * sized.estimate.tilt_sigma_deg:
+        estimate = sized.estimate
+        *_, normal = _calibrated(in_contact.plane, self._calibration)
+        if _angle_deg(normal, estimate.normal) <= DISTINCT_PLANE_SIGMAS * estimate.tilt_sigma_deg:
             return sized
-        free = self._described(without_the_size, in_contact, None, None)
-        if not _confident_and_distinct(free, sized.estimate):
+        free = self._described(without_the_size, in_contact, None, None).estimate
+        if not _confident_and_distinct(free, estimate):
             return sized
         rival = self._other_arm(ordered, found[0], self._robust_fit(ordered.threshold_mm))
         if rival is not None:  # the size-free estimate is doubted too: is it still confident?
-            free = self._described(without_the_size, in_contact, rival, None)
-            if not _confident_and_distinct(free, sized.estimate):
+            free = self._described(without_the_size, in_contact, rival, None).estimate
+            if not _confident_and_distinct(free, estimate):
                 return sized
-        estimate, other = sized.estimate, free.estimate
-        angle_deg = _angle_deg(estimate.normal, other.normal)
-        sigmas = angle_deg / math.hypot(estimate.tilt_sigma_deg, other.tilt_sigma_deg)
-        doubt = (
-            f"{SUSPECT_PREFIX}the contact found without the part's size ({other.n_points} markers) passes "
+        angle_deg = _angle_deg(estimate.normal, free.normal)
+        sigmas = angle_deg / math.hypot(estimate.tilt_sigma_deg, free.tilt_sigma_deg)
+        return _made_suspect(
+            sized,
+            f"{SUSPECT_PREFIX}the contact found without the part's size ({free.n_points} markers) passes "
             f"every check too and lies {angle_deg:.1f} deg from this one ({sigmas:.0f} times their noise): "
-            "one of the two is not the part's face"
-        )
-        return replace(
-            sized, estimate=replace(estimate, quality="suspect", warnings=(*estimate.warnings, doubt))
+            "one of the two is not the part's face",
         )
 
     def _grown_with_the_face_scatter(self, measured: _Measured, grown: SensingResult) -> SensingResult:
@@ -665,15 +666,12 @@ class ContactPlaneFitter:
             or regrown.estimate.n_points < FACE_SCATTER_MIN_POINTS  # the scatter was the drape's
         ):
             return grown
-        estimate = regrown.estimate
-        doubt = (
+        return _made_suspect(
+            regrown,
             f"{SUSPECT_PREFIX}the contact was grown with an inlier band of {noise.inlier_mm:.2f} mm, set "
             "from the pushed-in markers' own scatter: the band of the membrane at rest "
             f"({ordered.threshold_mm:.2f} mm) kept {grown.estimate.n_points} of the {n_candidates} pushed-in "
-            "markers"
-        )
-        return replace(
-            regrown, estimate=replace(estimate, quality="suspect", warnings=(*estimate.warnings, doubt))
+            "markers",
         )
 
     def _without_points_off_the_membrane(
@@ -733,13 +731,11 @@ class ContactPlaneFitter:
         size = measured.part_diameter_mm
         if self._doubted_only_for_its_few_markers(suspect.estimate):  # two contacts, neither contradicted
             angle_deg = _angle_deg(suspect.estimate.normal, free.normal)
-            doubt = (
+            return _made_suspect(
+                size_free,
                 f"{SUSPECT_PREFIX}the contact under the part's {size:g} mm face, {suspect.estimate.n_points} "
                 f"markers that nothing contradicts (too few to check), lies {angle_deg:.1f} deg from this "
-                "one: the frame may show the membrane's wall beside a small contact"
-            )
-            return replace(
-                size_free, estimate=replace(free, quality="suspect", warnings=(*free.warnings, doubt))
+                "one: the frame may show the membrane's wall beside a small contact",
             )
         reason = next(w for w in suspect.estimate.warnings if w.startswith(SUSPECT_PREFIX))
         if doubts:  # the other arm of its V, the one doubt let through above
