@@ -289,6 +289,22 @@ def test_part_wider_than_the_membrane_is_refused(sweep, diameter):
     assert "part diameter" in result.output or "--part-diameter" in result.output  # inf: while parsing
 
 
+@pytest.mark.parametrize(
+    ("diameter", "message"), [("0", "positive"), ("-5", "positive"), ("1e6", "membrane")]
+)
+def test_a_dataset_refuses_a_bad_part_diameter_before_any_frame(sweep, tmp_path, diameter, message):
+    """A dataset given --part-diameter 0, -5 or 1e6 exited 3 after writing every frame's error over the
+    results file; it is one bad option, refused once (exit 2) and nothing written."""
+    out = tmp_path / "results.jsonl"
+    out.write_text("kept\n")
+    args = ["estimate", str(sweep.root), "--out", str(out), "--workers", "1", "--part-diameter", diameter]
+    result = runner.invoke(app, [*args, "--no-progress"])
+    assert result.exit_code == 2, result.output
+    assert "part diameter" in result.output and message in result.output
+    assert "Traceback" not in result.output
+    assert out.read_text() == "kept\n"
+
+
 def test_12_bit_counts_in_a_16_bit_png(sweep, tmp_path):
     """Issue 14: a 12-bit camera's counts in a 16-bit PNG gave 0 markers and "noise (nan mm)", exit 3."""
     paths = []

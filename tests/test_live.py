@@ -393,6 +393,17 @@ def test_cli_live_refuses_an_empty_replay(sweep, tmp_path):
     assert result.exit_code == 2 and "has no frames" in result.output
 
 
+@pytest.mark.parametrize("diameter", ["0", "1e6"])
+def test_cli_live_refuses_a_part_diameter_no_jig_holds(sweep, diameter):
+    """Refused once (exit 2) before the first pair, not pair after pair: a part wider than the membrane
+    too (the live loop checked only its sign)."""
+    result = runner.invoke(
+        app, ["live", "--replay", str(sweep.root), "--rate", "fast", "--part-diameter", diameter]
+    )
+    assert result.exit_code == 2, result.output
+    assert "part diameter" in result.output and "Traceback" not in result.output
+
+
 @pytest.mark.parametrize(("option", "value"), [("--method", "svd"), ("--rate", "slow")])
 def test_cli_live_choices_are_checked_before_any_work_and_listed(tmp_path, option, value):
     result = runner.invoke(app, ["live", "--replay", str(tmp_path / "not-yet-read"), option, value])

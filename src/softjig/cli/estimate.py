@@ -336,8 +336,9 @@ def _estimate_dataset(
     loaded frame; the workers it then forks inherit that warm state and read and decode their frames
     themselves (:func:`softjig.io.batch.estimate_dataset`).
 
-    Refused before any work (exit 2): a dataset without frames, an ``out`` that is one of the dataset's own
-    files or one of the command's ``inputs`` (the rig, the calibration). A dataset of which no frame gave
+    Refused before any frame is estimated (exit 2): a dataset without frames, an ``out`` that is one of the
+    dataset's own files or one of the command's ``inputs`` (the rig, the calibration), a ``part_diameter``
+    that is not a positive number of mm smaller than the membrane. A dataset of which no frame gave
     an estimate exits 3, after writing every frame's error to ``out``."""
     import warnings
 

@@ -60,7 +60,7 @@ from softjig.errors import EstimationError, InputError
 from softjig.files import fsync_folder, remove_stale_temporaries, temp_file_beside
 from softjig.io.dataset import Dataset, Frame
 from softjig.io.workers import one_thread_per_worker, worker_pool
-from softjig.sensing.estimator import DEFAULT_METHOD, Estimator
+from softjig.sensing.estimator import DEFAULT_METHOD, Estimator, check_part_diameter
 from softjig.sensing.identities import ReferenceMarkers
 
 __all__ = [
@@ -99,7 +99,10 @@ class BatchSettings:
     """What every frame of a batch shares (``frame_part_size``: use each frame's recorded part size).
 
     ``estimator`` is the :class:`~softjig.sensing.estimator.Estimator` of these settings, once built
-    (:meth:`with_estimator`; :func:`estimate_dataset` and each worker build it once)."""
+    (:meth:`with_estimator`; :func:`estimate_dataset` and each worker build it once).
+
+    Raises :class:`~softjig.errors.InputError` for a ``part_diameter_mm`` that is not a positive number of
+    mm smaller than the jig's membrane (:func:`~softjig.sensing.estimator.check_part_diameter`)."""
 
     jig: JigConfig
     part_diameter_mm: float | None = None
@@ -108,6 +111,9 @@ class BatchSettings:
     reference: ReferenceMarkers | None = None
     frame_part_size: bool = True
     estimator: Estimator | None = field(default=None, compare=False, repr=False)
+
+    def __post_init__(self) -> None:
+        check_part_diameter(self.part_diameter_mm, self.jig)  # refused once, not frame after frame
 
     def with_estimator(self) -> BatchSettings:
         """These settings with their estimator built (as they are when it is, or when the settings do not

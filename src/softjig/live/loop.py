@@ -102,8 +102,10 @@ class LiveSettings:
     def __post_init__(self) -> None:
         if self.max_frames is not None and self.max_frames < 1:
             raise InputError(f"--max-frames must be at least 1, got {self.max_frames}")
-        if self.part_diameter_mm is not None and not self.part_diameter_mm > 0:
-            raise InputError(f"--part-diameter must be positive (mm), got {self.part_diameter_mm}")
+        if self.part_diameter_mm is not None:  # refused here, not pair after pair
+            from softjig.sensing.estimator import check_part_diameter
+
+            check_part_diameter(self.part_diameter_mm, self.jig)
         for name in ("read_timeout_s", "retry_delay_s", "retry_delay_max_s", "health_period_s"):
             if not getattr(self, name) > 0:
                 raise InputError(f"{name} must be positive, got {getattr(self, name)}")
