@@ -44,7 +44,8 @@ error, sigma, quality, contact markers, time, failure reason, suspect reasons, t
 iterating on the estimator (two ways' normals of a frame say how far apart they lie).
 ``--write FILE`` replaces (or appends) this benchmark's section of ``benchmarks/RESULTS.md``.
 ``--image-model stirred`` renders with the simulator's old image model (a new speckle every frame and
-none of the bead-pack effects), for comparison.
+none of the bead-pack effects), for comparison; ``--image-model damaged`` with each design's own model
+plus a damaged membrane, bubbles and glints (:func:`softjig.sim.zoo.damaged_image_model`).
 """
 
 from __future__ import annotations
@@ -76,7 +77,7 @@ from softjig.sensing.estimator import Estimator  # noqa: E402
 from softjig.sim.asbuilt import draw_as_built  # noqa: E402
 from softjig.sim.render import render_pair  # noqa: E402
 from softjig.sim.scenarios import FrameSpec, frame_truth, paper_sweep  # noqa: E402
-from softjig.sim.zoo import stirred_image_model  # noqa: E402
+from softjig.sim.zoo import damaged_image_model, stirred_image_model  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from results_section import replace_section  # noqa: E402
@@ -87,6 +88,8 @@ WAYS = (
     ("no size+reference", False, True),
     ("no size+rest shape", False, False),
 )
+#: ``--image-model``: how each design's jig is rendered (``None``: its own bead-pack model).
+IMAGE_MODELS = {"bead-pack": None, "stirred": stirred_image_model, "damaged": damaged_image_model}
 SILENT_ERROR_DEG = 3.0
 RIGHT_DEG = 1.0  # a suspect estimate within this of the truth is a false alarm (the reasons' table)
 SUSPECT_PREFIX = "suspect: "  # softjig.sensing.results.SUSPECT_PREFIX
@@ -438,12 +441,12 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--sweep-step", type=float, default=30.0, help="paper sweep's azimuth step (deg)")
     parser.add_argument("--no-sweep", action="store_true", help="skip the paper sweep")
     parser.add_argument("--no-zoo", action="store_true", help="skip the zoo")
-    parser.add_argument("--image-model", choices=("bead-pack", "stirred"), default="bead-pack")
+    parser.add_argument("--image-model", choices=tuple(IMAGE_MODELS), default="bead-pack")
     parser.add_argument("--json-out", type=Path, help="per-frame results, one JSON object per line")
     parser.add_argument("--write", type=Path, help="replace this benchmark's section of this Markdown file")
     args = parser.parse_args(argv)
     cv2.setNumThreads(1)
-    render_jig = stirred_image_model if args.image_model == "stirred" else None
+    render_jig = IMAGE_MODELS[args.image_model]
     t0 = time.perf_counter()
     zoo = [] if args.no_zoo else run_zoo(args.designs, args.frames, args.seed, render_jig)
     t_zoo = time.perf_counter() - t0

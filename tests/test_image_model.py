@@ -10,9 +10,12 @@ import numpy as np
 import pytest
 
 from softjig.config import ConfigError, CylinderPart, JigConfig, default_jig, dumps_jig, exact_jig, loads_jig
+from softjig.optics import project_points
+from softjig.rig import distortion_of, flat_layers
 from softjig.sim.asbuilt import nominal_as_built
 from softjig.sim.parts import PartPose
-from softjig.sim.render import idealised, render_pair
+from softjig.sim.render import bubbles_J, idealised, marker_brightness, render_pair
+from softjig.sim.zoo import damaged_image_model
 
 PART = CylinderPart(diameter_mm=50.0)
 POSE = PartPose(alpha_rad=np.radians(10.0), theta_rad=np.radians(30.0), push_depth_mm=4.0)
@@ -52,7 +55,10 @@ def test_defaults_are_the_realistic_model():
     assert jig.imaging.illumination_center != (0.0, 0.0)
     assert jig.imaging.exposure[0] != jig.imaging.exposure[1]
     assert jig.imaging.gain[0] != jig.imaging.gain[1]
+    # a jig filled and kept well: no bubbles, glints or missing markers unless the config says so
+    assert (jig.medium.bubbles, jig.imaging.glints, jig.imaging.missing_marker_fraction) == (0, 0, 0.0)
     assert loads_jig(dumps_jig(jig)) == jig
+    assert loads_jig(dumps_jig(damaged_image_model(jig))) == damaged_image_model(jig)
 
 
 @pytest.mark.parametrize(
@@ -66,6 +72,10 @@ def test_defaults_are_the_realistic_model():
         ("imaging", "illumination_center", (1.5, 0.0)),
         ("imaging", "exposure", (1.0, 0.0)),
         ("imaging", "gain", (float("nan"), 1.0)),
+        ("medium", "bubbles", -1),
+        ("medium", "bubble_radius_mm", 0.0),
+        ("imaging", "glints", 5000),
+        ("imaging", "missing_marker_fraction", 0.7),
     ],
 )
 def test_image_model_validation_names_the_field(section, field, value):
@@ -284,3 +294,78 @@ def test_per_camera_exposure_and_gain():
     left, right = pair.left[patch].astype(float), pair.right[patch].astype(float)
     assert np.mean(right) / np.mean(left) == pytest.approx(0.8 * 1.5, rel=0.01)
     assert np.std(right) / np.std(left) == pytest.approx(1.5 * np.sqrt(0.8), rel=0.1)
+
+
+def test_missing_markers_are_dark_in_every_frame_and_camera():
+    plain = quiet_jig(marker_brightness_spread=0.0)
+    damaged = plain.replace(imaging=replace(plain.imaging, missing_marker_fraction=0.1))
+    factors = marker_brightness(damaged.imaging, 2000)
+    assert np.mean(factors == 0.0) == pytest.approx(0.1, abs=0.02)
+    bg = plain.imaging.background_level * TOP
+    for rng, part in ((1, None), (2, PART)):
+        pair = render_pair(nominal_as_built(damaged), *((part, POSE) if part else ()), rng=rng)
+        for side in ("left", "right"):
+            light, idx = _marker_light(pair, side, 6.0, bg)
+            missing = marker_brightness(damaged.imaging, len(pair.markers.xyz_mm))[idx] == 0.0
+            assert missing.sum() > 5
+            # a missing marker leaves the membrane (its light is the speckle's, about nothing)
+            assert np.max(np.abs(light[missing])) < 0.05 * np.median(light[~missing])
+
+
+def _bubble_pixels(jig: JigConfig, side: str) -> tuple[np.ndarray, np.ndarray]:
+    """Each bubble's projected centre and radius (px) in one camera."""
+    camera = getattr(jig.cameras, side)
+    centres, radii = bubbles_J(jig)
+    layers = flat_layers(jig)
+    px, rim = (
+        project_points(p, camera.K, distortion_of(camera), camera.T_J_cam, layers)
+        for p in (centres, centres + radii[:, None] * np.array([1.0, 0.0, 0.0]))
+    )
+    return px, np.linalg.norm(rim - px, axis=1)
+
+
+def test_bubbles_darken_their_rims_in_both_cameras_in_every_frame():
+    plain = quiet_jig(marker_brightness_spread=0.0)
+    plain = plain.replace(medium=replace(plain.medium, speckle_std=0.0))
+    bubbly = plain.replace(medium=replace(plain.medium, bubbles=10, bubble_radius_mm=1.5))
+    centres, radii = bubbles_J(bubbly)
+    assert len(centres) == 10 and np.all((radii >= 0.75) & (radii <= 2.25))
+    assert np.all(np.hypot(centres[:, 0], centres[:, 1]) <= bubbly.membrane.footprint_radius_mm)
+    clear = render_pair(nominal_as_built(plain), rng=1)
+    reference = render_pair(nominal_as_built(bubbly), rng=1)
+    loaded = render_pair(nominal_as_built(bubbly), PART, POSE, rng=2)
+    for side in ("left", "right"):
+        px, radius_px = _bubble_pixels(bubbly, side)
+        h, w = clear.left.shape
+        yy, xx = np.mgrid[0:h, 0:w]
+        seen = 0
+        for (u, v), r in zip(px, radius_px, strict=True):
+            if not (3 * r < u < w - 3 * r and 3 * r < v < h - 3 * r):
+                continue
+            rho = np.hypot(xx - u, yy - v) / r
+            rim = (rho > 0.75) & (rho < 0.95)
+            ratio = getattr(reference, side)[rim].astype(float) / getattr(clear, side)[rim]
+            assert np.median(ratio) < 0.5  # the ring is dark over the membrane and the markers
+            # where nothing moved, the bubble is the same in the loaded frame
+            still = np.all(np.hypot(*(getattr(loaded.markers, f"{side}_px") - (u, v)).T) > 3 * r + 15)
+            if still:
+                assert np.array_equal(getattr(loaded, side)[rim], getattr(reference, side)[rim])
+            seen += 1
+        assert seen >= 5
+        away = np.ones((h, w), dtype=bool)
+        for (u, v), r in zip(px, radius_px, strict=True):
+            away &= np.hypot(xx - u, yy - v) > 1.5 * r
+        assert np.array_equal(getattr(reference, side)[away], getattr(clear, side)[away])
+
+
+def test_glints_saturate_fixed_spots_of_each_camera():
+    plain = quiet_jig(marker_brightness_spread=0.0)
+    glinty = plain.replace(imaging=replace(plain.imaging, glints=20))
+    clear = render_pair(nominal_as_built(plain), rng=1)
+    reference = render_pair(nominal_as_built(glinty), rng=1)
+    loaded = render_pair(nominal_as_built(glinty), PART, POSE, rng=2)
+    left = (reference.left == TOP) & (clear.left < TOP)
+    right = (reference.right == TOP) & (clear.right < TOP)
+    assert left.any() and right.any()
+    assert not np.array_equal(left, right)  # each camera sees its own reflections
+    assert np.array_equal(left, (loaded.left == TOP) & (clear.left < TOP))  # and the same ones every frame

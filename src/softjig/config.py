@@ -186,6 +186,12 @@ class MediumConfig:
     speckle_redraw_fraction: float = 0.3
     # How far (mm) the membrane must move to push a bead out of its pocket: about half a bead diameter.
     speckle_redraw_displacement_mm: float = 0.5
+    # Air bubbles lodged in the bead pack (a jig filled without degassing the oil), fixed where they are
+    # (drawn from speckle_seed: the same pack): each refracts the light away at its rim, a dark ring over
+    # whatever lies behind it, and shows a small bright reflection of the lights. 0: none (a degassed fill).
+    bubbles: int = 0
+    # A bubble's typical radius (mm); each one's is drawn in [0.5, 1.5] times this.
+    bubble_radius_mm: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -218,6 +224,12 @@ class ImagingConfig:
     illumination_center: Vec2 = (0.1, 0.05)
     exposure: Vec2 = (1.0, 0.93)  # (left, right) light collected, relative to the levels above
     gain: Vec2 = (1.0, 1.05)  # (left, right) sensor gain, relative: multiplies signal and noise
+    # Share of the markers whose paint has flaked off (a worn or damaged membrane): they are not seen, in
+    # any frame (drawn from marker_brightness_seed). 0: every marker is there.
+    missing_marker_fraction: float = 0.0
+    # Specular glints in each image: the lights reflected by the plate's faces and by the beads, small
+    # saturated spots fixed in each camera's image (other places in the other camera). 0: none.
+    glints: int = 0
 
 
 @dataclass(frozen=True)
@@ -828,6 +840,10 @@ def _validate_sensing(s: SensingConfig) -> None:
         )
 
 
+#: The most bubbles or glints an image model may hold (each is drawn over the whole image).
+MAX_IMAGE_DEFECTS = 1000
+
+
 def _validate_image_model(md: MediumConfig, im: ImagingConfig) -> None:
     """The simulated image model's fields (bead-pack speckle, marker brightness, illumination, sensors)."""
     if not 0.0 <= md.speckle_redraw_fraction <= 1.0:
@@ -847,6 +863,20 @@ def _validate_image_model(md: MediumConfig, im: ImagingConfig) -> None:
         _fail(
             "imaging.marker_brightness_spread",
             f"must be a relative standard deviation in [0, 0.5], got {im.marker_brightness_spread}",
+        )
+    for section, name, value in (
+        ("medium", "bubbles", md.bubbles),
+        ("imaging", "glints", im.glints),
+    ):
+        if not 0 <= value <= MAX_IMAGE_DEFECTS:
+            _fail(f"{section}.{name}", f"must be a count in [0, {MAX_IMAGE_DEFECTS}], got {value}")
+    if not (math.isfinite(md.bubble_radius_mm) and 0.05 <= md.bubble_radius_mm <= 10.0):
+        _fail("medium.bubble_radius_mm", f"must be a radius in [0.05, 10] mm, got {md.bubble_radius_mm}")
+    if not 0.0 <= im.missing_marker_fraction <= 0.5:
+        _fail(
+            "imaging.missing_marker_fraction",
+            f"must be a fraction in [0, 0.5] (more is not a membrane one can sense with), "
+            f"got {im.missing_marker_fraction}",
         )
     for k, value in enumerate(im.illumination_center):
         if not (math.isfinite(value) and abs(value) <= 1.0):

@@ -78,6 +78,14 @@ Radiance is computed in float32 on ``[0, 1]`` (fraction of full scale), in this 
    A membrane marker whose image disc (radius ``radius_px``) meets a fiducial's quiet zone is not
    visible (the quad is grown by the radius along its edges' normals: conservative at its corners).
    A marker is also not visible unless its whole disc lies inside the image.
+   **Bubbles and glints** (5b; none by default): ``medium.bubbles`` air bubbles lodged in the bead pack
+   (:func:`bubbles_J`), fixed in 3-D, are projected into each image with their radius; each is a dark
+   ring at its rim (the light meeting the air at a grazing angle is reflected away) over the membrane
+   and the markers behind it, and a small bright spot (the lights' reflection). ``imaging.glints``
+   saturated spots a few pixels wide (the lights reflected by the plate's faces and the beads) lie at
+   fixed places in each image (drawn from ``medium.speckle_seed`` and the camera), in front of
+   everything. Both are drawn into the maps of what lies in front of the membrane, with the fiducials.
+   A marker whose paint has flaked off (``imaging.missing_marker_fraction``) has no light of its own.
 6. **Illumination fall-off and exposure**: times ``e * max(1 - imaging.illumination_falloff * (rho /
    rho_corner)^2, 0.02)``, ``rho`` the distance from the illumination's centre, offset from the image
    centre ``((W-1)/2, (H-1)/2)`` by ``imaging.illumination_center`` (fractions of the half-width and
@@ -152,6 +160,7 @@ __all__ = [
     "MarkerTruth",
     "RenderedPair",
     "Renderer",
+    "bubbles_J",
     "idealised",
     "marker_brightness",
     "render_pair",
@@ -166,6 +175,21 @@ _MIN_ILLUMINATION = 0.02  # the fall-off map is clipped here (an off-centre spot
 _MASK_REACH_COARSE_PX = 5.0  # the redraw mask's softening kernel (sigma 1) reaches 4 coarse px
 _MASK_SUBPIXEL_BITS = 4  # cv2.circle's fractional bits for the redraw mask's centres and radii
 _CAMERA_INDEX = {"left": 0, "right": 1}
+# A bubble (step 5b): a dark ring at its rim, where the light meeting the air at a grazing angle is
+# reflected away (total internal reflection), centred at this share of its radius, this wide (a share of
+# the radius) and this dark; a small bright spot, the lights' reflection, this far up-left of its centre
+# (a share of the radius), this wide and bright; drawn out to this many radii.
+_BUBBLE_RIM_RHO = 0.85
+_BUBBLE_RIM_WIDTH = 0.15
+_BUBBLE_RIM_DARKNESS = 0.85
+_BUBBLE_SPOT_OFFSET = 0.3
+_BUBBLE_SPOT_SIGMA = 0.12
+_BUBBLE_SPOT_LEVEL = 0.6
+_BUBBLE_REACH = 1.4
+# A glint: a Gaussian spot of this peak radiance (saturated: beyond full scale) and a standard deviation
+# drawn in this range (px).
+_GLINT_LEVEL = 1.5
+_GLINT_SIGMA_PX = (0.8, 2.5)
 _PIXEL_STEP = 0.01  # px: central differences of the back-projection (a 1e-3 mm step on the membrane)
 _PIXEL_OFFSETS = np.array([[0.0, 0.0], [1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]]) * _PIXEL_STEP
 _PIXEL_OFFSETS.flags.writeable = False
@@ -461,12 +485,18 @@ def marker_brightness(im: ImagingConfig, n_markers: int) -> np.ndarray:
     """Each marker's brightness factor, ``(n_markers,)``: ``1 + imaging.marker_brightness_spread * z``
     (clipped at 0.05), ``z`` standard normal drawn from
     ``SeedSequence(imaging.marker_brightness_seed, spawn_key=(1,))`` in marker order, so fixed per marker
-    for a jig (the same in both cameras, every frame and every process)."""
+    for a jig (the same in both cameras, every frame and every process); 0 for the markers missing from a
+    damaged membrane (``imaging.missing_marker_fraction``, drawn from ``spawn_key=(2,)``)."""
     if im.marker_brightness_spread == 0:
-        return np.ones(n_markers)
-    rng = np.random.default_rng(np.random.SeedSequence(im.marker_brightness_seed, spawn_key=(1,)))
-    z = rng.standard_normal(n_markers)
-    return np.maximum(1.0 + im.marker_brightness_spread * z, _MIN_MARKER_BRIGHTNESS)
+        factor = np.ones(n_markers)
+    else:
+        rng = np.random.default_rng(np.random.SeedSequence(im.marker_brightness_seed, spawn_key=(1,)))
+        z = rng.standard_normal(n_markers)
+        factor = np.maximum(1.0 + im.marker_brightness_spread * z, _MIN_MARKER_BRIGHTNESS)
+    if im.missing_marker_fraction > 0:  # paint flaked off: no light of its own
+        rng = np.random.default_rng(np.random.SeedSequence(im.marker_brightness_seed, spawn_key=(2,)))
+        factor[rng.random(n_markers) < im.missing_marker_fraction] = 0.0
+    return factor
 
 
 def speckle_correlation_px(jig: JigConfig, camera: CameraConfig) -> float:
@@ -592,7 +622,10 @@ class _CameraView:
     fiducials: tuple[_Fiducial, ...]
     quad_half_planes: tuple[np.ndarray, np.ndarray]  # of the fiducials' quiet zones (_quad_half_planes)
     speckle: _SpeckleGrid | None
-    maps: tuple[np.ndarray, np.ndarray, np.ndarray]  # (H, W): fiducials' transmission and level, illumination
+    # (H, W): the transmission and level of what lies in front of the membrane (fiducials, bubbles,
+    # glints), illumination
+    maps: tuple[np.ndarray, np.ndarray, np.ndarray]
+    overlays: tuple[tuple[int, int, int, int], ...]  # (y0, y1, x0, x1): where the first two maps are not 1, 0
     base: np.ndarray
     gain: np.ndarray
 
@@ -622,11 +655,18 @@ class _CameraView:
                 f, sigma, _coarse_texture(np.random.default_rng(seed), coarse_shape, sigma)
             )
             texture = _upsample(speckle.texture, f, (h, w), md.speckle_std)
-        maps = (*_fiducial_maps(fiducials, (h, w)), illumination)
+        transmission, level = _fiducial_maps(fiducials, (h, w))
+        overlays = (
+            *((f.y0, f.y1, f.x0, f.x1) for f in fiducials),
+            *_defects(jig, camera, k, layers, transmission, level),
+        )
+        maps = (transmission, level, illumination)
         half_planes = _quad_half_planes([f.quad for f in fiducials])
         _read_only(*half_planes, *maps)
-        base, gain = _finish(texture, im, fiducials, maps, 0, 0)
-        view = cls(camera, side, layers, corners_px, fiducials, half_planes, speckle, maps, base, gain)
+        base, gain = _finish(texture, im, overlays, maps, 0, 0)
+        view = cls(
+            camera, side, layers, corners_px, fiducials, half_planes, speckle, maps, overlays, base, gain
+        )
         _read_only(corners_px, base, gain)
         if speckle is not None:
             _read_only(speckle.texture)
@@ -681,7 +721,7 @@ class _CameraView:
             corr_px = md.bead_diameter_mm * float(np.median(scale)) if len(scale) else 5.0
             shape = (self.camera.height_px, self.camera.width_px)
             texture = _speckle(rng, shape, corr_px, md.speckle_std)
-            return (*_finish(texture, jig.imaging, self.fiducials, self.maps, 0, 0), None)
+            return (*_finish(texture, jig.imaging, self.overlays, self.maps, 0, 0), None)
         if self.speckle is None or md.speckle_redraw_fraction <= 0:
             return self.base, self.gain, None
         displaced = np.abs(np.asarray(state.indentation_mm)) > md.speckle_redraw_displacement_mm
@@ -692,24 +732,25 @@ class _CameraView:
         if redrawn is None:
             return self.base, self.gain, None
         texture, x0, y0 = redrawn
-        box_radiance, box_gain = _finish(texture, jig.imaging, self.fiducials, self.maps, y0, x0)
+        box_radiance, box_gain = _finish(texture, jig.imaging, self.overlays, self.maps, y0, x0)
         return self.base, self.gain, _Box(box_radiance, box_gain, x0, y0)
 
 
 def _finish(
     texture: np.ndarray,
     im: ImagingConfig,
-    fiducials: tuple[_Fiducial, ...],
+    overlays: tuple[tuple[int, int, int, int], ...],
     maps: tuple[np.ndarray, np.ndarray, np.ndarray],
     y0: int,
     x0: int,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The bare membrane's radiance and the markers' gain over the region of a bead speckle ``texture``
-    (top-left pixel ``y0, x0``; module docstring, steps 4-6): its speckle, the fiducials over it, the
-    fall-off and exposure (:func:`softjig.sim._kernels.finish_radiance`; a camera view's ``fiducials`` and
-    ``maps``, the fiducials' maps read only if one meets the region)."""
+    (top-left pixel ``y0, x0``; module docstring, steps 4-6): its speckle, the fiducials, bubbles and
+    glints over it, the fall-off and exposure (:func:`softjig.sim._kernels.finish_radiance`; a camera
+    view's ``overlays`` and ``maps``, the first two maps read only if an overlay's box meets the
+    region)."""
     h, w = texture.shape
-    under = any(f.y0 < y0 + h and y0 < f.y1 and f.x0 < x0 + w and x0 < f.x1 for f in fiducials)
+    under = any(oy0 < y0 + h and y0 < oy1 and ox0 < x0 + w and x0 < ox1 for oy0, oy1, ox0, ox1 in overlays)
     radiance = np.empty(texture.shape, dtype=np.float32)
     gain = np.empty(texture.shape, dtype=np.float32)
     texture = np.ascontiguousarray(texture)  # a crop's rows: contiguous, the kernel's loop vectorises
@@ -729,6 +770,101 @@ def _fiducial_maps(fiducials: tuple[_Fiducial, ...], shape: tuple[int, int]) -> 
         transmission[roi] *= fid.cover
         level[roi] = level[roi] * fid.cover + fid.level
     return transmission, level
+
+
+def _defects(
+    jig: JigConfig,
+    camera: CameraConfig,
+    k: int,
+    layers: FlatLayers,
+    transmission: np.ndarray,
+    level: np.ndarray,
+) -> list[tuple[int, int, int, int]]:
+    """Draw the bead pack's bubbles and the camera's glints into the maps of what lies in front of the
+    membrane (module docstring, step 5b), in place; the boxes ``(y0, y1, x0, x1)`` they touch.
+
+    A bubble lies behind the fiducials (in the oil, above the plate): through one, the membrane's
+    radiance ``I`` becomes ``I T + H`` (``T`` its transmission, ``H`` its highlight), then the fiducial's
+    ``c``, ``l`` apply, so ``c <- T c`` and ``l <- H c + l``. A glint (a reflection at the plate) lies
+    in front of both: ``l <- l + G``."""
+    boxes = []
+    if jig.medium.bubbles:
+        centres, radii = bubbles_J(jig)
+        px = _project(centres, camera, layers)
+        rim = _project(centres + radii[:, None] * np.array([1.0, 0.0, 0.0]), camera, layers)
+        for (u, v), radius_px in zip(px, np.hypot(*(rim - px).T), strict=True):
+            boxes.append(_draw_bubble(transmission, level, u, v, radius_px))
+    if jig.imaging.glints:
+        h, w = level.shape
+        rng = np.random.default_rng(np.random.SeedSequence(jig.medium.speckle_seed, spawn_key=(3, k)))
+        us, vs = rng.uniform(0, w - 1, jig.imaging.glints), rng.uniform(0, h - 1, jig.imaging.glints)
+        sigmas = rng.uniform(*_GLINT_SIGMA_PX, jig.imaging.glints)
+        for u, v, sigma in zip(us, vs, sigmas, strict=True):
+            boxes.append(_draw_glint(level, u, v, sigma))
+    return [box for box in boxes if box is not None]
+
+
+def _draw_bubble(
+    transmission: np.ndarray, level: np.ndarray, u: float, v: float, radius_px: float
+) -> tuple[int, int, int, int] | None:
+    """One bubble of image radius ``radius_px`` centred at ``(u, v)`` (px) into the maps (:func:`_defects`);
+    the box it touches, or ``None`` when it lies outside the image."""
+    box = _pixel_box(u, v, _BUBBLE_REACH * radius_px, transmission.shape)
+    if box is None:
+        return None
+    y0, y1, x0, x1 = box
+    yy, xx = np.mgrid[y0:y1, x0:x1]
+    rho = np.hypot(xx - u, yy - v) / radius_px
+    ring = _BUBBLE_RIM_DARKNESS * np.exp(-(((rho - _BUBBLE_RIM_RHO) / _BUBBLE_RIM_WIDTH) ** 2))
+    offset = _BUBBLE_SPOT_OFFSET * radius_px
+    spot = np.hypot(xx - (u - offset), yy - (v - offset)) / (_BUBBLE_SPOT_SIGMA * radius_px)
+    c = transmission[y0:y1, x0:x1]
+    level[y0:y1, x0:x1] += (_BUBBLE_SPOT_LEVEL * np.exp(-0.5 * spot**2) * c).astype(np.float32)
+    c *= (1.0 - ring).astype(np.float32)
+    return box
+
+
+def _draw_glint(level: np.ndarray, u: float, v: float, sigma_px: float) -> tuple[int, int, int, int] | None:
+    """One glint, a Gaussian spot of standard deviation ``sigma_px`` centred at ``(u, v)`` (px), into the
+    level map (:func:`_defects`); the box it touches."""
+    box = _pixel_box(u, v, 3.0 * sigma_px, level.shape)
+    if box is None:
+        return None
+    y0, y1, x0, x1 = box
+    yy, xx = np.mgrid[y0:y1, x0:x1]
+    spot = _GLINT_LEVEL * np.exp(-0.5 * ((xx - u) ** 2 + (yy - v) ** 2) / sigma_px**2)
+    level[y0:y1, x0:x1] += spot.astype(np.float32)
+    return box
+
+
+def bubbles_J(jig: JigConfig) -> tuple[np.ndarray, np.ndarray]:
+    """The centres (``(n, 3)``, mm, J) and radii (``(n,)``, mm) of the ``medium.bubbles`` air bubbles
+    lodged in the bead pack: uniform over the membrane's footprint, each at a uniform height between the
+    plate's top face and the membrane at rest (clear of both, or on the plate where the fill is shallower
+    than the bubble), radii uniform in ``[0.5, 1.5] medium.bubble_radius_mm``; drawn from
+    ``SeedSequence(medium.speckle_seed, spawn_key=(2,))`` (the pack's own), so the same in both cameras
+    and every frame."""
+    md = jig.medium
+    rng = np.random.default_rng(np.random.SeedSequence(md.speckle_seed, spawn_key=(2,)))
+    r = jig.membrane.footprint_radius_mm * np.sqrt(rng.uniform(0.0, 1.0, md.bubbles))
+    phi = rng.uniform(0.0, 2.0 * np.pi, md.bubbles)
+    x, y = r * np.cos(phi), r * np.sin(phi)
+    radii = md.bubble_radius_mm * rng.uniform(0.5, 1.5, md.bubbles)
+    bottom = float(flat_layers(jig).interfaces_z_mm[-1])
+    room = np.maximum(rest_inner_height_mm(jig, x, y) - bottom - 2.0 * radii, 0.0)
+    z = bottom + radii + rng.uniform(0.0, 1.0, md.bubbles) * room
+    return np.column_stack([x, y, z]), radii
+
+
+def _pixel_box(
+    u: float, v: float, reach_px: float, shape: tuple[int, int]
+) -> tuple[int, int, int, int] | None:
+    """The pixels within ``reach_px`` of ``(u, v)`` (a square), clipped to the image: ``(y0, y1, x0, x1)``,
+    or ``None`` when it misses the image."""
+    h, w = shape
+    y0, y1 = max(int(np.floor(v - reach_px)), 0), min(int(np.ceil(v + reach_px)) + 1, h)
+    x0, x1 = max(int(np.floor(u - reach_px)), 0), min(int(np.ceil(u + reach_px)) + 1, w)
+    return (y0, y1, x0, x1) if y0 < y1 and x0 < x1 else None
 
 
 @dataclass(frozen=True)

@@ -231,6 +231,26 @@ def stirred_image_model(jig: JigConfig) -> JigConfig:
     )
 
 
+#: The damaged jig's defects (:func:`damaged_image_model`): share of markers lost, bubbles in the fill
+#: and their typical radius (mm), glints per image.
+DAMAGED_MISSING_MARKERS = 0.05
+DAMAGED_BUBBLES = 8
+DAMAGED_BUBBLE_RADIUS_MM = 1.0
+DAMAGED_GLINTS = 12
+
+
+def damaged_image_model(jig: JigConfig) -> JigConfig:
+    """``jig`` worn and filled carelessly: :data:`DAMAGED_MISSING_MARKERS` of its markers' paint flaked
+    off, :data:`DAMAGED_BUBBLES` air bubbles in its bead pack and :data:`DAMAGED_GLINTS` glints in each
+    image (:mod:`softjig.sim.render`, step 5b), over its own bead-pack image model. A variant to check
+    the estimator on image defects that no design of the zoo has (``benchmarks/bench_zoo.py
+    --image-model damaged``)."""
+    return jig.replace(
+        medium=replace(jig.medium, bubbles=DAMAGED_BUBBLES, bubble_radius_mm=DAMAGED_BUBBLE_RADIUS_MM),
+        imaging=replace(jig.imaging, missing_marker_fraction=DAMAGED_MISSING_MARKERS, glints=DAMAGED_GLINTS),
+    )
+
+
 def _is_count(value: object, least: int) -> bool:
     """Whether ``value`` is an integer (not a bool) of at least ``least``."""
     return not isinstance(value, bool) and isinstance(value, int | np.integer) and value >= least
