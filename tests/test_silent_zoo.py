@@ -23,7 +23,7 @@ from softjig.sensing.pipeline import estimate_pair, reference_from_pair
 from softjig.sim.asbuilt import draw_as_built
 from softjig.sim.render import render_pair
 from softjig.sim.scenarios import frame_truth, paper_sweep
-from softjig.sim.zoo import ZooRanges, _draw_design, stirred_image_model
+from softjig.sim.zoo import ZooRanges, _draw_design, damaged_image_model, stirred_image_model
 
 ZOO_SEED = 0
 ZOO_FRAMES = 20  # the benchmark's frames per design: the frames are drawn in sequence
@@ -330,18 +330,40 @@ def test_a_sized_face_that_the_size_free_contact_contradicts_is_suspect(seed, de
     assert free.quality == "ok" and free_error < SILENT_ERROR_DEG, (free_error, free.warnings)
 
 
+def test_a_size_free_contact_that_is_neither_the_face_nor_its_rival_is_suspect():
+    """Zoo seed 0, design 39, frame 18, with the size, against the rest shape, rendered with a damaged
+    membrane, bubbles and glints (``bench_zoo.py --image-model damaged``): a 51 mm cylinder 10 mm off the
+    axis, tilted 8 deg, 67 markers in contact, two of them mislocated 2-3 mm deep by the defects. The face
+    under the known size and its rival lie 3.4 deg apart (suspect); the size-free contact (25 markers, 20
+    of them the wall) passed every check and replaced them: "ok", 15.6 deg off, sigma 1.1 deg. A third
+    plane is no resolution of the doubt: it is reported, but suspect, and says why."""
+    error, estimate = _estimate(
+        39, 18, with_size=True, with_reference=False, seed=0, render_jig=damaged_image_model
+    )
+    assert not _silent(error, estimate), (error, estimate.tilt_sigma_deg, estimate.warnings)
+    if error > SILENT_ERROR_DEG:
+        assert any("more plausible faces than one" in w for w in estimate.warnings), estimate.warnings
+
+
 # The silent failures left (benchmarks/RESULTS.md, 7 Dec 2026; seed, design, frame, with the size, with
-# the reference, stirred image model): in each, the membrane's wall beside a steeply tilted part's
-# lowered edge and a few of the face's markers are fitted as one plane that nothing contradicts, "ok".
+# the reference, image model). In the first five, the membrane's wall beside a steeply tilted part's
+# lowered edge and a few of the face's markers are fitted as one plane that nothing contradicts, "ok". In
+# the last four (a damaged membrane, bubbles and glints), markers inside or beside the face mislocated by
+# a bubble or a glint over them in one camera (2-15 mm), or glints matched as markers, contradict the
+# face (holes beside it, none tolerated), and the wall wins.
 # Strict: a fix makes one pass, and then it moves to the tests above. Two more of the bead-pack zoo,
 # size-free, are left out: seed 9, design 48, frame 11 (3.0 deg off) and seed 13, design 4, frame 20
 # (4.7 deg off, 4.05 sigmas) lie a hair over the line, where a last-digit change would flip them.
 SILENT_FAILURES_LEFT = [
-    pytest.param(15, 15, 10, False, True, False, id="s15d15f10-nosize-reference-32deg"),
-    pytest.param(3, 37, 2, False, False, False, id="s3d37f2-nosize-rest-19deg"),
-    pytest.param(2, 43, 9, True, True, True, id="stirred-s2d43f9-size-reference-13deg"),
-    pytest.param(5, 47, 18, True, True, True, id="stirred-s5d47f18-size-reference-19deg"),
-    pytest.param(5, 32, 2, False, False, True, id="stirred-s5d32f2-nosize-rest-16deg"),
+    pytest.param(15, 15, 10, False, True, None, id="s15d15f10-nosize-reference-32deg"),
+    pytest.param(3, 37, 2, False, False, None, id="s3d37f2-nosize-rest-19deg"),
+    pytest.param(2, 43, 9, True, True, stirred_image_model, id="stirred-s2d43f9-size-reference-13deg"),
+    pytest.param(5, 47, 18, True, True, stirred_image_model, id="stirred-s5d47f18-size-reference-19deg"),
+    pytest.param(5, 32, 2, False, False, stirred_image_model, id="stirred-s5d32f2-nosize-rest-16deg"),
+    pytest.param(0, 39, 18, False, False, damaged_image_model, id="damaged-s0d39f18-nosize-rest-16deg"),
+    pytest.param(3, 18, 14, True, True, damaged_image_model, id="damaged-s3d18f14-size-reference-19deg"),
+    pytest.param(3, 18, 20, True, False, damaged_image_model, id="damaged-s3d18f20-size-rest-31deg"),
+    pytest.param(3, 32, 1, True, True, damaged_image_model, id="damaged-s3d32f1-size-reference-14deg"),
 ]
 
 
@@ -351,10 +373,10 @@ SILENT_FAILURES_LEFT = [
     reason="issue 13: silent failures not yet caught (benchmarks/RESULTS.md)",
 )
 @pytest.mark.parametrize(
-    ("seed", "design_index", "frame", "with_size", "with_reference", "stirred"), SILENT_FAILURES_LEFT
+    ("seed", "design_index", "frame", "with_size", "with_reference", "render_jig"), SILENT_FAILURES_LEFT
 )
 def test_the_silent_failures_left_are_not_silent(
-    seed, design_index, frame, with_size, with_reference, stirred
+    seed, design_index, frame, with_size, with_reference, render_jig
 ):
     error, estimate = _estimate(
         design_index,
@@ -362,6 +384,6 @@ def test_the_silent_failures_left_are_not_silent(
         with_size=with_size,
         with_reference=with_reference,
         seed=seed,
-        render_jig=stirred_image_model if stirred else None,
+        render_jig=render_jig,
     )
     assert not _silent(error, estimate), (error, estimate.tilt_sigma_deg, estimate.n_points)

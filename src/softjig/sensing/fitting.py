@@ -227,6 +227,36 @@ def _made_suspect(result: SensingResult, doubt: str) -> SensingResult:
     )
 
 
+def _third_plane(reported: SensingResult, face: SensingResult, rival: SplitCheck | None) -> SensingResult:
+    """The size-free estimate ``reported`` in place of the ``face`` under the known size, made suspect
+    where that face was doubted for its ``rival`` and the size-free plane lies beyond their noise
+    (:data:`DISTINCT_PLANE_SIGMAS`) from the rival too; else as it is.
+
+    Why: the search under the known size found two faces of that size that nothing contradicts; a
+    size-free contact that agrees with neither is a third plane, not the resolution of the doubt
+    (where it agrees with the rival, two searches found that plane, and it stands). Beside a part
+    pushed off the axis, the size-free growth can take the membrane's wall: zoo seed 0 with a damaged
+    membrane, bubbles and glints (``bench_zoo.py --image-model damaged``), design 39, frame 18, against
+    the rest shape: a face and its rival 3.4 deg apart (two markers inside the face mislocated by the
+    defects), and a size-free contact of 25 markers (20 of them the wall) 16.2 and 16.5 deg from them,
+    "ok" and 15.6 deg off."""
+    if rival is None:
+        return reported
+    # The planes' own normals (the estimates' are calibrated); the rival is the one farther from the face
+    free, face_normal = reported.plane.normal, face.plane.normal
+    other = max((rival.normal_a, rival.normal_b), key=lambda n: float(angle_between(n, face_normal)))
+    angle = float(angle_between(free, other))
+    noise = math.hypot(math.radians(reported.estimate.tilt_sigma_deg), rival.noise_rad)
+    if angle <= DISTINCT_PLANE_SIGMAS * noise:
+        return reported
+    return _made_suspect(
+        reported,
+        f"{SUSPECT_PREFIX}the face under the part's size and its rival, both plausible, lie "
+        f"{_angle_deg(free, face_normal):.1f} and {math.degrees(angle):.1f} deg from this contact: the "
+        "frame holds more plausible faces than one",
+    )
+
+
 def holds_too_few_of_the_dent(n_used: int, n_candidates: int) -> bool:
     """Whether a size-free contact of ``n_used`` markers holds under :data:`MIN_CANDIDATE_SHARE` of the
     ``n_candidates`` clearly pushed-in markers: a strip (of the membrane's wall, or of a face whose
@@ -537,7 +567,8 @@ class ContactPlaneFitter:
         too, the contact is searched without the size as well, and reported instead (with a warning that
         says so) when it passes every check, the part's size included (its area), and its plane is
         another one (:func:`_distinct_planes`): two searches that rest on different evidence, one of
-        them confident (:meth:`_size_free_instead`; suspect where nothing contradicts the other either).
+        them confident (:meth:`_size_free_instead`; suspect where nothing contradicts the other either,
+        or where the face was doubted for a rival and the size-free plane is neither: :func:`_third_plane`).
         Where both found the same plane, the doubt the search with the size raised stands (a rival
         contact, say), and so does the suspect estimate. An "ok" estimate under the known size is made
         suspect where the size-free contact passes every check too and lies on another plane
@@ -574,14 +605,14 @@ class ContactPlaneFitter:
             return result
         if result.estimate.quality == "ok":
             return self._checked_without_the_size(measured, result)
-        searched = self._fit(
-            measured, self._contact(ordered, part_diameter_mm, first=first), search_size_mm=part_diameter_mm
-        )
+        rival = first[1]
+        found = self._contact(ordered, part_diameter_mm, first=first)
+        searched = self._fit(measured, found, search_size_mm=part_diameter_mm)
         if isinstance(searched, SensingResult):
-            result = searched
+            result, rival = searched, found[1]
             if result.estimate.quality == "ok":
                 return self._checked_without_the_size(measured, result)
-        return self._size_free_instead(measured, result)
+        return self._size_free_instead(measured, result, rival)
 
     def _checked_without_the_size(self, measured: _Measured, sized: SensingResult) -> SensingResult:
         """The ``sized`` estimate (under the known face, "ok"), made suspect where the contact found
@@ -705,9 +736,14 @@ class ContactPlaneFitter:
         )
         return dent, absolute, replace(observation, warnings=(*observation.warnings, warning))
 
-    def _size_free_instead(self, measured: _Measured, suspect: SensingResult) -> SensingResult:
+    def _size_free_instead(
+        self, measured: _Measured, suspect: SensingResult, rival: SplitCheck | None
+    ) -> SensingResult:
         """The size-free contact's estimate of the ``measured`` frame, with a warning, where it passes every
         check and found another plane than the ``suspect`` estimate under the known face; else that one.
+        Where the face under the known size is suspect for its ``rival`` (another face of that size that
+        nothing contradicts either) and the size-free plane is neither, the size-free estimate is
+        reported but suspect (:func:`_third_plane`).
 
         Where that suspect estimate's one doubt is its few markers
         (:meth:`_doubted_only_for_its_few_markers`), nothing contradicts either contact: the size-free
@@ -749,7 +785,8 @@ class ContactPlaneFitter:
             f"({reason.removeprefix(SUSPECT_PREFIX)}); the contact found without the size, {passed}, is "
             "reported"
         )
-        return replace(size_free, estimate=replace(free, warnings=(*free.warnings, note)))
+        reported = replace(size_free, estimate=replace(free, warnings=(*free.warnings, note)))
+        return _third_plane(reported, suspect, rival)
 
     def _doubted_only_for_an_arm_the_face_is_not(
         self, free: Estimate, found: tuple[Contact, SplitCheck | None], suspect: SensingResult
