@@ -395,13 +395,15 @@ def test_cli_live_refuses_an_empty_replay(sweep, tmp_path):
 
 @pytest.mark.parametrize("diameter", ["0", "1e6"])
 def test_cli_live_refuses_a_part_diameter_no_jig_holds(sweep, diameter):
-    """Refused once (exit 2) before the first pair, not pair after pair: a part wider than the membrane
-    too (the live loop checked only its sign)."""
+    """Refused once (exit 2) before the first pair, not pair after pair: the live loop checked only its
+    sign, so a part wider than the membrane ran the camera (every pair refused, exit 2 only once a
+    replay ended; a camera would go on)."""
     result = runner.invoke(
         app, ["live", "--replay", str(sweep.root), "--rate", "fast", "--part-diameter", diameter]
     )
     assert result.exit_code == 2, result.output
     assert "part diameter" in result.output and "Traceback" not in result.output
+    assert "pairs captured" not in result.output  # the loop never started
 
 
 @pytest.mark.parametrize(("option", "value"), [("--method", "svd"), ("--rate", "slow")])

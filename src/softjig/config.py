@@ -870,7 +870,7 @@ def _validate_image_model(md: MediumConfig, im: ImagingConfig) -> None:
     ):
         if not 0 <= value <= MAX_IMAGE_DEFECTS:
             _fail(f"{section}.{name}", f"must be a count in [0, {MAX_IMAGE_DEFECTS}], got {value}")
-    if not (math.isfinite(md.bubble_radius_mm) and 0.05 <= md.bubble_radius_mm <= 10.0):
+    if not 0.05 <= md.bubble_radius_mm <= 10.0:
         _fail("medium.bubble_radius_mm", f"must be a radius in [0.05, 10] mm, got {md.bubble_radius_mm}")
     if not 0.0 <= im.missing_marker_fraction <= 0.5:
         _fail(

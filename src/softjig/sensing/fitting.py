@@ -227,6 +227,15 @@ def _made_suspect(result: SensingResult, doubt: str) -> SensingResult:
     )
 
 
+def _beyond_the_rival(
+    normal: np.ndarray, sigma_deg: float, rival_normal: np.ndarray, rival: SplitCheck
+) -> bool:
+    """Whether ``normal`` (of sigma ``sigma_deg``) lies further from a ``rival``'s ``rival_normal`` than
+    :data:`DISTINCT_PLANE_SIGMAS` times their combined noise (the rival's own, ``rival.noise_rad``)."""
+    angle = float(angle_between(normal, rival_normal))
+    return angle > DISTINCT_PLANE_SIGMAS * math.hypot(math.radians(sigma_deg), rival.noise_rad)
+
+
 def _third_plane(reported: SensingResult, face: SensingResult, rival: SplitCheck | None) -> SensingResult:
     """The size-free estimate ``reported`` in place of the ``face`` under the known size, made suspect
     where that face was doubted for its ``rival`` and the size-free plane lies beyond their noise
@@ -245,14 +254,12 @@ def _third_plane(reported: SensingResult, face: SensingResult, rival: SplitCheck
     # The planes' own normals (the estimates' are calibrated); the rival is the one farther from the face
     free, face_normal = reported.plane.normal, face.plane.normal
     other = max((rival.normal_a, rival.normal_b), key=lambda n: float(angle_between(n, face_normal)))
-    angle = float(angle_between(free, other))
-    noise = math.hypot(math.radians(reported.estimate.tilt_sigma_deg), rival.noise_rad)
-    if angle <= DISTINCT_PLANE_SIGMAS * noise:
+    if not _beyond_the_rival(free, reported.estimate.tilt_sigma_deg, other, rival):
         return reported
     return _made_suspect(
         reported,
         f"{SUSPECT_PREFIX}the face under the part's size and its rival, both plausible, lie "
-        f"{_angle_deg(free, face_normal):.1f} and {math.degrees(angle):.1f} deg from this contact: the "
+        f"{_angle_deg(free, face_normal):.1f} and {_angle_deg(free, other):.1f} deg from this contact: the "
         "frame holds more plausible faces than one",
     )
 
@@ -799,8 +806,7 @@ class ContactPlaneFitter:
         if rival is None or _doubts_beyond_a_small_partial_contact(free) != 1:
             return False
         face = suspect.estimate
-        angle = float(angle_between(face.normal, rival.normal_b))
-        return angle > DISTINCT_PLANE_SIGMAS * math.hypot(math.radians(face.tilt_sigma_deg), rival.noise_rad)
+        return _beyond_the_rival(face.normal, face.tilt_sigma_deg, rival.normal_b, rival)
 
     def _doubted_only_for_its_few_markers(self, estimate: Estimate) -> bool:
         """Whether the one reason ``estimate`` is suspect is that it has too few markers to check
