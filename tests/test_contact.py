@@ -9,10 +9,12 @@ from softjig.config import default_jig
 from softjig.geometry import fit_plane_svd, normal_from_tilt_angles
 from softjig.jig_shape import marker_layout_xy, rest_inner_height_mm
 from softjig.sensing.contact import (
+    FootprintMisfit,
     Indentation,
     describe_contact,
     drop_lifted_off,
     face_centre_xy,
+    footprint_misfit,
     off_the_membrane,
     off_the_rest_membrane,
 )
@@ -118,6 +120,71 @@ def test_a_lift_off_seen_only_beside_the_outline_still_has_a_direction():
         region = describe_contact(xy, plane, jig, noise_mm=0.05, edge_face_depth_mm=np.array([-1.0, 2.0]))
     assert region.partial
     assert region.lift_azimuth_deg is not None and np.isfinite(region.lift_azimuth_deg)
+
+
+@pytest.mark.parametrize("tilt_deg", [8.0, 12.0, 18.0])
+@pytest.mark.parametrize("azimuth_deg", [30.0, 200.0])
+def test_the_membrane_under_a_face_of_the_parts_size_fits_the_face_not_the_wall_beside_it(
+    tilt_deg, azimuth_deg
+):
+    """A 44 mm face 9 mm off the axis, its lowered rim 5 mm deep, on the default jig's dome and markers:
+    pressed where the face lies below the unloaded membrane, at rest where it lies above, and a wall
+    falling from the rim at 0.5 mm per mm beside it. Its partial contact and the strip of wall beside
+    the lowered rim are both planar enough to be faces; placed where each puts a face of the part's size,
+    the face's plane predicts the membrane under it within its noise, the wall's does not."""
+    jig = default_jig()
+    rng = np.random.default_rng(3)
+    xy = marker_layout_xy(jig)
+    rest = rest_inner_height_mm(jig, xy[:, 0], xy[:, 1])
+    radius, centre, rim_depth, wall_slope, noise = 22.0, np.array([8.0, -5.0]), 5.0, 0.5, 0.05
+    down = np.array([np.cos(np.radians(azimuth_deg)), np.sin(np.radians(azimuth_deg))])  # the lowered rim
+    offset = xy - centre
+    distance = np.hypot(*offset.T)
+    slope = np.tan(np.radians(tilt_deg))
+    inside = distance < radius
+    face_depth = rim_depth - (radius - offset @ down) * slope
+    rim_depth_beside = rim_depth - radius * (1.0 - (offset / distance[:, None]) @ down) * slope
+    depth = np.where(
+        inside,
+        np.maximum(face_depth, 0.0),
+        np.maximum(rim_depth_beside - wall_slope * (distance - radius), 0.0),
+    )
+    depth += rng.normal(0.0, noise, len(xy))
+    points = np.column_stack([xy, rest - depth])
+    dent = Indentation(depth, 0.0, noise)
+    face, wall = inside & (depth > 4 * noise), ~inside & (depth > 4 * noise)
+    assert face.sum() >= 4 and wall.sum() >= 4  # each a plane the rival check would weigh
+
+    def misfit(contact):
+        plane = fit_plane_svd(points[contact])
+        return footprint_misfit(points, dent, contact, plane, radius, jig, noise_mm=noise).rms_sigmas
+
+    assert misfit(face) < 2.5
+    assert misfit(wall) > 2.0 * misfit(face)
+
+
+def test_a_misfit_within_the_noise_is_no_evidence():
+    """Of two faces, the one whose RMS misfit is smaller fits better, but both within 1 sigma are a tie,
+    and a face with no marker under it is never better nor worse."""
+    within, also_within, beyond = FootprintMisfit(4.0, 16), FootprintMisfit(0.5, 8), FootprintMisfit(90.0, 10)
+    assert within.fits_better_than(beyond) and not beyond.fits_better_than(within)
+    assert not within.fits_better_than(also_within) and not also_within.fits_better_than(within)
+    nothing = FootprintMisfit(0.0, 0)
+    assert not nothing.fits_better_than(beyond) and not beyond.fits_better_than(nothing)
+
+
+def test_a_face_with_no_marker_under_it_fits_nothing():
+    """A level face of 1 mm radius centred between four markers has none under it: no evidence, the
+    worst misfit (never the better face)."""
+    jig = default_jig()
+    xy = _grid(16.0)
+    points = np.column_stack([xy, np.full(len(xy), 27.0)])
+    contact = (np.abs(xy[:, 0] - PITCH / 2) <= PITCH / 2) & (np.abs(xy[:, 1] - PITCH / 2) <= PITCH / 2)
+    assert contact.sum() == 4
+    dent = Indentation(np.zeros(len(xy)), 0.0, 0.05)
+    plane = fit_plane_svd(points[contact])
+    misfit = footprint_misfit(points, dent, contact, plane, 1.0, jig, noise_mm=0.05)
+    assert misfit.n_markers == 0 and misfit.rms_sigmas == np.inf
 
 
 # ------------------------------------------------------------------ compiled helpers against references

@@ -167,12 +167,15 @@ def test_redrawn_fraction_under_the_contact(fraction):
     assert np.std(s_load[inside]) == pytest.approx(jig.medium.speckle_std, rel=0.2)
 
 
-def _marker_light(pair, side: str, radius_px: float, bg: float) -> tuple[np.ndarray, np.ndarray]:
-    """Excess light over the membrane (level ``bg``) summed in a disc around each visible marker, and
-    which markers."""
+def _marker_light(
+    pair, side: str, radius_px: float, bg: float, visible: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Excess light over the membrane (level ``bg``) summed in a disc around each visible marker (the
+    truth's, or those of ``visible``), and which markers."""
     image = getattr(pair, side).astype(float) - bg
     m = pair.markers
-    px, visible = getattr(m, f"{side}_px"), getattr(m, f"visible_{side}")
+    px = getattr(m, f"{side}_px")
+    visible = getattr(m, f"visible_{side}") if visible is None else visible
     yy, xx = np.mgrid[0 : image.shape[0], 0 : image.shape[1]]
     idx = np.flatnonzero(visible)
     light = np.empty(len(idx))
@@ -296,20 +299,25 @@ def test_per_camera_exposure_and_gain():
     assert np.std(right) / np.std(left) == pytest.approx(1.5 * np.sqrt(0.8), rel=0.1)
 
 
-def test_missing_markers_are_dark_in_every_frame_and_camera():
+def test_missing_markers_are_dark_in_every_frame_and_camera_and_not_visible_in_the_truth():
     plain = quiet_jig(marker_brightness_spread=0.0)
     damaged = plain.replace(imaging=replace(plain.imaging, missing_marker_fraction=0.1))
     factors = marker_brightness(damaged.imaging, 2000)
     assert np.mean(factors == 0.0) == pytest.approx(0.1, abs=0.02)
     bg = plain.imaging.background_level * TOP
     for rng, part in ((1, None), (2, PART)):
-        pair = render_pair(nominal_as_built(damaged), *((part, POSE) if part else ()), rng=rng)
+        pose = (part, POSE) if part else ()
+        pair = render_pair(nominal_as_built(damaged), *pose, rng=rng)
+        in_view = render_pair(nominal_as_built(plain), *pose, rng=rng).markers  # the same geometry
+        missing = marker_brightness(damaged.imaging, len(pair.markers.xyz_mm)) == 0.0
         for side in ("left", "right"):
-            light, idx = _marker_light(pair, side, 6.0, bg)
-            missing = marker_brightness(damaged.imaging, len(pair.markers.xyz_mm))[idx] == 0.0
-            assert missing.sum() > 5
+            seen = getattr(in_view, f"visible_{side}")
+            light, idx = _marker_light(pair, side, 6.0, bg, visible=seen)
+            assert missing[idx].sum() > 5
             # a missing marker leaves the membrane (its light is the speckle's, about nothing)
-            assert np.max(np.abs(light[missing])) < 0.05 * np.median(light[~missing])
+            assert np.max(np.abs(light[missing[idx]])) < 0.05 * np.median(light[~missing[idx]])
+            # and the truth does not count it among the markers a camera sees
+            np.testing.assert_array_equal(getattr(pair.markers, f"visible_{side}"), seen & ~missing)
 
 
 def _bubble_pixels(jig: JigConfig, side: str) -> tuple[np.ndarray, np.ndarray]:

@@ -345,6 +345,33 @@ def test_a_size_free_contact_that_is_neither_the_face_nor_its_rival_is_suspect()
         assert any("more plausible faces than one" in w for w in estimate.warnings), estimate.warnings
 
 
+# (seed, design, frame, with the reference): with the size, the part's face and the strip of the
+# membrane's wall beside its lowered edge were two plausible faces, and the wall was reported, suspect,
+# with the face as its rival (the error each had, deg).
+RIVALS = [
+    pytest.param(8, 30, 3, True, id="s8d30f3-reference-27.5deg"),
+    pytest.param(8, 30, 3, False, id="s8d30f3-rest-27.5deg"),
+    pytest.param(1, 14, 4, False, id="s1d14f4-rest-26.2deg"),
+    pytest.param(5, 32, 4, True, id="s5d32f4-reference-18.0deg"),
+    pytest.param(12, 28, 4, True, id="s12d28f4-reference-17.4deg"),
+]
+
+
+@pytest.mark.parametrize(("seed", "design_index", "frame", "with_reference"), RIVALS)
+def test_of_two_plausible_faces_of_the_parts_size_the_one_both_other_searches_prefer_is_reported(
+    seed, design_index, frame, with_reference
+):
+    """Cylinders, boxes and polygons 32-45 mm across, 17-20 mm off the axis, tilted 1-13 deg. Both
+    contacts are planes that no marker contradicts, so the estimate stays suspect; the one reported is
+    now the rival that the contact found without the size lies nearer and whose plane, placed as a face
+    of the part's size, the membrane under it fits better (``footprint_misfit``): the part's face, not
+    the wall."""
+    error, estimate = _estimate(design_index, frame, with_size=True, with_reference=with_reference, seed=seed)
+    assert error < SILENT_ERROR_DEG, (error, estimate.warnings)
+    assert estimate.quality == "suspect"
+    assert any("of two plausible faces of the part's size" in w for w in estimate.warnings), estimate.warnings
+
+
 # The silent failures left (benchmarks/RESULTS.md, 7 Dec 2026; seed, design, frame, with the size, with
 # the reference, image model). In the first five, the membrane's wall beside a steeply tilted part's
 # lowered edge and a few of the face's markers are fitted as one plane that nothing contradicts, "ok". In

@@ -23,6 +23,7 @@ membrane draped down from it.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -86,6 +87,9 @@ PARTIAL_AREA_SHARE = 0.7
 LEVEL_PLANE_DEG = 1.0
 #: A plane whose horizontal normal component is below this is level for :func:`face_centre_xy`.
 LEVEL_SLOPE = 1e-6
+#: :func:`footprint_misfit` counts a marker's misfit up to this many noise sigmas: beyond it, the marker
+#: is a mismatch, not evidence about the face, and one must not outweigh the rest.
+FOOTPRINT_MISFIT_CAP_SIGMAS = 10.0
 
 
 @dataclass(frozen=True)
@@ -808,6 +812,77 @@ def face_centre_xy(
     rim = float(along_in_plane.max()) + pitch_mm / 2.0
     centre = centroid + (rim - radius_mm) * normal[2] * downhill
     return (float(centre[0]), float(centre[1]))
+
+
+@dataclass(frozen=True)
+class FootprintMisfit:
+    """How far the markers under a face are from what the face makes of the membrane
+    (:func:`footprint_misfit`).
+
+    Attributes
+    ----------
+    sum_squares : the sum of the markers' squared misfits, in units of the indentation noise (each
+        capped at :data:`FOOTPRINT_MISFIT_CAP_SIGMAS`).
+    n_markers : how many markers lie under the face.
+    """
+
+    sum_squares: float
+    n_markers: int
+
+    @property
+    def rms_sigmas(self) -> float:
+        """The RMS misfit (noise sigmas); ``inf`` when no marker lies under the face."""
+        return math.sqrt(self.sum_squares / self.n_markers) if self.n_markers else math.inf
+
+    def fits_better_than(self, other: FootprintMisfit) -> bool:
+        """Whether this face fits the membrane under it better than ``other`` does: the smaller RMS misfit,
+        each taken as at least the noise's own (1 sigma: a misfit within the noise is no evidence, and two
+        faces that both fit within it are a tie). A face with no marker under it is no evidence either
+        way."""
+        if not (self.n_markers and other.n_markers):
+            return False
+        return max(self.rms_sigmas, 1.0) < max(other.rms_sigmas, 1.0)
+
+
+def footprint_misfit(
+    points_J: np.ndarray,
+    dent: Indentation,
+    contact: np.ndarray,
+    plane: PlaneFit,
+    radius_mm: float,
+    jig: JigConfig,
+    *,
+    noise_mm: float,
+) -> FootprintMisfit:
+    """How far the markers under a face of ``radius_mm`` on ``plane``, placed where ``contact`` puts it
+    (:func:`face_centre_xy`), are from what such a face makes of the membrane.
+
+    A rigid face presses the membrane to its plane wherever the plane lies below the unloaded membrane,
+    and leaves it at rest wherever it lies above (nothing else presses it there, and the jammed beads
+    hold it): each marker under the face is predicted at ``max(face depth, 0)``
+    (:func:`face_depth_mm`), and its misfit is its indentation's distance from that, in units of
+    ``noise_mm``. Where two contacts of a frame are both plausible (the part's face and a strip of the
+    membrane's wall beside its lowered edge, which meet in a V), the wall's plane, given the part's
+    radius and placed uphill of its lowered edge, predicts the membrane pressed where it lies at rest, or
+    at rest where the face presses it; the face's predicts what is there.
+
+    Parameters
+    ----------
+    points_J : (M, 3) the markers (mm, J).
+    dent : their indentation.
+    contact : (M,) the contact's markers (booleans), which place the face.
+    plane : the contact's plane.
+    radius_mm : the radius of the part's face (mm).
+    jig : the nominal jig (marker pitch, rest shape).
+    noise_mm : the indentation noise (mm, > 0).
+    """
+    xy = points_J[contact, :2]
+    region = describe_contact(xy, plane, jig, noise_mm=noise_mm, part_diameter_mm=2.0 * radius_mm)
+    centre = face_centre_xy(xy, region, plane, radius_mm, pitch_mm=jig.markers.pitch_mm)
+    under = under_face(points_J, plane, radius_mm, centre) & np.isfinite(dent.depth_mm)
+    predicted = np.maximum(face_depth_mm(points_J, dent, plane)[under], 0.0)
+    misfit = np.minimum(np.abs(dent.depth_mm[under] - predicted) / noise_mm, FOOTPRINT_MISFIT_CAP_SIGMAS)
+    return FootprintMisfit(float(misfit @ misfit), int(under.sum()))
 
 
 def just_outside(xy_mm: np.ndarray, contact: np.ndarray, pitch_mm: float) -> np.ndarray:

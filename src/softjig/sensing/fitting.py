@@ -29,6 +29,7 @@ from softjig.sensing.contact import (
     NOISE_RADIUS_PITCHES,
     TOLERATED_VIOLATION_SHARE,
     ContactRegion,
+    FootprintMisfit,
     Indentation,
     ambiguous_selection,
     contact_candidates,
@@ -37,6 +38,7 @@ from softjig.sensing.contact import (
     drop_lifted_off,
     face_centre_xy,
     face_depth_mm,
+    footprint_misfit,
     grow_contact,
     indentation,
     indentations,
@@ -137,7 +139,17 @@ IDENTITY_REACH_PITCHES = 0.5
 
 PlaneFitFunction = Callable[[np.ndarray], "tuple[np.ndarray, PlaneFit]"]
 Contact = tuple[np.ndarray, PlaneFit]  # which markers (bool mask) and their plane
-Found = tuple[Contact, SplitCheck | None] | Refusal  # a contact with its rival's agreement, or why none
+
+
+@dataclass(frozen=True)
+class RivalCheck(SplitCheck):
+    """A rival contact's agreement with the contact chosen (``normal_a`` the chosen's plane's normal,
+    ``normal_b`` the rival's), with the rival ``contact`` itself (:meth:`ContactPlaneFitter._rival`)."""
+
+    contact: Contact
+
+
+Found = tuple[Contact, RivalCheck | None] | Refusal  # a contact with its rival, or why none
 
 
 # ------------------------------------------------------------------------------------------ shared
@@ -612,14 +624,17 @@ class ContactPlaneFitter:
             return result
         if result.estimate.quality == "ok":
             return self._checked_without_the_size(measured, result)
-        rival = first[1]
+        face, rival = first
         found = self._contact(ordered, part_diameter_mm, first=first)
         searched = self._fit(measured, found, search_size_mm=part_diameter_mm)
         if isinstance(searched, SensingResult):
-            result, rival = searched, found[1]
+            result, (face, rival) = searched, found
             if result.estimate.quality == "ok":
                 return self._checked_without_the_size(measured, result)
-        return self._size_free_instead(measured, result, rival)
+        reported = self._size_free_instead(measured, result, rival)
+        if reported is result and rival is not None:  # the face under the known size, doubted for its rival
+            return self._likelier_face(measured, result, face, rival)
+        return reported
 
     def _checked_without_the_size(self, measured: _Measured, sized: SensingResult) -> SensingResult:
         """The ``sized`` estimate (under the known face, "ok"), made suspect where the contact found
@@ -744,7 +759,7 @@ class ContactPlaneFitter:
         return dent, absolute, replace(observation, warnings=(*observation.warnings, warning))
 
     def _size_free_instead(
-        self, measured: _Measured, suspect: SensingResult, rival: SplitCheck | None
+        self, measured: _Measured, suspect: SensingResult, rival: RivalCheck | None
     ) -> SensingResult:
         """The size-free contact's estimate of the ``measured`` frame, with a warning, where it passes every
         check and found another plane than the ``suspect`` estimate under the known face; else that one.
@@ -796,17 +811,16 @@ class ContactPlaneFitter:
         return _third_plane(reported, suspect, rival)
 
     def _doubted_only_for_an_arm_the_face_is_not(
-        self, free: Estimate, found: tuple[Contact, SplitCheck | None], suspect: SensingResult
+        self, free: Estimate, found: tuple[Contact, RivalCheck | None], suspect: SensingResult
     ) -> bool:
         """Whether the one reason the size-free estimate ``free`` is suspect is its rival, the other arm of
         its V (``found[1]``, :meth:`_other_arm`), and the ``suspect`` face under the known size is
-        another plane than that arm (their normals further apart than :data:`DISTINCT_PLANE_SIGMAS` times
-        their combined noise)."""
+        another plane than that arm (their planes' normals further apart than :data:`DISTINCT_PLANE_SIGMAS`
+        times their combined noise: the face's plane, as the arm's, not its calibrated normal)."""
         rival = found[1]
         if rival is None or _doubts_beyond_a_small_partial_contact(free) != 1:
             return False
-        face = suspect.estimate
-        return _beyond_the_rival(face.normal, face.tilt_sigma_deg, rival.normal_b, rival)
+        return _beyond_the_rival(suspect.plane.normal, suspect.estimate.tilt_sigma_deg, rival.normal_b, rival)
 
     def _doubted_only_for_its_few_markers(self, estimate: Estimate) -> bool:
         """Whether the one reason ``estimate`` is suspect is that it has too few markers to check
@@ -1007,7 +1021,71 @@ class ContactPlaneFitter:
             )
         return (used, plane), rival
 
-    def _other_arm(self, dent: Dent, chosen: Contact, fit: PlaneFitFunction) -> SplitCheck | None:
+    def _footprint_misfit(self, dent: Dent, radius_mm: float, contact: Contact) -> FootprintMisfit:
+        """How far the markers under a face of ``radius_mm`` on ``contact``'s plane, placed where it puts
+        the face, are from what the face makes of the membrane
+        (:func:`~softjig.sensing.contact.footprint_misfit`)."""
+        return footprint_misfit(
+            dent.points_J,
+            dent.indentation,
+            contact[0],
+            contact[1],
+            radius_mm,
+            self._jig,
+            noise_mm=dent.noise.indentation_sigma_mm,
+        )
+
+    def _likelier_face(
+        self, measured: _Measured, suspect: SensingResult, face: Contact, rival: RivalCheck
+    ) -> SensingResult:
+        """The ``suspect`` estimate of the ``face`` found under the known size, or the estimate of its
+        ``rival`` (another face of that size that no marker contradicts either) where two independent
+        pieces of evidence both prefer the rival: the contact found without the size lies nearer it,
+        and the membrane under it fits it better
+        (:meth:`~softjig.sensing.contact.FootprintMisfit.fits_better_than`). That estimate is suspect
+        for the face in turn and says why.
+
+        Why: the frame holds two plausible faces, so the estimate is suspect whichever is reported, but
+        the one reported should be the likelier. The searches under the size chose between them by the
+        markers contradicting each (none) and their size, which cannot tell the part's face from the
+        strip of the membrane's wall meeting it in a V at its lowered edge: the wall is often the larger.
+        The size-free growth starts from the deepest markers instead; given the part's size, the face
+        predicts where the membrane is pressed and where it is at rest, and the wall placed as a face
+        does not. Either alone is right less often than the searches' choice; both together mostly
+        (benchmarks/RESULTS.md). The choice changes no estimate's quality: an estimate of the rival that
+        is not suspect is not reported."""
+        dent, radius_mm = measured.ordered, measured.part_diameter_mm / 2.0
+        other = rival.contact
+        if other[0].sum() < self._minimum:
+            return suspect
+        try:
+            free = self._contact(dent, None, other_arm=False)
+        except EstimationError:  # no plane grows without the size: no second piece of evidence
+            return suspect
+        if not free:
+            return suspect
+        free_normal = free[0][1].normal
+        to_other, to_face = (_angle_deg(free_normal, c[1].normal) for c in (other, face))
+        if to_other >= to_face:
+            return suspect
+        misfit, face_misfit = (self._footprint_misfit(dent, radius_mm, contact) for contact in (other, face))
+        if not misfit.fits_better_than(face_misfit):
+            return suspect
+        swapped = self._rival(dent.points_J, other, face, dent.threshold_mm)
+        if swapped is None:
+            return suspect
+        weighed = self._fit(measured, (other, swapped), search_size_mm=measured.part_diameter_mm)
+        if not isinstance(weighed, SensingResult) or weighed.estimate.quality != "suspect":
+            return suspect
+        note = (
+            "of two plausible faces of the part's size, this one is reported: it lies nearer the contact "
+            f"found without the size ({to_other:.1f} against {to_face:.1f} deg) and fits the membrane under "
+            f"it better ({misfit.rms_sigmas:.1f} against {face_misfit.rms_sigmas:.1f} sigmas RMS)"
+        )
+        estimate = weighed.estimate
+        return replace(weighed, estimate=replace(estimate, warnings=(*estimate.warnings, note)))
+
+    def _other_arm(self, dent: Dent, chosen: Contact, fit: PlaneFitFunction) -> RivalCheck | None:
         """The other arm of a V, as the ``chosen`` contact's rival: the contact grown from the
         clearly pushed-in markers that lie above ``chosen``'s plane beyond the inlier distance, where it
         has at least :data:`OTHER_ARM_SHARE` of ``chosen``'s markers, few markers contradict it (beyond
@@ -1107,7 +1185,7 @@ class ContactPlaneFitter:
             )
         return searches[0], rival if rival is not None else self._deeper_arm(dent, searches[0], fit)
 
-    def _deeper_arm(self, dent: Dent, face: Contact, fit: PlaneFitFunction) -> SplitCheck | None:
+    def _deeper_arm(self, dent: Dent, face: Contact, fit: PlaneFitFunction) -> RivalCheck | None:
         """With the part's size, the other arm of the V beside the ``face`` found (:meth:`_other_arm`),
         looked for only where the pushed-in markers above the face's plane and deeper than its median
         marker are as many as that arm needs (:data:`OTHER_ARM_SHARE` of the face's).
@@ -1187,11 +1265,11 @@ class ContactPlaneFitter:
 
     def _rival_search(
         self, dent: Dent, radius_mm: float, fit: PlaneFitFunction, search: Contact, start_xy: np.ndarray
-    ) -> SplitCheck | None:
+    ) -> RivalCheck | None:
         """The robust plane of the pushed-in markers within ``radius_mm`` of ``start_xy`` (one fit, not a
         :meth:`_search_face`), as a rival of ``search`` when the two disagree and no marker contradicts
-        either (:meth:`_plausible_rival`); else ``None``."""
-        points_J = dent.points_J
+        either; else ``None``."""
+        points_J, thr = dent.points_J, dent.threshold_mm
         selection = (dent.indentation.depth_mm > dent.indentation.noise_mm) & _within(
             points_J, start_xy, radius_mm
         )
@@ -1203,16 +1281,15 @@ class ContactPlaneFitter:
             return None
         used = np.zeros(len(points_J), dtype=bool)
         used[np.flatnonzero(selection)[inliers]] = True
-        other = (used, plane)
-        if used.sum() < self._minimum or self._rival(points_J, search, other, dent.threshold_mm) is None:
+        rival = None if used.sum() < self._minimum else self._rival(points_J, search, (used, plane), thr)
+        if rival is None:
             return None  # they agree: the violations (0.2 ms) are not counted
-        return (
-            None if self._contradicting(dent, other) else self._plausible_rival(points_J, search, other, dent)
-        )
+        contradicted = self._contradicting(dent, rival.contact) or self._contradicting(dent, search)
+        return None if contradicted else rival
 
     def _plausible_rival(
         self, points_J: np.ndarray, search: Contact, cut: Contact, dent: Dent
-    ) -> SplitCheck | None:
+    ) -> RivalCheck | None:
         """The ``search``'s face's disagreement with the ``cut`` (:meth:`_rival`), when no marker
         contradicts the search's face either; else ``None``."""
         return (
@@ -1223,8 +1300,8 @@ class ContactPlaneFitter:
 
     def _rival(
         self, points_J: np.ndarray, chosen: Contact, other: Contact, threshold_mm: float
-    ) -> SplitCheck | None:
-        """``other``'s agreement with the ``chosen`` contact when it contradicts it
+    ) -> RivalCheck | None:
+        """``other``'s agreement with the ``chosen`` contact, with ``other``, when it contradicts it
         (:func:`~softjig.sensing.selfcheck.agreement`), else ``None``."""
         check = agreement(
             points_J[chosen[0]],
@@ -1234,7 +1311,9 @@ class ContactPlaneFitter:
             point_sigma_mm=threshold_mm / CONTACT_INLIER_SIGMAS,
             noise_factor=MODEL_ERROR_FACTOR,
         )
-        return check if check is not None and check.suspect else None
+        if check is None or not check.suspect:
+            return None
+        return RivalCheck(check.angle_rad, check.noise_rad, check.normal_a, check.normal_b, contact=other)
 
     def _size_free_cut(
         self, dent: Dent, radius_mm: float, size_free: Callable[[], Contact], *, search: Contact | None

@@ -221,7 +221,7 @@ class MarkerTruth:
         (px); markers outside the image are included (and not visible).
     visible_left, visible_right : (N,) bool
         Whether the marker's whole image disc lies inside the image and clear of every fiducial
-        (quiet zone included).
+        (quiet zone included), and its paint is there (not one of ``imaging.missing_marker_fraction``).
     """
 
     xyz_mm: np.ndarray
@@ -706,7 +706,8 @@ class _CameraView:
             & (optics.px[:, 1] - r >= -0.5)
             & (optics.px[:, 1] + r <= h - 0.5)
         )
-        visible = inside & ~_hidden_by_quads(optics.px, r, self.quad_half_planes)
+        # A marker whose paint flaked off (brightness 0) is drawn as bare membrane: nothing to see.
+        visible = inside & ~_hidden_by_quads(optics.px, r, self.quad_half_planes) & (brightness > 0)
         timer.lap("fiducials")
         return _ViewResult(out, optics.px, visible, self.corners_px)
 
