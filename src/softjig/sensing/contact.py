@@ -864,7 +864,9 @@ def footprint_misfit(
     ``noise_mm``. Where two contacts of a frame are both plausible (the part's face and a strip of the
     membrane's wall beside its lowered edge, which meet in a V), the wall's plane, given the part's
     radius and placed uphill of its lowered edge, predicts the membrane pressed where it lies at rest, or
-    at rest where the face presses it; the face's predicts what is there.
+    at rest where the face presses it. The model leaves out the membrane's sag below a face near its
+    lift-off line and the rim's placement (uncertain by half a pitch), so the face's own misfit is often
+    a few sigmas too: alone, it tells the two apart no better than a coin (benchmarks/RESULTS.md).
 
     Parameters
     ----------
