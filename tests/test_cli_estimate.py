@@ -10,7 +10,9 @@ import pytest
 from typer.testing import CliRunner
 
 from softjig.cli import app
-from softjig.config import dumps_jig
+from softjig.config import default_jig, dumps_jig
+from softjig.errors import InputError
+from softjig.io.batch import BatchSettings
 from softjig.io.dataset import Dataset
 
 runner = CliRunner()
@@ -303,6 +305,14 @@ def test_a_dataset_refuses_a_bad_part_diameter_before_any_frame(sweep, tmp_path,
     assert "part diameter" in result.output and message in result.output
     assert "Traceback" not in result.output
     assert out.read_text() == "kept\n"
+
+
+@pytest.mark.parametrize("diameter", [True, "50", float("nan")])
+def test_batch_settings_refuse_a_part_diameter_that_is_not_a_number(diameter):
+    """Given in Python (no option parser in between), ``True`` was taken for 1 mm and ``"50"`` raised a
+    TypeError from NumPy: both are refused with a message naming the part diameter."""
+    with pytest.raises(InputError, match="part diameter must be a positive number"):
+        BatchSettings(default_jig(), part_diameter_mm=diameter)
 
 
 def test_12_bit_counts_in_a_16_bit_png(sweep, tmp_path):

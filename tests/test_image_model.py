@@ -76,6 +76,10 @@ def test_defaults_are_the_realistic_model():
         ("medium", "bubble_radius_mm", 0.0),
         ("imaging", "glints", 5000),
         ("imaging", "missing_marker_fraction", 0.7),
+        # counts given in Python, where no parser checks their type: 2.5 bubbles would fail in the renderer
+        ("medium", "bubbles", 2.5),
+        ("imaging", "glints", True),
+        ("medium", "speckle_seed", 1.5),
     ],
 )
 def test_image_model_validation_names_the_field(section, field, value):

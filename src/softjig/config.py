@@ -581,7 +581,7 @@ def validate_part(part: Part, jig: JigConfig | None = None, placement: PartPlace
     ConfigError
         Naming the field (``part.<field>``) and the problem.
     """
-    _check_finite(part, "part")
+    _check_numbers(part, "part")
     if isinstance(part, CylinderPart):
         _positive(part.diameter_mm, "part.diameter_mm")
     elif isinstance(part, BoxPart):
@@ -606,7 +606,7 @@ def validate_part(part: Part, jig: JigConfig | None = None, placement: PartPlace
             f"({2 * jig.membrane.footprint_radius_mm:.1f} mm): use a larger jig or a smaller part",
         )
     if placement is not None:
-        _check_finite(placement, "pose")
+        _check_numbers(placement, "pose")
         off = math.hypot(*placement.center_xy_mm)
         if off + radius >= jig.membrane.footprint_radius_mm:
             _fail(
@@ -655,14 +655,22 @@ def _validate_convex(vertices: tuple[Vec2, ...], where: str) -> None:
         )
 
 
-def _check_finite(obj: Any, where: str) -> None:
-    """Every float in a config dataclass (recursively, tuples included) is finite."""
+def _check_numbers(obj: Any, where: str) -> None:
+    """Every float in a config dataclass (recursively, tuples included) is finite, and every field
+    declared ``int`` holds an integer (not a bool): a config built in Python (``replace``) is not parsed,
+    and a count of 2.5 would fail deep in the code that uses it."""
     import dataclasses
 
     def walk(value: Any, path: str) -> None:
         if dataclasses.is_dataclass(value) and not isinstance(value, type):
             for f in dataclasses.fields(value):
-                walk(getattr(value, f.name), f"{path}.{f.name}" if path else f.name)
+                field_value = getattr(value, f.name)
+                field_path = f"{path}.{f.name}" if path else f.name
+                if f.type in ("int", int) and (
+                    isinstance(field_value, bool) or not isinstance(field_value, int | np.integer)
+                ):
+                    _fail(field_path, f"must be an integer, got {field_value!r}")
+                walk(field_value, field_path)
         elif isinstance(value, tuple | list):
             for k, item in enumerate(value):
                 walk(item, f"{path}[{k}]")
@@ -694,7 +702,7 @@ def validate_jig(jig: JigConfig) -> None:
     """
     if jig.version != CONFIG_VERSION:
         _fail("version", f"this softjig reads config version {CONFIG_VERSION}, got {jig.version}")
-    _check_finite(jig, "")
+    _check_numbers(jig, "")
     _validate_resolution(jig.cameras)
     _validate_plate_and_membrane(jig.plate, jig.membrane)
     _validate_markers(jig)

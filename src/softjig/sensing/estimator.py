@@ -350,7 +350,10 @@ def check_part_diameter(part_diameter_mm: float | None, jig: JigConfig) -> None:
     """A part's base diameter must be a positive, finite number of mm smaller than the membrane."""
     if part_diameter_mm is None:
         return
-    if not (np.isfinite(part_diameter_mm) and part_diameter_mm > 0):
+    a_number = isinstance(part_diameter_mm, int | float | np.integer | np.floating)
+    if isinstance(part_diameter_mm, bool) or not (
+        a_number and np.isfinite(part_diameter_mm) and part_diameter_mm > 0
+    ):
         raise InputError(f"the part diameter must be a positive number of mm, got {part_diameter_mm}")
     membrane = 2.0 * jig.membrane.footprint_radius_mm
     if part_diameter_mm >= membrane:

@@ -148,6 +148,11 @@ class RivalCheck(SplitCheck):
 
     contact: Contact
 
+    def seen_from(self, chosen: Contact) -> RivalCheck:
+        """The same disagreement seen from the rival: ``chosen`` (the contact it was the rival of) becomes
+        the rival, the normals swap (the check is symmetric)."""
+        return RivalCheck(self.angle_rad, self.noise_rad, self.normal_b, self.normal_a, contact=chosen)
+
 
 Found = tuple[Contact, RivalCheck | None] | Refusal  # a contact with its rival, or why none
 
@@ -631,9 +636,13 @@ class ContactPlaneFitter:
             result, (face, rival) = searched, found
             if result.estimate.quality == "ok":
                 return self._checked_without_the_size(measured, result)
-        reported = self._size_free_instead(measured, result, rival)
+        try:
+            size_free: Found | None = self._contact(ordered, None)
+        except EstimationError:  # no plane grows without the size
+            size_free = None
+        reported = self._size_free_instead(measured, result, rival, size_free)
         if reported is result and rival is not None:  # the face under the known size, doubted for its rival
-            return self._likelier_face(measured, result, face, rival)
+            return self._likelier_face(measured, result, face, rival, size_free)
         return reported
 
     def _checked_without_the_size(self, measured: _Measured, sized: SensingResult) -> SensingResult:
@@ -759,10 +768,11 @@ class ContactPlaneFitter:
         return dent, absolute, replace(observation, warnings=(*observation.warnings, warning))
 
     def _size_free_instead(
-        self, measured: _Measured, suspect: SensingResult, rival: RivalCheck | None
+        self, measured: _Measured, suspect: SensingResult, rival: RivalCheck | None, found: Found | None
     ) -> SensingResult:
-        """The size-free contact's estimate of the ``measured`` frame, with a warning, where it passes every
-        check and found another plane than the ``suspect`` estimate under the known face; else that one.
+        """The estimate of the size-free contact ``found`` (``None``: none grows), with a warning, where it
+        passes every check and found another plane than the ``suspect`` estimate under the known face;
+        else that one.
         Where the face under the known size is suspect for its ``rival`` (another face of that size that
         nothing contradicts either) and the size-free plane is neither, the size-free estimate is
         reported but suspect (:func:`_third_plane`).
@@ -773,9 +783,7 @@ class ContactPlaneFitter:
         size-free estimate whose one doubt is the other arm of its V (:meth:`_other_arm`) is
         reported too, suspect, unless the face under the known size is that other arm: two searches then
         found it, and the estimate under the face stands."""
-        try:
-            found = self._contact(measured.ordered, None)
-        except EstimationError:  # no plane grows without the size: the suspect estimate stands
+        if found is None:  # no plane grows without the size: the suspect estimate stands
             return suspect
         size_free = self._fit(measured, found, search_size_mm=None)
         if not isinstance(size_free, SensingResult):
@@ -1036,11 +1044,17 @@ class ContactPlaneFitter:
         )
 
     def _likelier_face(
-        self, measured: _Measured, suspect: SensingResult, face: Contact, rival: RivalCheck
+        self,
+        measured: _Measured,
+        suspect: SensingResult,
+        face: Contact,
+        rival: RivalCheck,
+        size_free: Found | None,
     ) -> SensingResult:
         """The ``suspect`` estimate of the ``face`` found under the known size, or the estimate of its
         ``rival`` (another face of that size that no marker contradicts either) where two independent
-        pieces of evidence both prefer the rival: the contact found without the size lies nearer it,
+        pieces of evidence both prefer the rival: the contact found without the size (``size_free``,
+        ``None`` where none grows) lies nearer it,
         and the membrane under it fits it better
         (:meth:`~softjig.sensing.contact.FootprintMisfit.fits_better_than`). That estimate is suspect
         for the face in turn and says why.
@@ -1058,23 +1072,18 @@ class ContactPlaneFitter:
         other = rival.contact
         if other[0].sum() < self._minimum:
             return suspect
-        try:
-            free = self._contact(dent, None, other_arm=False)
-        except EstimationError:  # no plane grows without the size: no second piece of evidence
+        if not size_free:  # no plane grows without the size: no second piece of evidence
             return suspect
-        if not free:
-            return suspect
-        free_normal = free[0][1].normal
+        free_normal = size_free[0][1].normal
         to_other, to_face = (_angle_deg(free_normal, c[1].normal) for c in (other, face))
         if to_other >= to_face:
             return suspect
         misfit, face_misfit = (self._footprint_misfit(dent, radius_mm, contact) for contact in (other, face))
         if not misfit.fits_better_than(face_misfit):
             return suspect
-        swapped = self._rival(dent.points_J, other, face, dent.threshold_mm)
-        if swapped is None:
-            return suspect
-        weighed = self._fit(measured, (other, swapped), search_size_mm=measured.part_diameter_mm)
+        weighed = self._fit(
+            measured, (other, rival.seen_from(face)), search_size_mm=measured.part_diameter_mm
+        )
         if not isinstance(weighed, SensingResult) or weighed.estimate.quality != "suspect":
             return suspect
         note = (
