@@ -393,6 +393,27 @@ def test_a_block_of_mismatched_points_larger_than_a_contact_is_off_the_membrane_
     assert sorted(np.flatnonzero(off)) == sorted(block)
 
 
+def test_steps_are_judged_at_the_depths_noise_and_the_plate_at_the_heights_noise():
+    """With a reference frame a marker's depth scatters less than its height (the reference cancels what
+    biases the marker's height in both frames). A point 19.5 mm too deep under a 40-deg face is off the
+    membrane at the depths' noise (0.05 mm), though a step at the heights' noise (0.5 mm) would join it
+    to the face beside it; a membrane whose heights read 1 mm low (inside the plate by 2 of the heights'
+    sigmas) is not off it, though it would be at the depths' noise."""
+    xy = _grid(60.0)
+    depth = _steep_dent(xy)
+    spike = int(np.flatnonzero((xy[:, 0] == -4.0) & (xy[:, 1] == 4.0))[0])
+    depth[spike] += 19.5
+    points = np.column_stack([xy, REST_Z - depth])
+    off = off_the_membrane(points, depth, pitch_mm=PITCH, noise_mm=0.05, height_noise_mm=0.5, min_points=6)
+    assert np.flatnonzero(off).tolist() == [spike]
+    assert not off_the_membrane(points, depth, pitch_mm=PITCH, noise_mm=0.5, min_points=6).any()
+    low = np.column_stack([xy, np.full(len(xy), -1.0)])
+    at_rest = np.zeros(len(xy))
+    kept = off_the_membrane(low, at_rest, pitch_mm=PITCH, noise_mm=0.05, height_noise_mm=0.5, min_points=6)
+    assert not kept.any()
+    assert off_the_membrane(low, at_rest, pitch_mm=PITCH, noise_mm=0.05, min_points=6).all()
+
+
 def test_no_point_is_off_the_membrane_at_rest_or_under_a_steep_face():
     xy = _grid(60.0)
     for depth in (np.zeros(len(xy)), _steep_dent(xy)):

@@ -34,7 +34,9 @@ from softjig.sensing.detect import (  # the compiled peak scan against the NumPy
     _refine_quadratic,
     check_image_content,
     detect_markers,
+    gray_image,
     log_sigma_px,
+    point_asymmetry,
     to_gray_float,
 )
 
@@ -479,6 +481,49 @@ def test_markers_is_immutable():
         markers.sigma_px = 2.0  # type: ignore[misc]
     with pytest.raises(InputError, match="one response per marker"):
         Markers(xy_px=np.zeros((2, 2)), response=np.zeros(3), sigma_px=5.0)
+
+
+def test_markers_asymmetry_is_one_per_marker_and_a_failed_fit_is_lopsided():
+    markers = Markers(
+        xy_px=np.zeros((5, 2)), response=np.ones(5), sigma_px=5.0, asymmetry=[0.03, np.nan, 0.02, 0.2, 0.04]
+    )
+    assert_array_equal(markers.lopsided(), [False, True, False, True, False])  # 0.2 > 3 x median 0.035
+    with pytest.raises(ValueError, match="read-only"):
+        markers.asymmetry[0] = 1.0
+    assert not Markers(xy_px=np.zeros((2, 2)), response=np.ones(2), sigma_px=5.0).lopsided().any()
+    with pytest.raises(InputError, match="one asymmetry per marker"):
+        Markers(xy_px=np.zeros((2, 2)), response=np.ones(2), sigma_px=5.0, asymmetry=[0.1])
+
+
+@pytest.mark.parametrize("speckle", [4 / 255, 10 / 255])
+def test_a_glint_over_one_side_of_a_marker_makes_it_lopsided(speckle):
+    """Markers are discs, point-symmetric about their centres to the noise and the speckle: none is
+    lopsided. A saturated spot (a glint) over the rim of one marker pulls its fitted centre towards it
+    by most of a pixel; that marker, and only it, is lopsided."""
+    truth = marker_grid(FRAME)
+    image = render_markers(FRAME, truth, seed=2, speckle_sigma=speckle)
+    clean = detect_markers(quantise(image), sigma_px=SIGMA_PX)
+    assert clean.asymmetry is not None and not clean.lopsided().any()
+    k = len(truth) // 2
+    rows, cols = np.mgrid[0 : FRAME[0], 0 : FRAME[1]]
+    glint = np.exp(-((cols - truth[k, 0] - 6.0) ** 2 + (rows - truth[k, 1]) ** 2) / (2 * 1.5**2))
+    markers = detect_markers(quantise(image + glint), sigma_px=SIGMA_PX)
+    distance, nearest = cKDTree(markers.xy_px).query(truth[k])
+    assert distance > 0.4  # pulled towards the glint
+    assert np.flatnonzero(markers.lopsided()).tolist() == [nearest]
+
+
+def test_point_asymmetry_of_a_clean_disc_is_small_and_unknown_without_an_amplitude():
+    centres = np.array([[40.3, 30.6], [100.0, 30.0], [3.0, 3.0]])
+    image = quantise(render_markers((64, 140), centres, noise_sigma=0.0, speckle_sigma=0.0))
+    gray, full_scale = gray_image(image)
+    contrast = 120 / 255
+    asymmetry = point_asymmetry(
+        gray, centres, [contrast, 0.0, contrast], radius_px=DIAMETER_PX / 2, full_scale=full_scale
+    )
+    assert asymmetry[0] < 0.02  # quantisation and interpolation only
+    assert np.isnan(asymmetry[1])  # no amplitude
+    assert np.isnan(asymmetry[2])  # most of the disc outside the image
 
 
 # ---------------------------------------------------------------------------------------

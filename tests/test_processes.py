@@ -183,6 +183,21 @@ def test_terminate_raises_turns_sigterm_into_an_exception_and_restores_the_handl
     assert signal.getsignal(signal.SIGTERM) is before
 
 
+def test_a_sigterm_that_a_library_turns_into_a_keyboard_interrupt_is_still_terminated():
+    """Ray's ``ray.wait`` replaces the exception a signal handler raises while it waits by a plain
+    ``KeyboardInterrupt`` (its ``check_status``): a SIGTERM must still end the command as one (143)."""
+    with pytest.raises(Terminated) as info, terminate_raises():
+        try:
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(5)
+        except Terminated:
+            raise KeyboardInterrupt from None  # what the library raises instead
+    assert info.value.exit_code == 143
+    with pytest.raises(KeyboardInterrupt) as ctrl_c, terminate_raises():
+        raise KeyboardInterrupt  # a Ctrl-C, no SIGTERM: stays one
+    assert not isinstance(ctrl_c.value, Terminated)
+
+
 @pytest.mark.parametrize("signal_exc", [KeyboardInterrupt(), Terminated(signal.SIGTERM)])
 def test_signals_unwrapped_raises_the_signal_behind_a_kernels_system_error(signal_exc):
     with pytest.raises(type(signal_exc)) as raised, signals_unwrapped():

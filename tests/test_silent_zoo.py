@@ -381,16 +381,48 @@ def test_of_two_plausible_faces_of_the_parts_size_the_one_both_other_searches_pr
 # Strict: a fix makes one pass, and then it moves to the tests above. Two more of the bead-pack zoo,
 # size-free, are left out: seed 9, design 48, frame 11 (3.0 deg off) and seed 13, design 4, frame 20
 # (4.7 deg off, 4.05 sigmas) lie a hair over the line, where a last-digit change would flip them.
+def test_a_point_a_mismatch_put_deep_beside_the_face_is_off_the_membrane():
+    """Damaged image model, zoo seed 3, design 32, frame 1, with the part's size and the reference: a
+    marker matched to a glint or a bubble's highlight triangulated 11 mm deep beside the face, 8 mm
+    deeper than its deepest neighbour 5.9 mm away. Judged at the markers' heights' noise (0.44 mm) a
+    45-deg step joined it to them, and it was a hole beside the face, which lost to a strip of the
+    wall: "ok" and 13.5 deg off, sigma 1.4 deg. At the depths' own noise (0.25 mm) it is off the
+    membrane, and the face is found."""
+    error, estimate = _estimate(
+        32, 1, with_size=True, with_reference=True, seed=3, render_jig=damaged_image_model
+    )
+    assert any("left out: they lie off the membrane" in w for w in estimate.warnings)
+    assert error < SILENT_ERROR_DEG, (error, estimate.tilt_sigma_deg, estimate.n_points)
+
+
+# (design, frame, the way): damaged image model; a marker under a glint or a bubble's rim in one image, its
+# centre pulled 3-4 px towards it (a point 2-3 mm deep), or its model fit failed and kept at the LoG peak (a
+# glint matched to a marker: 11-20 mm), was a hole beside the face, which lost to a strip of the wall:
+# "ok", the error (deg) in the id, sigma 1.1-1.7 deg.
+LOPSIDED = [
+    pytest.param(
+        39, 18, {"seed": 0, "with_size": False, "with_reference": False}, id="s0d39f18-nosize-rest-15.6deg"
+    ),
+    pytest.param(
+        18, 20, {"seed": 3, "with_size": True, "with_reference": False}, id="s3d18f20-size-rest-31.1deg"
+    ),
+]
+
+
+@pytest.mark.parametrize(("design_index", "frame", "way"), LOPSIDED)
+def test_a_marker_that_a_glint_or_a_bubble_makes_lopsided_is_left_out(design_index, frame, way):
+    error, estimate = _estimate(design_index, frame, render_jig=damaged_image_model, **way)
+    assert any("they do not look like a marker" in w for w in estimate.warnings)
+    assert error < SILENT_ERROR_DEG, (error, estimate.tilt_sigma_deg, estimate.n_points)
+
+
 SILENT_FAILURES_LEFT = [
     pytest.param(15, 15, 10, False, True, None, id="s15d15f10-nosize-reference-32deg"),
     pytest.param(3, 37, 2, False, False, None, id="s3d37f2-nosize-rest-19deg"),
     pytest.param(2, 43, 9, True, True, stirred_image_model, id="stirred-s2d43f9-size-reference-13deg"),
     pytest.param(5, 47, 18, True, True, stirred_image_model, id="stirred-s5d47f18-size-reference-19deg"),
     pytest.param(5, 32, 2, False, False, stirred_image_model, id="stirred-s5d32f2-nosize-rest-16deg"),
-    pytest.param(0, 39, 18, False, False, damaged_image_model, id="damaged-s0d39f18-nosize-rest-16deg"),
     pytest.param(3, 18, 14, True, True, damaged_image_model, id="damaged-s3d18f14-size-reference-19deg"),
-    pytest.param(3, 18, 20, True, False, damaged_image_model, id="damaged-s3d18f20-size-rest-31deg"),
-    pytest.param(3, 32, 1, True, True, damaged_image_model, id="damaged-s3d32f1-size-reference-14deg"),
 ]
 
 

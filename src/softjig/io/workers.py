@@ -77,14 +77,19 @@ def terminate_raises(signums: tuple[int, ...] = (signal.SIGTERM, signal.SIGHUP))
     """Inside: ``SIGTERM`` (and ``SIGHUP``) raise :class:`Terminated` in the main thread; restored after.
 
     Each such signal raises, as each Ctrl-C raises :class:`KeyboardInterrupt` (ignoring a second one would
-    leave a process that swallowed the first deaf to SIGTERM for ever). Outside the main thread (signals
-    cannot be handled there) this does nothing.
+    leave a process that swallowed the first deaf to SIGTERM for ever). A plain ``KeyboardInterrupt`` that
+    leaves the block after such a signal is raised as its :class:`Terminated`: a library waiting in
+    compiled code may replace the handler's exception by its own ``KeyboardInterrupt`` (Ray's ``ray.wait``
+    does, through its ``check_status``: a study on a Ray cluster then exited 130, not 143). Outside the
+    main thread (signals cannot be handled there) this does nothing.
     """
     if threading.current_thread() is not threading.main_thread():
         yield
         return
+    received: list[int] = []
 
     def handler(signum: int, _frame: object) -> None:
+        received.append(signum)
         raise Terminated(signum)
 
     previous = {}
@@ -93,6 +98,10 @@ def terminate_raises(signums: tuple[int, ...] = (signal.SIGTERM, signal.SIGHUP))
             previous[signum] = signal.signal(signum, handler)
     try:
         yield
+    except KeyboardInterrupt as exc:
+        if received and not isinstance(exc, Terminated):
+            raise Terminated(received[-1]) from None
+        raise
     finally:
         for signum, old in previous.items():
             signal.signal(signum, old)

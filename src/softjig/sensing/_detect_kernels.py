@@ -1,10 +1,14 @@
-"""Compiled loops of the pyramid's candidate search in :mod:`softjig.sensing.detect` (private; Numba).
+"""Compiled loops of :mod:`softjig.sensing.detect` (private; Numba): the pyramid's candidate search and
+the markers' point asymmetry.
 
 :func:`coarse_peaks` finds and refines the peaks of the coarse LoG response in one call, where NumPy
-and a k-d tree take several calls per image (see benchmarks/RESULTS.md for the gain).
+and a k-d tree take several calls per image (see benchmarks/RESULTS.md for the gain);
+:func:`point_asymmetry` compares each marker with its half-turn image.
 """
 
 from __future__ import annotations
+
+import math
 
 import numba
 import numpy as np
@@ -91,3 +95,58 @@ def quadratic_maximum(fit, value, max_offset):
         if abs(xf) <= max_offset and abs(yf) <= max_offset:
             return xf, yf, a + b * xf + cq * yf + d * xf * xf + e * xf * yf + f * yf * yf
     return 0.0, 0.0, value
+
+
+@numba.njit(cache=True, nogil=True)
+def point_asymmetry(image, xy, amplitude, radius, scale):
+    """:func:`softjig.sensing.detect.point_asymmetry`'s loop: for each centre ``xy[k]`` (px) the RMS
+    difference between the pixels within ``radius`` of it and their half-turn images about it, over
+    ``amplitude[k]`` (full-scale fractions; ``scale``: full scale per image unit); NaN where the
+    amplitude is not positive or fewer than half of the pixel pairs lie inside the image.
+
+    The half-turn of pixel ``c + d`` about ``(u, v)`` lies at ``2 (u, v) - c - d``, whose fractional part
+    is the same for every ``d``: one set of bilinear weights per centre. A pair and its half-turn give
+    the same difference, so one half of the disc is summed (``d_y > 0``, and ``d_x > 0`` on ``d_y = 0``).
+    """
+    h, w = image.shape
+    reach = math.ceil(radius)
+    side = 2 * reach + 1
+    offsets = np.empty((side * side, 2), np.int64)  # the half disc's offsets d
+    pairs = 0
+    for dy in range(0, reach + 1):
+        for dx in range(-reach, reach + 1):
+            if not (dy == 0 and dx <= 0) and dx * dx + dy * dy <= radius * radius:
+                offsets[pairs, 0], offsets[pairs, 1] = dx, dy
+                pairs += 1
+    out = np.full(xy.shape[0], np.nan)
+    for k in range(xy.shape[0]):
+        u, v, a = xy[k, 0], xy[k, 1], amplitude[k]
+        if pairs == 0 or not (a > 0.0 and math.isfinite(u) and math.isfinite(v)):
+            continue
+        cu, cv = math.floor(u + 0.5), math.floor(v + 0.5)
+        mu, mv = 2.0 * u - cu, 2.0 * v - cv  # the half-turn of c + d is (mu - dx, mv - dy)
+        fu, fv = math.floor(mu), math.floor(mv)
+        tu, tv = mu - fu, mv - fv
+        w00, w10, w01, w11 = (1 - tu) * (1 - tv), tu * (1 - tv), (1 - tu) * tv, tu * tv
+        inside = min(cu, fu) - reach >= 0 and min(cv, fv) - reach >= 0
+        inside = inside and max(cu, fu + 1) + reach < w and max(cv, fv + 1) + reach < h
+        total, used = 0.0, 0
+        for j in range(pairs):
+            dx, dy = offsets[j, 0], offsets[j, 1]
+            pu, pv, qu, qv = cu + dx, cv + dy, fu - dx, fv - dy
+            if not inside and (
+                pu < 0 or pv < 0 or pu >= w or pv >= h or qu < 0 or qv < 0 or qu + 1 >= w or qv + 1 >= h
+            ):
+                continue
+            turned = (
+                w00 * image[qv, qu]
+                + w10 * image[qv, qu + 1]
+                + w01 * image[qv + 1, qu]
+                + w11 * image[qv + 1, qu + 1]
+            )
+            d = image[pv, pu] - turned
+            total += d * d
+            used += 1
+        if 2 * used >= pairs:
+            out[k] = math.sqrt(total / used) * scale / a
+    return out

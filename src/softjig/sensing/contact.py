@@ -203,15 +203,21 @@ def _near(xy: np.ndarray, members: np.ndarray, radius: float) -> np.ndarray:
 
 
 def off_the_membrane(
-    points_J: np.ndarray, depth_mm: np.ndarray, *, pitch_mm: float, noise_mm: float, min_points: int | None
+    points_J: np.ndarray,
+    depth_mm: np.ndarray,
+    *,
+    pitch_mm: float,
+    noise_mm: float,
+    min_points: int | None,
+    height_noise_mm: float | None = None,
 ) -> np.ndarray:
     """Markers off the membrane, as booleans: those inside the base plate (below ``z = 0`` by more than
-    :data:`OFF_MEMBRANE_SIGMAS` times ``noise_mm``), and of the others those in a group of fewer than
-    ``min_points`` that has neighbours outside it but no step to one, a step being a depth
+    :data:`OFF_MEMBRANE_SIGMAS` times ``height_noise_mm``), and of the others those in a group of fewer
+    than ``min_points`` that has neighbours outside it but no step to one, a step being a depth
     difference a face tilted :data:`MAX_TILT_DEG` explains over the two markers' distance, plus
-    :data:`OFF_MEMBRANE_SIGMAS` times the difference's noise. Such a group is no contact (too few to fit)
-    and no part of one, since a face leaves each marker it presses within that slope of its neighbours
-    in contact: the points are not where their markers are.
+    :data:`OFF_MEMBRANE_SIGMAS` times the difference's noise (from ``noise_mm``). Such a group is no
+    contact (too few to fit) and no part of one, since a face leaves each marker it presses within that
+    slope of its neighbours in contact: the points are not where their markers are.
 
     Why: on a rectified pair, a marker whose partner was not detected in the other image can be matched to
     the next marker along its row (the disparity window spans the membrane's whole depth, more than a
@@ -227,12 +233,20 @@ def off_the_membrane(
     points_J : (M, 3) the markers (mm, J).
     depth_mm : (M,) their indentations (mm); NaN where unknown (never flagged, nor a neighbour).
     pitch_mm : the markers' pitch (mm): neighbours lie within :data:`NEIGHBOUR_RADIUS_PITCHES` of it.
-    noise_mm : one marker's depth noise (mm).
+    noise_mm : the noise of one marker's ``depth_mm`` (mm).
     min_points : the fewest markers a contact may have (``sensing.min_points``); ``None`` for an unloaded
         membrane, one smooth sheet: every group but the largest is off it.
+    height_noise_mm : the noise of one marker's height ``z`` (mm); ``noise_mm`` when not given. The two
+        differ with a reference frame: its depths are differenced against the same marker's reference
+        height, which cancels what biases a marker's height in both frames (the bead pack's speckle over
+        a marker that stays put), so they scatter less than the heights. A step judged at the heights'
+        noise joins a point that a mismatch put millimetres deep to the face beside it (zoo seed 3, design
+        32, frame 1 with the damaged image model: a point 11 mm off, 8 mm deeper than its deepest
+        neighbour 5.9 mm away, with heights scattering 0.44 mm and depths 0.25 mm).
     """
     depth = np.asarray(depth_mm, dtype=float)
-    off = points_J[:, 2] < -OFF_MEMBRANE_SIGMAS * noise_mm  # inside the base plate (its top face: z = 0)
+    height_noise_mm = noise_mm if height_noise_mm is None else height_noise_mm
+    off = points_J[:, 2] < -OFF_MEMBRANE_SIGMAS * height_noise_mm  # inside the base plate (top face: z = 0)
     known = np.flatnonzero(np.isfinite(depth) & ~off)
     if len(known) < 2:
         return off

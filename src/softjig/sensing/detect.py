@@ -15,7 +15,9 @@ Each maximum is refined to sub-pixel accuracy either by a prewhitened least-squa
 the marker's image model to the pixels around it (``refine="model"``, the default,
 :mod:`softjig.sensing.subpixel`: within 1.5x the Cramer-Rao bound), or, as Sakuma et al.
 do, by a least-squares 2-D quadratic fit to the LoG response around it
-(``refine="quadratic"``).
+(``refine="quadratic"``). Each refined marker is then measured for how far it departs from point
+symmetry about its centre (:func:`point_asymmetry`): a glint or a bubble's rim over one side of a
+marker pulls its centre by pixels, and such markers are told apart (:meth:`Markers.lopsided`).
 
 Conventions
 -----------
@@ -54,12 +56,18 @@ __all__ = [
     "detect_markers",
     "gray_image",
     "log_sigma_px",
+    "point_asymmetry",
     "to_gray_float",
 ]
 
 #: Default threshold on the scale-normalised response ``R = -sigma^2 * LoG(I)`` of the
 #: [0, 1]-scaled image. See :func:`detect_markers`, Notes.
 DEFAULT_THRESHOLD: float = 0.05
+
+#: A marker whose :func:`point_asymmetry` exceeds this many times the image's median marker's does not
+#: look like a marker (:meth:`Markers.lopsided`): the noise and the view's obliquity leave the markers of
+#: an image within about twice their median (measured: benchmarks/RESULTS.md).
+LOPSIDED_MEDIANS = 3.0
 
 _FULL_SCALE = {np.dtype(np.uint8): 255.0, np.dtype(np.uint16): 65535.0}
 _BLANK_STD = 1e-3  # std below this fraction of full scale: blank image
@@ -107,6 +115,11 @@ class Markers:
         quadratic refinement succeeded.
     sigma_px : float
         LoG scale used for the detection, in pixels.
+    asymmetry : numpy.ndarray, shape (N,), float64, or None
+        Each marker's departure from point symmetry about its centre (:func:`point_asymmetry`,
+        a fraction of its fitted amplitude; with ``refine="quadratic"``, of its response, which
+        is proportional to it); NaN where the model fit failed (the candidate was kept).
+        ``None`` for integer centres (``refine=None``).
 
     Notes
     -----
@@ -117,23 +130,44 @@ class Markers:
     xy_px: np.ndarray
     response: np.ndarray
     sigma_px: float
+    asymmetry: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         xy = np.array(self.xy_px, dtype=np.float64).reshape(-1, 2)
-        response = np.array(self.response, dtype=np.float64).reshape(-1)
-        if len(xy) != len(response):
-            raise InputError(
-                f"Markers: xy_px has {len(xy)} rows but response has {len(response)} "
-                "values; pass one response per marker."
-            )
         xy.setflags(write=False)
-        response.setflags(write=False)
         object.__setattr__(self, "xy_px", xy)
-        object.__setattr__(self, "response", response)
+        object.__setattr__(self, "response", _one_per_marker(self.response, "response", len(xy)))
         object.__setattr__(self, "sigma_px", float(self.sigma_px))
+        if self.asymmetry is not None:
+            object.__setattr__(self, "asymmetry", _one_per_marker(self.asymmetry, "asymmetry", len(xy)))
+
+    def lopsided(self) -> np.ndarray:
+        """Which markers do not look like a marker, as booleans (N,): their model fit failed, or they
+        depart from point symmetry more than :data:`LOPSIDED_MEDIANS` times the image's median marker
+        does (a glint or a bubble's rim over one side, which pulls the centre towards it). None of them
+        without :attr:`asymmetry`."""
+        if self.asymmetry is None or not len(self.asymmetry):
+            return np.zeros(len(self), dtype=bool)
+        known = np.isfinite(self.asymmetry)
+        if not known.any():
+            return ~known
+        typical = float(np.median(self.asymmetry[known]))
+        return ~known | (self.asymmetry > LOPSIDED_MEDIANS * typical)
 
     def __len__(self) -> int:
         return int(self.xy_px.shape[0])
+
+
+def _one_per_marker(values: npt.ArrayLike, name: str, n_markers: int) -> np.ndarray:
+    """``values`` as a read-only float64 ``(N,)`` array, one per marker, or an InputError naming ``name``."""
+    array = np.array(values, dtype=np.float64).reshape(-1)
+    if len(array) != n_markers:
+        raise InputError(
+            f"Markers: xy_px has {n_markers} rows but {name} has {len(array)} values; pass one {name} per "
+            "marker."
+        )
+    array.setflags(write=False)
+    return array
 
 
 def to_gray_float(image: npt.ArrayLike) -> np.ndarray:
@@ -542,8 +576,54 @@ def detect_markers(
         h, w = gray.shape
         keep = _inside_border(xy, w, h, border) & (fit.ok | _inside_border(xy, w, h, model.half_width_px + 1))
         xy, peak = xy[keep], peak[keep]
+        amplitude = np.where(fit.ok, fit.amplitude, np.nan)[keep]
+        asymmetry = point_asymmetry(gray, xy, amplitude, radius_px=model.radius_px, full_scale=full_scale)
+    elif refine == "quadratic" and len(xy) > 0:  # the response is proportional to the contrast
+        radius_px = MarkerModel.for_sigma(sigma).radius_px
+        asymmetry = point_asymmetry(gray, xy, peak, radius_px=radius_px, full_scale=full_scale)
+    else:
+        asymmetry = None
     order = np.argsort(-peak, kind="stable")
-    return Markers(xy_px=xy[order], response=peak[order], sigma_px=sigma)
+    return Markers(
+        xy_px=xy[order],
+        response=peak[order],
+        sigma_px=sigma,
+        asymmetry=None if asymmetry is None else asymmetry[order],
+    )
+
+
+def point_asymmetry(
+    gray: np.ndarray, xy_px: np.ndarray, amplitude: np.ndarray, *, radius_px: float, full_scale: float
+) -> np.ndarray:
+    """Each marker's departure from point symmetry: the RMS difference between its pixels within
+    ``radius_px`` of its centre ``xy_px`` and the image turned half a turn about that centre (bilinear),
+    over its fitted ``amplitude`` (a fraction of full scale); NaN where the amplitude is not positive
+    (or NaN), or where most of the disc lies outside the image.
+
+    Why: a marker's image is a disc, whatever it looks like inside (a shaded hemisphere, a painted dot)
+    and whatever the speckle behind it, so it is point-symmetric about its centre to the noise and the
+    small obliquity of the view. A glint or a bubble's rim over one side of it is not, and it pulls the
+    fitted centre towards it by pixels (a point millimetres off the membrane), which the fit alone does
+    not tell. Compiled (:func:`softjig.sensing._detect_kernels.point_asymmetry`): half the disc per
+    marker, one set of bilinear weights per marker.
+
+    Parameters
+    ----------
+    gray : (H, W) gray image (:func:`gray_image`).
+    xy_px : (N, 2) marker centres ``(u, v)`` (px).
+    amplitude : (N,) each marker's fitted amplitude (fraction of full scale).
+    radius_px : the markers' image radius (px): the disc compared.
+    full_scale : the image's full scale (255 for uint8; 1 for a float image).
+    """
+    from softjig.sensing._detect_kernels import point_asymmetry as kernel  # Numba is imported on first use
+
+    return kernel(
+        np.ascontiguousarray(gray),
+        np.ascontiguousarray(xy_px, dtype=np.float64).reshape(-1, 2),
+        np.ascontiguousarray(amplitude, dtype=np.float64).reshape(-1),
+        float(radius_px),
+        1.0 / float(full_scale),
+    )
 
 
 def _full_candidates(

@@ -605,7 +605,7 @@ class ContactPlaneFitter:
         )
         dent, absolute = self._indentation(points_J, identities.ids)
         noise = noise_scales(dent, absolute, self._reference)
-        dent, absolute, observation = self._without_points_off_the_membrane(
+        dent, absolute, observation = self._without_points_in_doubt(
             points_J, dent, absolute, observation, noise
         )
         candidates = contact_candidates(dent)
@@ -736,7 +736,7 @@ class ContactPlaneFitter:
             "markers",
         )
 
-    def _without_points_off_the_membrane(
+    def _without_points_in_doubt(
         self,
         points_J: np.ndarray,
         dent: Indentation,
@@ -744,28 +744,47 @@ class ContactPlaneFitter:
         observation: Observation,
         noise: NoiseScales,
     ) -> tuple[Indentation, Indentation | None, Observation]:
-        """The indentations with the points off the membrane unknown (NaN: neither in contact nor
-        contradicting it; :func:`~softjig.sensing.contact.off_the_membrane`, at the noise of a marker's
-        height, ``noise.plane_sigma_mm``), and the observation with a warning that counts them."""
+        """The indentations with the points in doubt unknown (NaN: neither in contact nor contradicting
+        it), and the observation with a warning that counts each kind:
+
+        - off the membrane (:func:`~softjig.sensing.contact.off_the_membrane`: the steps between
+          neighbours at the noise of the indentation, ``noise.indentation_sigma_mm``, the base plate at
+          the noise of a marker's height, ``noise.plane_sigma_mm``);
+        - seen in either image as no marker looks (:meth:`~softjig.sensing.detect.Markers.lopsided`: its
+          fit failed, or it is lopsided, a glint or a bubble's rim over one side of it, which moves its
+          point millimetres in depth but, on a coarse grid or with noisy depths, within a step of its
+          neighbours).
+        """
         off = off_the_membrane(
             points_J,
             dent.depth_mm,
             pitch_mm=self._pitch,
-            noise_mm=noise.plane_sigma_mm,
+            noise_mm=noise.indentation_sigma_mm,
+            height_noise_mm=noise.plane_sigma_mm,
             min_points=self._minimum,
         )
-        if not off.any():
+        lopsided = ~off & observation.lopsided()
+        if not (off.any() or lopsided.any()):
             return dent, absolute, observation
+        doubt = off | lopsided
         dent, absolute = (
-            None if d is None else replace(d, depth_mm=np.where(off, np.nan, d.depth_mm))
+            None if d is None else replace(d, depth_mm=np.where(doubt, np.nan, d.depth_mm))
             for d in (dent, absolute)
         )
-        warning = (
-            f"{int(off.sum())} matched markers were left out: they lie off the membrane (inside the base "
-            f"plate, or deeper or higher than their neighbours by more than a face tilted {MAX_TILT_DEG:g} "
-            "deg explains): stereo mismatches along a row?"
-        )
-        return dent, absolute, replace(observation, warnings=(*observation.warnings, warning))
+        warnings = []
+        if off.any():
+            warnings.append(
+                f"{int(off.sum())} matched markers were left out: they lie off the membrane (inside the "
+                f"base plate, or deeper or higher than their neighbours by more than a face tilted "
+                f"{MAX_TILT_DEG:g} deg explains): stereo mismatches along a row?"
+            )
+        if lopsided.any():
+            warnings.append(
+                f"{int(lopsided.sum())} matched markers were left out: in one image they do not look like a "
+                "marker (their fit failed, or they are lopsided beyond what the image's markers are): a "
+                "glint or a bubble over them?"
+            )
+        return dent, absolute, replace(observation, warnings=(*observation.warnings, *warnings))
 
     def _size_free_instead(
         self, measured: _Measured, suspect: SensingResult, rival: RivalCheck | None, found: Found | None

@@ -165,6 +165,11 @@ class Observation:
         """(M, 2) matched centres in the right image."""
         return self.right.xy_px[self.matches.right_index]
 
+    def lopsided(self) -> np.ndarray:
+        """(M,) which matches do not look like a marker in either image
+        (:meth:`~softjig.sensing.detect.Markers.lopsided`): their points are in doubt."""
+        return self.left.lopsided()[self.matches.left_index] | self.right.lopsided()[self.matches.right_index]
+
 
 @dataclass(frozen=True)
 class Refusal:
