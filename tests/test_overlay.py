@@ -81,3 +81,30 @@ def test_the_legend_is_drawn_on_the_image(pair, tmp_path):
     for colour in (overlay.RED, overlay.GREEN, overlay.YELLOW, overlay.CYAN, overlay.MAGENTA):
         assert (np.abs(corner - np.array(colour)).sum(axis=2) < 60).any(), colour
     assert (np.abs(corner - np.array(overlay.WHITE)).sum(axis=2) < 30).sum() > 200  # the labels' text
+
+
+def test_a_marker_left_out_for_a_glint_over_it_is_crossed_out(pair):
+    """A glint painted over the rim of a matched marker in the left image: the refractive estimate leaves
+    that marker out (it does not look like one) and the overlay crosses it out, in both images."""
+    frame = pair[1]
+    left, right = frame.load_left(), frame.load_right()
+    reference = dataset_reference(pair, pair.jig)
+    clean = estimate_pair(left, right, pair.jig, part_diameter_mm=50.0, reference=reference)
+    k = len(clean.matches.left_index) // 2
+    u, v = clean.left.xy_px[clean.matches.left_index[k]]
+    rows, cols = np.mgrid[0 : left.shape[0], 0 : left.shape[1]]
+    glint = 255.0 * np.exp(-((cols - u - 6.0) ** 2 + (rows - v) ** 2) / (2 * 1.5**2))
+    glinted = np.clip(left + glint, 0, 255).astype(np.uint8)
+    result = estimate_pair(glinted, right, pair.jig, part_diameter_mm=50.0, reference=reference)
+    assert any("they do not look like a marker" in w for w in result.estimate.warnings)
+    left_out = np.flatnonzero(np.isnan(result.indentation.depth_mm))
+    assert len(left_out) >= 1
+    image = overlay.draw_overlay(glinted, right, result, pair.jig)
+    width = left.shape[1]
+    for j in left_out:
+        for xy, x0 in (
+            (result.left.xy_px[result.matches.left_index[j]], 0),
+            (result.right.xy_px[result.matches.right_index[j]], width),
+        ):
+            x, y = round(float(xy[0])) + x0, round(float(xy[1]))
+            assert np.abs(image[y, x].astype(int) - np.array(overlay.RED)).sum() < 60

@@ -8,6 +8,9 @@ of blurred markers, detections are circled; colours say what became of each mark
 - yellow dot: matched and used in the plane fit (inside the paper's crop, or in contact);
 - orange dot (``refractive``): inside the contact footprint and pushed in (by more than
   :data:`OUTLIER_SIGMAS` times the indentation noise), but rejected by the robust fit (an outlier);
+- red cross (``refractive``): matched, but left out as in doubt (its depth unknown): its point lies off
+  the membrane, or in one image it does not look like a marker (a glint or a bubble over it,
+  :meth:`~softjig.sensing.detect.Markers.lopsided`);
 - cyan outline: what was fitted: the paper's crop (the part's base radius around the jig axis, at the
   fitted plane's height), or the contact footprint found by the refractive method;
 - magenta arrow: the fitted plane's normal (before any tilt calibration) from the plane at the centre of
@@ -109,6 +112,13 @@ def draw_overlay(left: np.ndarray, right: np.ndarray, result: SensingResult, jig
                 continue
             cv2.circle(canvas_left, _pt(result.left.xy_px[result.matches.left_index[k]]), 2, ORANGE, -1)
             cv2.circle(canvas_right, _pt(result.right.xy_px[result.matches.right_index[k]]), 2, ORANGE, -1)
+    if result.indentation is not None:
+        for k in np.flatnonzero(np.isnan(result.indentation.depth_mm)):  # in doubt: left out
+            for canvas, xy in (
+                (canvas_left, result.left.xy_px[result.matches.left_index[k]]),
+                (canvas_right, result.right.xy_px[result.matches.right_index[k]]),
+            ):
+                cv2.drawMarker(canvas, _pt(xy), RED, cv2.MARKER_TILTED_CROSS, 2 * radius, 2, cv2.LINE_AA)
 
     est, plane = result.estimate, result.plane
     if result.contact is not None:
@@ -166,6 +176,7 @@ def _legend(canvas: np.ndarray, method: str) -> None:
     ]
     if method == "refractive":
         items.append(("dot", ORANGE, "in contact, not fitted (outlier)"))
+        items.append(("cross", RED, "matched, left out (in doubt)"))
     items += [
         ("line", CYAN, "contact outline" if method == "refractive" else "crop (part's radius)"),
         ("arrow", MAGENTA, f"normal, tilt x{TILT_EXAGGERATION:g}"),
@@ -185,6 +196,8 @@ def _legend(canvas: np.ndarray, method: str) -> None:
             cv2.circle(canvas, (cx, cy), round(7 * f), colour, max(round(f), 1), cv2.LINE_AA)
         elif kind == "dot":
             cv2.circle(canvas, (cx, cy), round(3 * f), colour, -1)
+        elif kind == "cross":
+            cv2.drawMarker(canvas, (cx, cy), colour, cv2.MARKER_TILTED_CROSS, round(12 * f), max(round(f), 1))
         elif kind == "line":
             cv2.line(
                 canvas,
