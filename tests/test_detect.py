@@ -526,6 +526,30 @@ def test_point_asymmetry_of_a_clean_disc_is_small_and_unknown_without_an_amplitu
     assert np.isnan(asymmetry[2])  # most of the disc outside the image
 
 
+@pytest.mark.parametrize(
+    ("kwargs", "words"),
+    [
+        ({"amplitude": [0.5]}, "one amplitude per centre"),  # the loop would read past the array
+        ({"radius_px": float("nan")}, "radius_px must be finite"),
+        ({"radius_px": 0.0}, "radius_px must be > 0"),
+        ({"full_scale": 0.0}, "full_scale must be > 0"),
+        ({"gray": np.zeros((8, 8, 3), np.uint8)}, "gray (H, W) image"),
+        ({"xy_px": np.zeros((3, 3))}, "(N, 2) centres"),
+    ],
+)
+def test_point_asymmetry_refuses_inputs_its_loop_would_misread(kwargs, words):
+    args = {
+        "gray": np.zeros((64, 64), np.uint8),
+        "xy_px": np.full((3, 2), 30.0),
+        "amplitude": [0.5, 0.5, 0.5],
+        "radius_px": 5.0,
+        "full_scale": 255.0,
+    } | kwargs
+    gray, xy, amplitude = args.pop("gray"), args.pop("xy_px"), args.pop("amplitude")
+    with pytest.raises(InputError, match=re.escape(words)):
+        point_asymmetry(gray, xy, amplitude, **args)
+
+
 # ---------------------------------------------------------------------------------------
 # The fast path (pyramid candidates) against the straightforward one (full-resolution LoG)
 

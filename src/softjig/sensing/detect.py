@@ -41,7 +41,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from softjig.checks import finite_float
+from softjig.checks import finite_float, positive_float
 from softjig.errors import InputError
 from softjig.sensing.subpixel import MarkerModel, refine_centres
 
@@ -65,8 +65,8 @@ __all__ = [
 DEFAULT_THRESHOLD: float = 0.05
 
 #: A marker whose :func:`point_asymmetry` exceeds this many times the image's median marker's does not
-#: look like a marker (:meth:`Markers.lopsided`): the noise and the view's obliquity leave the markers of
-#: an image within about twice their median (measured: benchmarks/RESULTS.md).
+#: look like a marker (:meth:`Markers.lopsided`): the markers of a clean image stay within about twice
+#: their median (measured: benchmarks/RESULTS.md).
 LOPSIDED_MEDIANS = 3.0
 
 _FULL_SCALE = {np.dtype(np.uint8): 255.0, np.dtype(np.uint16): 65535.0}
@@ -614,16 +614,28 @@ def point_asymmetry(
     amplitude : (N,) each marker's fitted amplitude (fraction of full scale).
     radius_px : the markers' image radius (px): the disc compared.
     full_scale : the image's full scale (255 for uint8; 1 for a float image).
+
+    Raises
+    ------
+    InputError
+        A gray image that is not 2-D, centres not ``(N, 2)``, not one amplitude per centre, or a radius
+        or full scale that is not a positive number (the compiled loop reads them unchecked).
     """
     from softjig.sensing._detect_kernels import point_asymmetry as kernel  # Numba is imported on first use
 
-    return kernel(
-        np.ascontiguousarray(gray),
-        np.ascontiguousarray(xy_px, dtype=np.float64).reshape(-1, 2),
-        np.ascontiguousarray(amplitude, dtype=np.float64).reshape(-1),
-        float(radius_px),
-        1.0 / float(full_scale),
-    )
+    gray = np.ascontiguousarray(gray)
+    xy = np.ascontiguousarray(xy_px, dtype=np.float64)
+    amplitude = np.ascontiguousarray(amplitude, dtype=np.float64).reshape(-1)
+    if gray.ndim != 2:
+        raise InputError(f"point_asymmetry needs a gray (H, W) image, got shape {gray.shape}.")
+    if xy.ndim != 2 or xy.shape[1] != 2:
+        raise InputError(f"point_asymmetry needs (N, 2) centres (u, v), got shape {xy.shape}.")
+    if len(amplitude) != len(xy):
+        raise InputError(
+            f"point_asymmetry needs one amplitude per centre: {len(xy)} centres, {len(amplitude)} amplitudes."
+        )
+    radius, scale = positive_float(radius_px, "radius_px"), 1.0 / positive_float(full_scale, "full_scale")
+    return kernel(gray, xy, amplitude, radius, scale)
 
 
 def _full_candidates(

@@ -1073,8 +1073,7 @@ class ContactPlaneFitter:
         """The ``suspect`` estimate of the ``face`` found under the known size, or the estimate of its
         ``rival`` (another face of that size that no marker contradicts either) where two independent
         pieces of evidence both prefer the rival: the contact found without the size (``size_free``,
-        ``None`` where none grows) lies nearer it,
-        and the membrane under it fits it better
+        ``None`` where none grows) lies nearer it, and the membrane under it fits it better
         (:meth:`~softjig.sensing.contact.FootprintMisfit.fits_better_than`). That estimate is suspect
         for the face in turn and says why.
 
