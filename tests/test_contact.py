@@ -15,6 +15,7 @@ from softjig.sensing.contact import (
     drop_lifted_off,
     face_centre_xy,
     footprint_misfit,
+    markers_at_rest,
     off_the_membrane,
     off_the_rest_membrane,
 )
@@ -412,6 +413,25 @@ def test_steps_are_judged_at_the_depths_noise_and_the_plate_at_the_heights_noise
     kept = off_the_membrane(low, at_rest, pitch_mm=PITCH, noise_mm=0.05, height_noise_mm=0.5, min_points=6)
     assert not kept.any()
     assert off_the_membrane(low, at_rest, pitch_mm=PITCH, noise_mm=0.05, min_points=6).all()
+
+
+def test_the_markers_at_rest_are_those_over_two_pitches_from_every_pushed_in_or_unknown_one():
+    """The markers a loaded frame levels the head on: far from the dent (pushed in 1.5 noise sigmas or
+    more) and from a marker of unknown depth (a point left out), all of them when nothing is pushed."""
+    xy = _grid(60.0)
+    points = np.column_stack([xy, np.full(len(xy), REST_Z)])
+    noise = 0.1
+    assert markers_at_rest(points, Indentation(np.zeros(len(xy)), 0.0, noise), pitch_mm=PITCH).all()
+    depth = np.where(np.hypot(xy[:, 0] - 12.0, xy[:, 1] + 4.0) <= 8.0, 2.0, 0.0)  # a dent of 5 markers
+    depth[np.flatnonzero((xy[:, 0] == -44.0) & (xy[:, 1] == -4.0))] = np.nan  # a point left out
+    depth[np.flatnonzero((xy[:, 0] == -4.0) & (xy[:, 1] == 36.0))] = 1.4 * noise  # noise, at rest
+    at_rest = markers_at_rest(points, Indentation(depth, 0.0, noise), pitch_mm=PITCH)
+    not_at_rest = xy[~(np.nan_to_num(depth, nan=np.inf) < 1.5 * noise)]  # the dent and the unknown one
+    assert len(not_at_rest) == 6
+    distance = np.hypot(*(xy[:, None, :] - not_at_rest[None, :, :]).transpose(2, 0, 1)).min(axis=1)
+    expected = distance >= 2 * PITCH
+    assert at_rest.tolist() == expected.tolist()
+    assert 0 < at_rest.sum() < len(xy)
 
 
 def test_no_point_is_off_the_membrane_at_rest_or_under_a_steep_face():

@@ -49,10 +49,11 @@ def _estimate(
     with_reference: bool,
     seed: int = ZOO_SEED,
     render_jig: Callable[[JigConfig], JigConfig] | None = None,
+    estimate_jig: Callable[[JigConfig], JigConfig] | None = None,
 ):
     """Render a zoo design's reference frame and one loaded frame as ``bench_zoo.evaluate_design`` does
-    (with the image model ``render_jig`` makes of the design's jig, default its own), and estimate it:
-    ``(error_deg, estimate)``."""
+    (with the image model ``render_jig`` makes of the design's jig, default its own), and estimate it (with
+    the jig ``estimate_jig`` makes of the design's, default its own): ``(error_deg, estimate)``."""
     design = _draw_design(design_index, seed, ZOO_FRAMES, ZooRanges())
     rendered_jig = render_jig(design.jig) if render_jig else design.jig
     as_built = draw_as_built(
@@ -72,7 +73,7 @@ def _estimate(
     estimate = estimate_pair(
         pair.left,
         pair.right,
-        design.jig,
+        estimate_jig(design.jig) if estimate_jig else design.jig,
         part_diameter_mm=spec.part.diameter_mm if with_size else None,
         reference=reference,
     ).estimate
@@ -416,9 +417,19 @@ def test_a_marker_that_a_glint_or_a_bubble_makes_lopsided_is_left_out(design_ind
 # Strict: a fix makes one pass, and then it moves to the tests above. Two more of the bead-pack zoo,
 # size-free, are left out: seed 9, design 48, frame 11 (3.0 deg off) and seed 13, design 4, frame 20
 # (4.7 deg off, 4.05 sigmas) lie a hair over the line, where a last-digit change would flip them.
+def test_a_head_that_finds_no_fiducials_is_levelled_on_the_frames_markers_at_rest():
+    """Seed 3, design 37, frame 2, size-free against the rest shape: no fiducials in view and no reference
+    frame, so the config's camera poses, which the as-built head departs from, put 229 of the 251 points
+    over 1 mm from their markers; the estimate was "ok" and 19.4 deg off with a sigma of 2.3 deg. Levelled
+    on the frame's own markers away from the contact, 36 are."""
+    error, estimate = _estimate(37, 2, with_size=False, with_reference=False, seed=3)
+    assert estimate.frame_source == "membrane at rest"
+    assert any("levelled on" in warning for warning in estimate.warnings)
+    assert not _silent(error, estimate), (error, estimate.tilt_sigma_deg)
+
+
 SILENT_FAILURES_LEFT = [
     pytest.param(15, 15, 10, False, True, None, id="s15d15f10-nosize-reference-32deg"),
-    pytest.param(3, 37, 2, False, False, None, id="s3d37f2-nosize-rest-19deg"),
     pytest.param(2, 43, 9, True, True, stirred_image_model, id="stirred-s2d43f9-size-reference-13deg"),
     pytest.param(5, 47, 18, True, True, stirred_image_model, id="stirred-s5d47f18-size-reference-19deg"),
     pytest.param(5, 32, 2, False, False, stirred_image_model, id="stirred-s5d32f2-nosize-rest-16deg"),

@@ -63,6 +63,12 @@ BESIDE_HOLE_THRESHOLDS = 1.5
 MIN_SCATTER_MARKERS = 10
 #: A marker's neighbours lie within this many marker pitches (a square grid's 8 nearest).
 NEIGHBOUR_RADIUS_PITCHES = 1.5
+#: A marker indented by this many noise sigmas or more (or of unknown depth) is not at rest
+#: (:func:`markers_at_rest`) ...
+PUSHED_SIGMAS = 1.5
+#: ... nor is one within this many pitches of it: the membrane drags down around a part's face about a
+#: pitch beyond its last clearly pushed-in marker.
+AT_REST_REACH_PITCHES = 2.0
 #: The indentation noise is measured against a quadratic fitted to the markers within this many pitches
 #: (a square grid's 20 nearest, a hexagonal grid's 18: two rings, which a quadratic needs, since the
 #: first ring alone cannot tell the field's curvature from the marker's own noise).
@@ -193,6 +199,17 @@ def _indentation_from_markers_at_rest(points_J: np.ndarray, reference_z_mm: np.n
             break
         zero = new_zero
     return Indentation(raw - zero, zero, noise)
+
+
+def markers_at_rest(points_J: np.ndarray, dent: Indentation, *, pitch_mm: float) -> np.ndarray:
+    """The markers far from every pushed-in one (indented :data:`PUSHED_SIGMAS` noise sigmas or more, or
+    of unknown depth): more than :data:`AT_REST_REACH_PITCHES` pitches away, as booleans. Where they lie
+    on the rest membrane, a loaded frame levels the stereo head as the unloaded one does
+    (:meth:`softjig.sensing.estimator.Estimator.estimate`)."""
+    pushed = ~(np.nan_to_num(dent.depth_mm, nan=np.inf) < PUSHED_SIGMAS * dent.noise_mm)
+    if not pushed.any():
+        return np.ones(len(points_J), dtype=bool)
+    return ~_near(points_J[:, :2], pushed, AT_REST_REACH_PITCHES * pitch_mm)
 
 
 def _near(xy: np.ndarray, members: np.ndarray, radius: float) -> np.ndarray:

@@ -20,14 +20,14 @@ from __future__ import annotations
 import functools
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from types import MappingProxyType
 
 import numpy as np
 
 from softjig.config import JigConfig
 from softjig.errors import EstimationError, InputError
-from softjig.sensing.contact import off_the_rest_membrane
+from softjig.sensing.contact import markers_at_rest, off_the_rest_membrane
 from softjig.sensing.detect import (
     Markers,
     check_image_content,
@@ -69,6 +69,11 @@ MIN_MATCHED_SHARE = 0.5
 SWAPPED_MATCH_SHARE = 0.5
 # ... and this many times the markers matched as given (a rectified pair's disparities are all positive).
 SWAPPED_MATCH_FACTOR = 2.0
+#: A head level measured on a loaded frame's markers at rest is used only where it tilts the head by no
+#: more than this many of the head's mounting tolerances (``tolerances.camera_rotation_deg``, one sigma per
+#: axis: a head tilted further is 1 in 90): beyond, it is rather the drape of a large dent over the
+#: markers taken as at rest (zoo: levels of 1.6-1.8 deg beside 56-88 mm parts, 2.2-3.3 deg off after).
+LOADED_LEVEL_TOLERANCES = 3.0
 
 
 @dataclass(frozen=True)
@@ -117,6 +122,8 @@ class Estimator:
     reference : the unloaded jig's markers (:meth:`reference_from_pair`), for ``"refractive"``; the
         nominal rest shape when ``None``. When it measured the head's pose (``reference.head_level``),
         frames without fiducials use it (``frame_source`` ``"membrane"`` or ``"reference fiducials"``).
+        Without a reference (the refractive method, ``sensing.extrinsics = "auto"``, no calibration), a
+        frame without fiducials levels the head on its own markers at rest (``"membrane at rest"``).
     calibration : the paper's tilt calibration to apply, if any (fitted to this method's estimates).
     model : the :class:`JigModel` of ``jig`` when already built (another estimator's ``model``).
     detector, frame_finder, matcher, triangulator : stages to use instead of the jig's and the method's
@@ -161,6 +168,14 @@ class Estimator:
             self.model.rest_reference if reference is None else ReferenceModel.build(reference, used)
         )
         levels = reference is not None and composition.uses_reference
+        # Without a reference frame, a frame that finds no fiducials levels the head on its own markers
+        # at rest (a tilt calibration was fitted to the estimates made with the config's poses).
+        self._levels_each_frame = (
+            reference is None
+            and composition.uses_reference
+            and calibration is None
+            and self.model.jig.sensing.extrinsics == "auto"
+        )
         self.head_level = reference.head_level if levels else None
         self._level_note = reference.level_note if levels else None
         fallback = (  # the levelled frame, made only if a frame does not find its fiducials
@@ -231,6 +246,12 @@ class Estimator:
         )
         clock.lap("triangulate")
         result = self.fitter.fit(observation, points_J, part_diameter_mm)
+        if (
+            self._levels_each_frame
+            and observation.frame.source == "config"
+            and isinstance(result, SensingResult)
+        ):
+            result = self._levelled_on_markers_at_rest(observation, result, part_diameter_mm)
         clock.lap("fit")
         if isinstance(result, Refusal):
             raise EstimationError(result.reason)
@@ -316,6 +337,49 @@ class Estimator:
                 f"the reference pair gave only {len(points)} markers: is it a pair of the unloaded jig?"
             )
         return ReferenceMarkers(points, "reference frame", head_level=level, level_note=note)
+
+    def _levelled_on_markers_at_rest(
+        self, observation: Observation, first: SensingResult, part_diameter_mm: float | None
+    ) -> SensingResult:
+        """The estimate again with the stereo head levelled on the frame's markers at rest, where its
+        fiducials were not found and no reference frame levelled it (else ``first`` as it is).
+
+        Why: with the config's camera poses, the head's mounting error tilts every point, and the normal
+        by about the oil's index times it (:mod:`softjig.sensing.levelling`); its spin and shift move the
+        markers over the sloping rest shape, which misreads their depths. Away from the part, a loaded
+        frame's markers lie on the rest membrane as an unloaded frame's do, so they level the head the
+        same way (:func:`~softjig.sensing.levelling.level_head`): those far from the ``first`` estimate's
+        pushed-in markers (:func:`~softjig.sensing.contact.markers_at_rest`; on every marker, the dent
+        tilts the level). The level is used where it tilts the head by no more than
+        :data:`LOADED_LEVEL_TOLERANCES` mounting tolerances. The estimate's uncertainty keeps the
+        tolerance's floor (``ContactPlaneFitter._without_measured_frame``): the drape beyond the markers
+        left out biases the level by an amount not measured here, so it is not claimed better than the
+        mounting.
+        """
+        if first.indentation is None:  # no indentations to tell the markers at rest
+            return first
+        config = self.model.frame.config_frame
+        at_rest = markers_at_rest(first.points_J, first.indentation, pitch_mm=self.jig.markers.pitch_mm)
+        left, right = observation.left_xy_px[at_rest], observation.right_xy_px[at_rest]
+        level = level_head(
+            lambda T: self.triangulator.triangulate(left, right, levelled_frame(self.jig, config, T)),
+            self.model.rest_shape.xyz_mm,
+            pitch_mm=self.jig.markers.pitch_mm,
+            prior=HeadPrior.of(self.jig),
+        )
+        tolerance_deg = self.jig.tolerances.camera_rotation_deg
+        if not isinstance(level, HeadLevel) or level.tilt_deg > LOADED_LEVEL_TOLERANCES * tolerance_deg:
+            return first
+        frame = levelled_frame(self.jig, config, level.T_correction, "membrane at rest")
+        note = (
+            f"the stereo head was levelled on {level.n_markers} of this frame's markers at rest (away from "
+            f"the contact): the config's camera poses tilted by {level.tilt_deg:.2f} deg "
+            f"({level.rotation_deg:.2f} deg in all)"
+        )
+        levelled = replace(observation, frame=frame, warnings=(*observation.warnings, note))
+        points_J = self.triangulator.triangulate(levelled.left_xy_px, levelled.right_xy_px, frame)
+        again = self.fitter.fit(levelled, points_J, part_diameter_mm)
+        return again if isinstance(again, SensingResult) else first
 
     def with_reference(self, reference: ReferenceMarkers | None) -> Estimator:
         """This estimator with another reference (the jig's model shared, not rebuilt)."""

@@ -57,8 +57,9 @@ class JigFrame:
     T_J_left, T_J_right : (4, 4) the cameras' poses in J (mm).
     source : ``"fiducials"`` (measured in these images), ``"membrane"`` (the config's extrinsics levelled
         on the unloaded reference frame: :mod:`softjig.sensing.levelling`), ``"reference fiducials"``
-        (measured by the reference frame's fiducials, for a frame that lost them) or ``"config"`` (fixed
-        extrinsics).
+        (measured by the reference frame's fiducials, for a frame that lost them), ``"membrane at rest"``
+        (the config's extrinsics levelled on the frame's own markers away from the contact, without a
+        reference frame) or ``"config"`` (fixed extrinsics).
     reprojection_rms_px : RMS reprojection error of the fiducial corners (``nan`` unless ``"fiducials"``).
     fiducial_ids : ids found in both images (empty unless ``"fiducials"``).
     fiducial_quads_left_px, fiducial_quads_right_px : (M, 4, 2) where each fiducial is in each image
@@ -259,6 +260,7 @@ FALLBACK_NAMES = MappingProxyType(
         "config": "the camera poses in the config",
         "membrane": "the camera poses in the config levelled on the unloaded reference frame",
         "reference fiducials": "the camera poses the reference frame's fiducials measured",
+        "membrane at rest": "the camera poses in the config levelled on the frame's own markers at rest",
     }
 )
 

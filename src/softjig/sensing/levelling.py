@@ -89,6 +89,12 @@ class HeadLevel:
         return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
 
     @property
+    def tilt_deg(self) -> float:
+        """How far the correction turns J's z axis (deg): the head's tilt error, which tilts the normal
+        (its spin about z does not)."""
+        return float(np.degrees(np.arccos(np.clip(self.T_correction[2, 2], -1.0, 1.0))))
+
+    @property
     def shift_mm(self) -> np.ndarray:
         """``(3,)`` the correction's translation (mm): near J's axis, how far it moves the markers."""
         return self.T_correction[:3, 3].copy()
