@@ -21,7 +21,7 @@ from softjig.geometry import pose_from_rotvec_translation, transform_points
 from softjig.jig_shape import rest_marker_points_mm
 from softjig.sensing.estimator import Estimator
 from softjig.sensing.identities import ReferenceMarkers
-from softjig.sensing.levelling import HeadLevel, HeadPrior, level_head, rigid_fit
+from softjig.sensing.levelling import AmbiguousLevel, HeadLevel, HeadPrior, level_head, rigid_fit
 from softjig.sim.scenarios import frame_truth
 
 JIG = default_jig()
@@ -92,22 +92,48 @@ def test_a_shift_beyond_half_a_pitch_is_still_found():
     assert _rotation_error_deg(level.T_correction, C_true) < 0.05
 
 
+#: A few dozen markers of a grid on the dome's flank.
+PATCH = REST[np.hypot(REST[:, 0] - 25.0, REST[:, 1] - 10.0) < 22.0]
+
+
+def _patch_levels():
+    """``(seed, C_true, level)`` of :data:`PATCH` seen through 12 heads off by about half a pitch."""
+    for seed in range(12):
+        rng = np.random.default_rng(seed)
+        C_true = _about_head(rng.normal(0.0, 0.5, 3), rng.normal(0.0, 1.0, 3) + np.array([2.0, 2.5, 0.0]))
+        yield (
+            seed,
+            C_true,
+            level_head(_seen_through(C_true, PATCH, 0.2, seed), REST, pitch_mm=PITCH, prior=PRIOR),
+        )
+
+
 def test_a_small_patch_in_view_is_levelled_right_or_not_at_all():
     """A few dozen markers of a grid on the dome's flank, the head off by about half a pitch: shifted
     by a pitch and tilted, the patch fits the rest markers too (a zoo design was levelled 2.9 deg wrong,
     from 62 markers). Each level measured must be the true one within three of its own sigmas (a wrong
     alignment is degrees off), and some are measured."""
-    patch = REST[np.hypot(REST[:, 0] - 25.0, REST[:, 1] - 10.0) < 22.0]
-    assert 20 < len(patch) < 40
+    assert 20 < len(PATCH) < 40
     levelled = 0
-    for seed in range(12):
-        rng = np.random.default_rng(seed)
-        C_true = _about_head(rng.normal(0.0, 0.5, 3), rng.normal(0.0, 1.0, 3) + np.array([2.0, 2.5, 0.0]))
-        level = level_head(_seen_through(C_true, patch, 0.2, seed), REST, pitch_mm=PITCH, prior=PRIOR)
+    for seed, C_true, level in _patch_levels():
         if isinstance(level, HeadLevel):
             levelled += 1
             assert _rotation_error_deg(level.T_correction, C_true) < 3.0 * level.tilt_sigma_deg, seed
     assert levelled >= 3
+
+
+def test_an_ambiguous_level_says_how_far_each_alignment_tilts_the_head():
+    """Where the patch fits as well in several places, the refusal keeps each alignment's tilt: a shift of
+    a pitch trades against a tilt, so they differ, and on these heads the largest is never below the
+    head's own tilt (the estimates' sigma then takes their RMS for the head's error)."""
+    ambiguous = 0
+    for seed, C_true, level in _patch_levels():
+        if isinstance(level, AmbiguousLevel):
+            ambiguous += 1
+            assert "two places" in str(level) and len(level.tilts_deg) >= 2
+            assert max(level.tilts_deg) - min(level.tilts_deg) > 0.03, seed
+            assert max(level.tilts_deg) >= math.degrees(math.acos(C_true[2, 2])), seed
+    assert ambiguous >= 3
 
 
 def test_too_few_markers_give_a_reason_not_a_level():

@@ -39,7 +39,7 @@ from softjig.sensing.fiducials import gray_to_u8
 from softjig.sensing.fitting import ContactPlaneFitter, PaperPlaneFitter
 from softjig.sensing.identities import ReferenceMarkers
 from softjig.sensing.jigframe import JigFrame, levelled_frame
-from softjig.sensing.levelling import HeadLevel, HeadPrior, from_fiducials, level_head
+from softjig.sensing.levelling import AmbiguousLevel, HeadLevel, HeadPrior, from_fiducials, level_head
 from softjig.sensing.rectify import rectify_images
 from softjig.sensing.results import Observation, Refusal, SensingResult
 from softjig.sensing.setup import JigModel, ReferenceModel
@@ -314,7 +314,7 @@ class Estimator:
         def triangulate(frame: JigFrame) -> np.ndarray:
             return triangulator.triangulate(observation.left_xy_px, observation.right_xy_px, frame)
 
-        frame, level, note = observation.frame, None, None
+        frame, level, note, unlevelled_tilt_deg = observation.frame, None, None, None
         config = self.model.frame.config_frame
         if frame.source == "fiducials":  # kept for the frames that lose them
             level = from_fiducials(frame.T_J_left, config.T_J_left)
@@ -330,13 +330,21 @@ class Estimator:
             else:
                 frame = config
                 note = f"the stereo head could not be levelled on the reference frame: {measured}"
+                if isinstance(measured, AmbiguousLevel):  # the RMS of the alignments' tilts
+                    unlevelled_tilt_deg = float(np.sqrt(np.mean(np.square(measured.tilts_deg))))
         points = triangulate(frame)
         points = points[~off_the_rest_membrane(points, self.jig)]  # mismatches along a row
         if len(points) < self.jig.sensing.min_points:
             raise EstimationError(
                 f"the reference pair gave only {len(points)} markers: is it a pair of the unloaded jig?"
             )
-        return ReferenceMarkers(points, "reference frame", head_level=level, level_note=note)
+        return ReferenceMarkers(
+            points,
+            "reference frame",
+            head_level=level,
+            level_note=note,
+            unlevelled_tilt_deg=unlevelled_tilt_deg,
+        )
 
     def _levelled_on_markers_at_rest(
         self, observation: Observation, first: SensingResult, part_diameter_mm: float | None

@@ -1520,7 +1520,12 @@ class ContactPlaneFitter:
         error (its tolerance per axis, ``tolerances.camera_rotation_deg``) tilts the normal about x and y
         by that much times the oil's index (an angle floor of ``sqrt(2) n_oil`` tolerances). With the
         poses measured on the reference frame (``"membrane"``, ``"reference fiducials"``), the
-        measurement's own tilt uncertainty takes the tolerance's place.
+        measurement's own tilt uncertainty takes the tolerance's place. Where the reference frame could
+        not level the head because its markers fit as well in several places, the RMS of those
+        alignments' tilts takes it where larger (``ReferenceMarkers.unlevelled_tilt_deg``): the head is
+        tilted about as much as one of them, which one unknown (zoo: the 13 such designs of seeds 0-9 had
+        heads turned 0.32-1.57 deg, 11 over 0.75, against a tolerance of 0.5 deg per axis, and a 1-sigma
+        coverage of 18-49 % with the tolerance's floor).
 
         Why the index: the cameras see the markers at their apparent depth (compressed by about
         ``1 / n_oil`` in the oil, paraxially), and a rotated head rotates that apparent scene; the
@@ -1533,11 +1538,14 @@ class ContactPlaneFitter:
         if source == "fiducials" or self._calibration is not None:
             return uncertainty
         jig = self._jig
-        level = self._reference.markers.head_level
+        markers = self._reference.markers
+        level = markers.head_level
         if source != "config" and level is not None:  # the head's pose measured on the reference frame
             head_rad = np.radians(level.tilt_sigma_deg)  # already both axes' (root-sum-square)
         else:
             head_rad = math.sqrt(2.0) * np.radians(jig.tolerances.camera_rotation_deg)
+            if source == "config" and markers.unlevelled_tilt_deg is not None:
+                head_rad = max(head_rad, np.radians(markers.unlevelled_tilt_deg))
         return with_angle_floor(uncertainty, plane.normal, head_rad * jig.medium.oil_refractive_index)
 
     def _estimate(

@@ -37,12 +37,17 @@ class ReferenceMarkers:
         head could not be levelled.
     level_note : why a reference frame of the config's poses could not level the head (``None`` when it
         did, or when it did not need to).
+    unlevelled_tilt_deg : where the head could not be levelled because the markers fit the rest markers
+        as well in several places, the RMS of those alignments' tilts (deg,
+        :class:`~softjig.sensing.levelling.AmbiguousLevel`): about how far the config's poses are off;
+        else ``None``.
     """
 
     xyz_mm: np.ndarray
     source: str
     head_level: HeadLevel | None = None
     level_note: str | None = None
+    unlevelled_tilt_deg: float | None = None
     _sorted_x: tuple[np.ndarray, np.ndarray, np.ndarray] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:

@@ -92,12 +92,38 @@ class HeadLevel:
     def tilt_deg(self) -> float:
         """How far the correction turns J's z axis (deg): the head's tilt error, which tilts the normal
         (its spin about z does not)."""
-        return float(np.degrees(np.arccos(np.clip(self.T_correction[2, 2], -1.0, 1.0))))
+        return _tilt_deg(self.T_correction)
 
     @property
     def shift_mm(self) -> np.ndarray:
         """``(3,)`` the correction's translation (mm): near J's axis, how far it moves the markers."""
         return self.T_correction[:3, 3].copy()
+
+
+@dataclass(frozen=True)
+class AmbiguousLevel:
+    """Why the head could not be levelled when the markers fit the rest markers about as well in several
+    places (a shift of about a pitch trades against a tilt), and how far each of those alignments tilts
+    the head.
+
+    Attributes
+    ----------
+    reason : what went wrong, as :func:`level_head`'s other refusals say it (also ``str(self)``).
+    tilts_deg : for each alignment as probable as the best (within :data:`AMBIGUITY`), the tilt of its
+        correction (deg, :attr:`HeadLevel.tilt_deg`): with the config's poses, the head is likely tilted
+        by about that much, whichever is right.
+    """
+
+    reason: str
+    tilts_deg: tuple[float, ...]
+
+    def __str__(self) -> str:
+        return self.reason
+
+
+def _tilt_deg(T: np.ndarray) -> float:
+    """How far the rigid motion ``T`` (4, 4) turns J's z axis (deg)."""
+    return float(np.degrees(np.arccos(np.clip(T[2, 2], -1.0, 1.0))))
 
 
 @dataclass(frozen=True)
@@ -269,7 +295,7 @@ def level_head(
     *,
     pitch_mm: float,
     prior: HeadPrior,
-) -> HeadLevel | str:
+) -> HeadLevel | AmbiguousLevel | str:
     """Measure the head's pose error on an unloaded frame (see the module docstring).
 
     Parameters
@@ -285,7 +311,8 @@ def level_head(
     Returns
     -------
     HeadLevel
-        The level, or a ``str`` saying why none could be measured.
+        The level; an :class:`AmbiguousLevel` where the markers fit as well in several places; else a
+        ``str`` saying why none could be measured.
     """
     if not prior.rotation_deg > 0:
         return "the config's tolerances say the head is mounted exactly (tolerances.camera_rotation_deg = 0)"
@@ -305,9 +332,11 @@ def level_head(
     order = np.argsort(scores)
     if len(fits) > 1 and scores[order[1]] - scores[order[0]] < AMBIGUITY:
         apart = np.linalg.norm(fits[order[1]].T[:3, 3] - fits[order[0]].T[:3, 3])
-        return (
+        as_probable = [fits[i] for i in order if scores[i] - scores[order[0]] < AMBIGUITY]
+        return AmbiguousLevel(
             f"the markers in view fit the rest markers about as well in two places {apart:.1f} mm apart "
-            "(too few markers, or too regular a patch of them, to tell)"
+            "(too few markers, or too regular a patch of them, to tell)",
+            tuple(_tilt_deg(fit.T) for fit in as_probable),
         )
     fit = fits[order[0]]
     correction = fit.T
