@@ -21,7 +21,14 @@ from softjig.geometry import pose_from_rotvec_translation, transform_points
 from softjig.jig_shape import rest_marker_points_mm
 from softjig.sensing.estimator import Estimator
 from softjig.sensing.identities import ReferenceMarkers
-from softjig.sensing.levelling import AmbiguousLevel, HeadLevel, HeadPrior, level_head, rigid_fit
+from softjig.sensing.levelling import (
+    AmbiguousLevel,
+    HeadLevel,
+    HeadPrior,
+    improves_on_the_config,
+    level_head,
+    rigid_fit,
+)
 from softjig.sim.scenarios import frame_truth
 
 JIG = default_jig()
@@ -134,6 +141,17 @@ def test_an_ambiguous_level_says_how_far_each_alignment_tilts_the_head():
             assert max(level.tilts_deg) - min(level.tilts_deg) > 0.03, seed
             assert max(level.tilts_deg) >= math.degrees(math.acos(C_true[2, 2])), seed
     assert ambiguous >= 3
+
+
+def test_a_level_improves_on_the_config_only_where_the_head_is_off():
+    """The F test of the level against the config's poses: a head off by a few tenths of a degree and
+    half a millimetre is improved on; an exact one (its level is noise) is not."""
+    off = _about_head((0.3, -0.4, 0.2), (0.5, 0.3, 0.2))
+    for C_true, improves in ((off, True), (np.eye(4), False)):
+        triangulate = _seen_through(C_true, REST, 0.1)
+        level = level_head(triangulate, REST, pitch_mm=PITCH, prior=PRIOR)
+        assert isinstance(level, HeadLevel)
+        assert improves_on_the_config(triangulate, level, REST, pitch_mm=PITCH) is improves
 
 
 def test_too_few_markers_give_a_reason_not_a_level():
@@ -331,3 +349,4 @@ def test_a_survey_without_fiducials_writes_the_levelled_cameras(hidden_scenes, t
     nominal = Estimator(CONFIG_POSES).estimate(loaded.left, loaded.right, part_diameter_mm=50.0).estimate
     rest = Estimator(surveyed).estimate(loaded.left, loaded.right, part_diameter_mm=50.0).estimate
     assert _angle_deg(rest.normal, truth) < _angle_deg(nominal.normal, truth)
+    assert rest.frame_source == "config"  # its levelled cameras are not levelled again on the loaded frame

@@ -39,7 +39,14 @@ from softjig.sensing.fiducials import gray_to_u8
 from softjig.sensing.fitting import ContactPlaneFitter, PaperPlaneFitter
 from softjig.sensing.identities import ReferenceMarkers
 from softjig.sensing.jigframe import JigFrame, levelled_frame
-from softjig.sensing.levelling import AmbiguousLevel, HeadLevel, HeadPrior, from_fiducials, level_head
+from softjig.sensing.levelling import (
+    AmbiguousLevel,
+    HeadLevel,
+    HeadPrior,
+    from_fiducials,
+    improves_on_the_config,
+    level_head,
+)
 from softjig.sensing.rectify import rectify_images
 from softjig.sensing.results import Observation, Refusal, SensingResult
 from softjig.sensing.setup import JigModel, ReferenceModel
@@ -359,7 +366,9 @@ class Estimator:
         same way (:func:`~softjig.sensing.levelling.level_head`): those far from the ``first`` estimate's
         pushed-in markers (:func:`~softjig.sensing.contact.markers_at_rest`; on every marker, the dent
         tilts the level). The level is used where it tilts the head by no more than
-        :data:`LOADED_LEVEL_TOLERANCES` mounting tolerances. The estimate's uncertainty keeps the
+        :data:`LOADED_LEVEL_TOLERANCES` mounting tolerances and fits the markers at rest better than the
+        config's poses beyond chance (:func:`~softjig.sensing.levelling.improves_on_the_config`: a rig
+        whose cameras a survey levelled is left as it is). The estimate's uncertainty keeps the
         tolerance's floor (``ContactPlaneFitter._without_measured_frame``): the drape beyond the markers
         left out biases the level by an amount not measured here, so it is not claimed better than the
         mounting.
@@ -369,14 +378,18 @@ class Estimator:
         config = self.model.frame.config_frame
         at_rest = markers_at_rest(first.points_J, first.indentation, pitch_mm=self.jig.markers.pitch_mm)
         left, right = observation.left_xy_px[at_rest], observation.right_xy_px[at_rest]
-        level = level_head(
-            lambda T: self.triangulator.triangulate(left, right, levelled_frame(self.jig, config, T)),
-            self.model.rest_shape.xyz_mm,
-            pitch_mm=self.jig.markers.pitch_mm,
-            prior=HeadPrior.of(self.jig),
-        )
+
+        def triangulate(T: np.ndarray) -> np.ndarray:
+            return self.triangulator.triangulate(left, right, levelled_frame(self.jig, config, T))
+
+        rest_xyz, pitch = self.model.rest_shape.xyz_mm, self.jig.markers.pitch_mm
+        level = level_head(triangulate, rest_xyz, pitch_mm=pitch, prior=HeadPrior.of(self.jig))
         tolerance_deg = self.jig.tolerances.camera_rotation_deg
-        if not isinstance(level, HeadLevel) or level.tilt_deg > LOADED_LEVEL_TOLERANCES * tolerance_deg:
+        if (
+            not isinstance(level, HeadLevel)
+            or level.tilt_deg > LOADED_LEVEL_TOLERANCES * tolerance_deg
+            or not improves_on_the_config(triangulate, level, rest_xyz, pitch_mm=pitch)
+        ):
             return first
         frame = levelled_frame(self.jig, config, level.T_correction, "membrane at rest")
         note = (

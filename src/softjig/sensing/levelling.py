@@ -55,6 +55,10 @@ ICP_MAX_STEPS = 20
 LEVEL_MAX_ROUNDS = 4
 #: A round's correction below this (rad, and mm) ends the rounds: far below any level's uncertainty.
 LEVEL_TOLERANCE = 1e-6
+#: A level improves on the config's poses where the F test of its six parameters against none (nested
+#: least squares: the markers' squared distances from the rest markers) rejects "no improvement" at this
+#: level of significance (:func:`improves_on_the_config`).
+IMPROVEMENT_SIGNIFICANCE = 1e-3
 
 
 @dataclass(frozen=True)
@@ -360,6 +364,57 @@ def level_head(
         )
     correction.flags.writeable = False
     return HeadLevel(correction, fit.n, fit.rms_mm, tilt_sigma_deg)
+
+
+def improves_on_the_config(
+    triangulate: Callable[[np.ndarray], np.ndarray],
+    level: HeadLevel,
+    rest_xyz_mm: np.ndarray,
+    *,
+    pitch_mm: float,
+) -> bool:
+    """Whether ``level`` fits the markers to the rest markers better than the config's poses do, beyond
+    chance: the F test of the rigid motion's six parameters against none, on the mean squared distance
+    of the markers from their nearest rest markers (paired within half a pitch) with either pose, at
+    :data:`IMPROVEMENT_SIGNIFICANCE`. Markers that pair with no rest marker in the config's poses (a head
+    off by half a pitch) make it improve.
+
+    Why: a rig whose cameras were levelled already (by ``softjig survey``, on the rest markers it then
+    wrote) fits as well either way (F 0.2-0.4 on the default jig's two heads), and a level of a loaded
+    frame there is the drape of the dent, not the head (0.54 -> 0.60 and 0.16 -> 0.32 deg off when it
+    was used); a head off by its mounting tolerance gives F 15-380 (zoo and default jig).
+
+    Parameters
+    ----------
+    triangulate : ``T_correction -> (M, 3)``, as for :func:`level_head`.
+    level : the level measured with it.
+    rest_xyz_mm : (N, 3) the rest markers in J (mm).
+    pitch_mm : the marker pitch (mm).
+    """
+    from scipy.spatial import cKDTree
+    from scipy.stats import f as f_distribution
+
+    rest_xyz = np.asarray(rest_xyz_mm, dtype=float)
+    rest = cKDTree(rest_xyz[:, :2])
+
+    def mean_square(T: np.ndarray) -> tuple[float, int]:
+        points = triangulate(T)
+        distance, index = rest.query(points[:, :2], distance_upper_bound=MATCH_REACH_PITCHES * pitch_mm)
+        paired = np.isfinite(distance)
+        if not paired.any():
+            return float("inf"), 0
+        return float(np.mean(np.sum((points[paired] - rest_xyz[index[paired]]) ** 2, axis=1))), int(
+            paired.sum()
+        )
+
+    before, paired_before = mean_square(np.eye(4))
+    after, paired = mean_square(level.T_correction)
+    if paired <= 6 or after <= 0.0:
+        return False
+    if paired_before < paired:  # markers the config's poses leave without a rest marker
+        return True
+    statistic = (paired - 6) / 6.0 * (before / after - 1.0)
+    return bool(statistic > f_distribution.ppf(1.0 - IMPROVEMENT_SIGNIFICANCE, 6, paired - 6))
 
 
 def levelled_jig(jig: JigConfig, level: HeadLevel) -> JigConfig:
