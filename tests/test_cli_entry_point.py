@@ -88,6 +88,35 @@ def test_end_process_keeps_output_and_atexit_and_skips_the_teardown(code, status
     assert ("message" in done.stderr) == (code == "message")
 
 
+_RACING_EXIT_HOOK = """
+import sys, threading, time
+from softjig.cli import end_process
+raised = []
+def wake_up():  # as concurrent.futures' hook when a dead worker's pool closed its pipe meanwhile
+    if not raised:
+        raised.append(True)
+        raise OSError(9, "Bad file descriptor")
+threading._register_atexit(wake_up)
+def write():
+    time.sleep(0.3)
+    print("written", flush=True)
+threading.Thread(target=write).start()  # not a daemon: joined at exit
+end_process(2)
+"""
+
+
+def test_an_exit_hook_that_races_a_closed_pipe_still_joins_the_threads_and_keeps_the_code():
+    """CPython 3.11's ``concurrent.futures`` exit hook can raise ``OSError`` when a pool whose worker died
+    closed its wake-up pipe meanwhile (gh-125451): the exit code stays, no traceback is printed, and a
+    thread still writing is joined."""
+    done = subprocess.run(
+        [sys.executable, "-c", _RACING_EXIT_HOOK], capture_output=True, text=True, timeout=60
+    )
+    assert done.returncode == 2, done.stderr
+    assert "Traceback" not in done.stderr
+    assert done.stdout == "written\n"
+
+
 def test_the_console_script_skips_the_teardown():
     """The real entry point: an object only the interpreter's teardown collects is never collected
     (on the old entry point its ``__del__`` ran after the command)."""
