@@ -17,6 +17,7 @@ from scipy.spatial.transform import Rotation
 
 from scenes import render_scene
 from softjig.config import default_jig
+from softjig.errors import InputError
 from softjig.geometry import pose_from_rotvec_translation, transform_points
 from softjig.jig_shape import rest_marker_points_mm
 from softjig.sensing.estimator import Estimator
@@ -145,13 +146,28 @@ def test_an_ambiguous_level_says_how_far_each_alignment_tilts_the_head():
 
 def test_a_level_improves_on_the_config_only_where_the_head_is_off():
     """The F test of the level against the config's poses: a head off by a few tenths of a degree and
-    half a millimetre is improved on; an exact one (its level is noise) is not."""
+    half a millimetre is improved on, with noisy markers or exact ones (no residual left); an exact head
+    (its level is noise) is not."""
     off = _about_head((0.3, -0.4, 0.2), (0.5, 0.3, 0.2))
-    for C_true, improves in ((off, True), (np.eye(4), False)):
-        triangulate = _seen_through(C_true, REST, 0.1)
+    for C_true, noise_mm, improves in ((off, 0.1, True), (off, 0.0, True), (np.eye(4), 0.1, False)):
+        triangulate = _seen_through(C_true, REST, noise_mm)
         level = level_head(triangulate, REST, pitch_mm=PITCH, prior=PRIOR)
         assert isinstance(level, HeadLevel)
-        assert improves_on_the_config(triangulate, level, REST, pitch_mm=PITCH) is improves
+        config, levelled = triangulate(np.eye(4)), triangulate(level.T_correction)
+        assert improves_on_the_config(config, levelled, REST, pitch_mm=PITCH) is improves, noise_mm
+
+
+def test_the_improvement_test_leaves_out_points_not_finite_and_refuses_unequal_sets():
+    """A marker not triangulated (NaN) is left out, not a k-d tree's ValueError; point sets of different
+    markers are refused with a message."""
+    off = _about_head((0.3, -0.4, 0.2), (0.5, 0.3, 0.2))
+    triangulate = _seen_through(off, REST, 0.1)
+    level = level_head(triangulate, REST, pitch_mm=PITCH, prior=PRIOR)
+    config, levelled = triangulate(np.eye(4)), triangulate(level.T_correction)
+    config[3] = np.nan
+    assert improves_on_the_config(config, levelled, REST, pitch_mm=PITCH)
+    with pytest.raises(InputError, match=r"same \(M, 3\) markers"):
+        improves_on_the_config(config[:-1], levelled, REST, pitch_mm=PITCH)
 
 
 def test_too_few_markers_give_a_reason_not_a_level():
@@ -184,8 +200,16 @@ HIDDEN = replace(
     ),
 )
 AS_BUILT_SEEDS = (1, 3)  # heads rotated by 0.47 and 1.65 deg
-#: The jig without fiducials in view, its cameras' poses taken as the config has them (never levelled).
-CONFIG_POSES = replace(HIDDEN, sensing=replace(HIDDEN.sensing, extrinsics="config"))
+
+
+def _config_poses(jig):
+    """``jig`` with its cameras' poses taken as the config has them (``sensing.extrinsics = "config"``:
+    never levelled)."""
+    return replace(jig, sensing=replace(jig.sensing, extrinsics="config"))
+
+
+#: The jig without fiducials in view, its cameras' poses taken as the config has them.
+CONFIG_POSES = _config_poses(HIDDEN)
 
 
 def _angle_deg(a, b) -> float:
@@ -290,8 +314,7 @@ def test_a_frame_that_loses_the_fiducials_keeps_the_pose_the_reference_measured(
     estimator = Estimator(JIG)
     reference = estimator.reference_from_pair(unloaded.left, unloaded.right)
     truth = frame_truth(loaded.as_built.jig, loaded.pose)["normal"]
-    config_poses = replace(JIG, sensing=replace(JIG.sensing, extrinsics="config"))
-    config = Estimator(config_poses).estimate(loaded.left, loaded.right, part_diameter_mm=50.0).estimate
+    config = Estimator(_config_poses(JIG)).estimate(loaded.left, loaded.right, part_diameter_mm=50.0).estimate
     kept = (
         estimator.with_reference(reference)
         .estimate(loaded.left, loaded.right, part_diameter_mm=50.0)

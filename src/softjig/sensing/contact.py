@@ -206,7 +206,7 @@ def markers_at_rest(points_J: np.ndarray, dent: Indentation, *, pitch_mm: float)
     of unknown depth): more than :data:`AT_REST_REACH_PITCHES` pitches away, as booleans. Where they lie
     on the rest membrane, a loaded frame levels the stereo head as the unloaded one does
     (:meth:`softjig.sensing.estimator.Estimator.estimate`)."""
-    pushed = ~(np.nan_to_num(dent.depth_mm, nan=np.inf) < PUSHED_SIGMAS * dent.noise_mm)
+    pushed = ~(dent.depth_mm < PUSHED_SIGMAS * dent.noise_mm)  # NaN (unknown) compares False: pushed
     if not pushed.any():
         return np.ones(len(points_J), dtype=bool)
     return ~_near(points_J[:, :2], pushed, AT_REST_REACH_PITCHES * pitch_mm)

@@ -337,8 +337,8 @@ class Estimator:
             else:
                 frame = config
                 note = f"the stereo head could not be levelled on the reference frame: {measured}"
-                if isinstance(measured, AmbiguousLevel):  # the RMS of the alignments' tilts
-                    unlevelled_tilt_deg = float(np.sqrt(np.mean(np.square(measured.tilts_deg))))
+                if isinstance(measured, AmbiguousLevel):
+                    unlevelled_tilt_deg = measured.rms_tilt_deg
         points = triangulate(frame)
         points = points[~off_the_rest_membrane(points, self.jig)]  # mismatches along a row
         if len(points) < self.jig.sensing.min_points:
@@ -385,20 +385,18 @@ class Estimator:
         rest_xyz, pitch = self.model.rest_shape.xyz_mm, self.jig.markers.pitch_mm
         level = level_head(triangulate, rest_xyz, pitch_mm=pitch, prior=HeadPrior.of(self.jig))
         tolerance_deg = self.jig.tolerances.camera_rotation_deg
-        if (
-            not isinstance(level, HeadLevel)
-            or level.tilt_deg > LOADED_LEVEL_TOLERANCES * tolerance_deg
-            or not improves_on_the_config(triangulate, level, rest_xyz, pitch_mm=pitch)
-        ):
+        if not isinstance(level, HeadLevel) or level.tilt_deg > LOADED_LEVEL_TOLERANCES * tolerance_deg:
             return first
         frame = levelled_frame(self.jig, config, level.T_correction, "membrane at rest")
+        points_J = self.triangulator.triangulate(observation.left_xy_px, observation.right_xy_px, frame)
+        if not improves_on_the_config(first.points_J[at_rest], points_J[at_rest], rest_xyz, pitch_mm=pitch):
+            return first
         note = (
             f"the stereo head was levelled on {level.n_markers} of this frame's markers at rest (away from "
             f"the contact): the config's camera poses tilted by {level.tilt_deg:.2f} deg "
             f"({level.rotation_deg:.2f} deg in all)"
         )
         levelled = replace(observation, frame=frame, warnings=(*observation.warnings, note))
-        points_J = self.triangulator.triangulate(levelled.left_xy_px, levelled.right_xy_px, frame)
         again = self.fitter.fit(levelled, points_J, part_diameter_mm)
         return again if isinstance(again, SensingResult) else first
 

@@ -32,6 +32,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from softjig.config import CameraConfig, JigConfig
+from softjig.errors import InputError
 from softjig.geometry import pose_from_rotation_translation
 
 if TYPE_CHECKING:
@@ -123,6 +124,12 @@ class AmbiguousLevel:
 
     def __str__(self) -> str:
         return self.reason
+
+    @property
+    def rms_tilt_deg(self) -> float:
+        """The RMS of :attr:`tilts_deg` (deg): the head's likely tilt in the config's poses, as it is
+        tilted about as much as one of the alignments, which one unknown."""
+        return float(np.sqrt(np.mean(np.square(self.tilts_deg))))
 
 
 def _tilt_deg(T: np.ndarray) -> float:
@@ -367,17 +374,13 @@ def level_head(
 
 
 def improves_on_the_config(
-    triangulate: Callable[[np.ndarray], np.ndarray],
-    level: HeadLevel,
-    rest_xyz_mm: np.ndarray,
-    *,
-    pitch_mm: float,
+    config_points_J: np.ndarray, levelled_points_J: np.ndarray, rest_xyz_mm: np.ndarray, *, pitch_mm: float
 ) -> bool:
-    """Whether ``level`` fits the markers to the rest markers better than the config's poses do, beyond
+    """Whether a level fits the markers to the rest markers better than the config's poses do, beyond
     chance: the F test of the rigid motion's six parameters against none, on the mean squared distance
     of the markers from their nearest rest markers (paired within half a pitch) with either pose, at
     :data:`IMPROVEMENT_SIGNIFICANCE`. Markers that pair with no rest marker in the config's poses (a head
-    off by half a pitch) make it improve.
+    off by half a pitch) make it improve. Markers not finite with either pose are left out.
 
     Why: a rig whose cameras were levelled already (by ``softjig survey``, on the rest markers it then
     wrote) fits as well either way (F 0.2-0.4 on the default jig's two heads), and a level of a loaded
@@ -386,35 +389,48 @@ def improves_on_the_config(
 
     Parameters
     ----------
-    triangulate : ``T_correction -> (M, 3)``, as for :func:`level_head`.
-    level : the level measured with it.
+    config_points_J, levelled_points_J : (M, 3) the same markers triangulated with the config's poses and
+        with the levelled ones (mm, J).
     rest_xyz_mm : (N, 3) the rest markers in J (mm).
     pitch_mm : the marker pitch (mm).
+
+    Raises
+    ------
+    InputError
+        Point sets that are not (M, 3) each, the same markers.
     """
     from scipy.spatial import cKDTree
-    from scipy.stats import f as f_distribution
+    from scipy.special import fdtri  # scipy.stats would cost 0.4 s of import in the first such frame
 
+    before_xyz = np.asarray(config_points_J, dtype=float)
+    after_xyz = np.asarray(levelled_points_J, dtype=float)
+    if before_xyz.ndim != 2 or before_xyz.shape[1] != 3 or before_xyz.shape != after_xyz.shape:
+        raise InputError(
+            "improves_on_the_config needs the same (M, 3) markers in both poses, got shapes "
+            f"{before_xyz.shape} and {after_xyz.shape}"
+        )
+    finite = np.isfinite(before_xyz).all(axis=1) & np.isfinite(after_xyz).all(axis=1)
     rest_xyz = np.asarray(rest_xyz_mm, dtype=float)
     rest = cKDTree(rest_xyz[:, :2])
 
-    def mean_square(T: np.ndarray) -> tuple[float, int]:
-        points = triangulate(T)
+    def mean_square(points: np.ndarray) -> tuple[float, int]:
         distance, index = rest.query(points[:, :2], distance_upper_bound=MATCH_REACH_PITCHES * pitch_mm)
         paired = np.isfinite(distance)
         if not paired.any():
             return float("inf"), 0
-        return float(np.mean(np.sum((points[paired] - rest_xyz[index[paired]]) ** 2, axis=1))), int(
-            paired.sum()
-        )
+        squares = np.sum((points[paired] - rest_xyz[index[paired]]) ** 2, axis=1)
+        return float(np.mean(squares)), int(paired.sum())
 
-    before, paired_before = mean_square(np.eye(4))
-    after, paired = mean_square(level.T_correction)
-    if paired <= 6 or after <= 0.0:
+    before, paired_before = mean_square(before_xyz[finite])
+    after, paired = mean_square(after_xyz[finite])
+    if paired <= 6:
         return False
     if paired_before < paired:  # markers the config's poses leave without a rest marker
         return True
+    if after == 0.0:  # an exact fit (noiseless markers): any misfit before is an improvement
+        return before > 0.0
     statistic = (paired - 6) / 6.0 * (before / after - 1.0)
-    return bool(statistic > f_distribution.ppf(1.0 - IMPROVEMENT_SIGNIFICANCE, 6, paired - 6))
+    return bool(statistic > fdtri(6, paired - 6, 1.0 - IMPROVEMENT_SIGNIFICANCE))
 
 
 def levelled_jig(jig: JigConfig, level: HeadLevel) -> JigConfig:
