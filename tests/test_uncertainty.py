@@ -10,6 +10,7 @@ from softjig.sensing.uncertainty import (
     normal_from_slopes,
     normal_uncertainty,
     tilt_angles_from_slopes,
+    with_depth_scale_error,
     with_spread_between,
 )
 
@@ -175,6 +176,24 @@ def test_downward_normal_raises():
     flipped = type(plane)(**{**plane.__dict__, "normal": -plane.normal})
     with pytest.raises(InputError, match="n_z > 0"):
         normal_uncertainty(pts, flipped)
+
+
+def test_a_depth_scale_error_tilts_a_tilted_normal_along_its_tilt_and_a_level_one_not_at_all():
+    xy = np.array([[-10.0, 0], [10, 0], [0, -10], [0, 10]])
+    pts = np.column_stack([xy, np.zeros(4)])
+    base = normal_uncertainty(pts, fit_plane_svd(pts), point_sigma_mm=0.1)
+    level = with_depth_scale_error(base, np.array([0.0, 0.0, 1.0]), 0.01)
+    assert np.allclose(level.covariance, base.covariance, atol=1e-18)
+    # Tilted 15 deg about x: a depth scale error of 1 % moves it by 0.01 sin(15) cos(15) rad about x only.
+    tilted = normal_from_tilt_angles(np.radians(15.0), 0.0)
+    scaled = with_depth_scale_error(base, tilted, 0.01)
+    added = 0.01 * np.sin(np.radians(15.0)) * np.cos(np.radians(15.0))
+    assert scaled.tilt_sigma_x_rad == pytest.approx(np.hypot(base.tilt_sigma_x_rad, added), rel=1e-3)
+    assert scaled.tilt_sigma_y_rad == pytest.approx(base.tilt_sigma_y_rad)
+    assert scaled.tilt_sigma_rad == pytest.approx(np.hypot(base.tilt_sigma_rad, added), rel=1e-3)
+    for bad in (-0.01, 1.0, float("nan")):
+        with pytest.raises(InputError, match="scale_error"):
+            with_depth_scale_error(base, tilted, bad)
 
 
 def test_spread_between_two_normals_adds_half_their_difference_in_quadrature():

@@ -43,6 +43,7 @@ __all__ = [
     "normal_uncertainty",
     "tilt_angles_from_slopes",
     "with_angle_floor",
+    "with_depth_scale_error",
     "with_spread_between",
 ]
 
@@ -284,4 +285,34 @@ def with_angle_floor(
         tilt_sigma_y_rad=math.sqrt(uncertainty.tilt_sigma_y_rad**2 + half),
         tilt_sigma_rad=math.sqrt(covariance[0, 0] + covariance[1, 1] + covariance[2, 2]),
         residual_sigma_mm=uncertainty.residual_sigma_mm,
+    )
+
+
+def with_depth_scale_error(
+    uncertainty: NormalUncertainty, normal: np.ndarray, scale_error: float
+) -> NormalUncertainty:
+    """Add the error of a plane's normal whose depths are known only up to a relative ``scale_error``
+    (1 sigma), the same for every marker: the normals of the plane with its depths scaled by
+    ``1 + scale_error`` and ``1 - scale_error`` are one sigma either side of the truth
+    (:func:`with_spread_between`).
+
+    Why: a refractive index or a focal length a little off scales every triangulated depth by the same
+    factor, which tilts a tilted face further or less far (``tan`` of its tilt scales by that factor) in
+    the direction of its tilt: an error of about ``scale_error sin(tilt) cos(tilt)`` rad that does not
+    shrink with the number of markers, and none for a level face.
+
+    Parameters
+    ----------
+    uncertainty : the normal's uncertainty so far.
+    normal : (3,) the plane's unit normal, ``n_z > 0``.
+    scale_error : the relative error of the depths (1 sigma), in [0, 1).
+    """
+    s = finite_float(scale_error, "scale_error")
+    if not 0.0 <= s < 1.0:
+        raise InputError(f"scale_error must be in [0, 1), got {s}.")
+    n = np.asarray(normal, dtype=float)
+    # A depth scaled by k turns the normal (n_x, n_y, n_z) into one along (n_x, n_y, n_z / k).
+    deeper, shallower = n / [1.0, 1.0, 1.0 + s], n / [1.0, 1.0, 1.0 - s]
+    return with_spread_between(
+        uncertainty, deeper / np.linalg.norm(deeper), shallower / np.linalg.norm(shallower)
     )
