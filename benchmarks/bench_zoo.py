@@ -45,7 +45,9 @@ iterating on the estimator (two ways' normals of a frame say how far apart they 
 ``--write FILE`` replaces (or appends) this benchmark's section of ``benchmarks/RESULTS.md``.
 ``--image-model stirred`` renders with the simulator's old image model (a new speckle every frame and
 none of the bead-pack effects), for comparison; ``--image-model damaged`` with each design's own model
-plus a damaged membrane, bubbles and glints (:func:`softjig.sim.zoo.damaged_image_model`).
+plus a damaged membrane, bubbles and glints (:func:`softjig.sim.zoo.damaged_image_model`);
+``--image-model gentle-walls`` with a bead pack whose wall beside a contact stands at 20 deg instead of 35
+(:func:`softjig.sim.zoo.gentle_wall_model`: membrane mechanics, not an image model, that no design has).
 """
 
 from __future__ import annotations
@@ -77,7 +79,7 @@ from softjig.sensing.estimator import Estimator  # noqa: E402
 from softjig.sim.asbuilt import draw_as_built  # noqa: E402
 from softjig.sim.render import render_pair  # noqa: E402
 from softjig.sim.scenarios import FrameSpec, frame_truth, paper_sweep  # noqa: E402
-from softjig.sim.zoo import damaged_image_model, stirred_image_model  # noqa: E402
+from softjig.sim.zoo import damaged_image_model, gentle_wall_model, stirred_image_model  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from results_section import replace_section  # noqa: E402
@@ -89,7 +91,12 @@ WAYS = (
     ("no size+rest shape", False, False),
 )
 #: ``--image-model``: how each design's jig is rendered (``None``: its own bead-pack model).
-IMAGE_MODELS = {"bead-pack": None, "stirred": stirred_image_model, "damaged": damaged_image_model}
+IMAGE_MODELS = {
+    "bead-pack": None,
+    "stirred": stirred_image_model,
+    "damaged": damaged_image_model,
+    "gentle-walls": gentle_wall_model,
+}
 SILENT_ERROR_DEG = 3.0
 RIGHT_DEG = 1.0  # a suspect estimate within this of the truth is a false alarm (the reasons' table)
 SUSPECT_PREFIX = "suspect: "  # softjig.sensing.results.SUSPECT_PREFIX

@@ -7,6 +7,7 @@ from softjig.config import BoxPart, CylinderPart, default_jig, exact_jig
 from softjig.jig_shape import marker_layout_xy, rest_inner_height_mm, rest_outer_height_mm
 from softjig.sim.membrane import deform
 from softjig.sim.parts import PartPose, under_bottom_face
+from softjig.sim.zoo import GENTLE_WALL_SLOPE_DEG, gentle_wall_model
 
 JIG = exact_jig()
 XY = marker_layout_xy(JIG)
@@ -94,3 +95,17 @@ def test_edge_conformity_pulls_edge_markers_off_the_face():
     r = np.hypot(*XY.T)
     c = state.in_contact
     assert dz[c & (r > 24)].mean() > dz[c & (r < 8)].mean() > 0
+
+
+def test_a_gentle_walled_bead_pack_rises_beside_a_deep_contact_no_steeper_than_its_angle():
+    """The wall beside a face pushed 6 mm in rises at the bead pack's angle of repose at most: the
+    default's 35 deg, and 20 deg in :func:`gentle_wall_model` (a wider, gentler drape)."""
+
+    def steepest_wall_deg(jig):
+        part = CylinderPart(50)
+        xy = np.column_stack([np.arange(0.0, 60.0, 0.5), np.zeros(120)])  # a ray of markers
+        w = deform(jig, xy, part, PartPose(0.0, 0.0, 6.0).T_J_part(jig)).indentation_mm
+        return np.degrees(np.arctan(np.max(-np.diff(w) / 0.5)))
+
+    gentle = steepest_wall_deg(gentle_wall_model(JIG))
+    assert gentle <= GENTLE_WALL_SLOPE_DEG + 1.0 < steepest_wall_deg(JIG)

@@ -23,7 +23,13 @@ from softjig.sensing.pipeline import estimate_pair, reference_from_pair
 from softjig.sim.asbuilt import draw_as_built
 from softjig.sim.render import render_pair
 from softjig.sim.scenarios import frame_truth, paper_sweep
-from softjig.sim.zoo import ZooRanges, _draw_design, damaged_image_model, stirred_image_model
+from softjig.sim.zoo import (
+    ZooRanges,
+    _draw_design,
+    damaged_image_model,
+    gentle_wall_model,
+    stirred_image_model,
+)
 
 ZOO_SEED = 0
 ZOO_FRAMES = 20  # the benchmark's frames per design: the frames are drawn in sequence
@@ -462,6 +468,10 @@ SILENT_FAILURES_LEFT = [
     pytest.param(5, 47, 18, True, True, stirred_image_model, id="stirred-s5d47f18-size-reference-19deg"),
     pytest.param(5, 32, 2, False, False, stirred_image_model, id="stirred-s5d32f2-nosize-rest-16deg"),
     pytest.param(3, 18, 14, True, True, damaged_image_model, id="damaged-s3d18f14-size-reference-19deg"),
+    # A bead pack whose wall stands at 20 deg (the zoo's designs: 35): beside a part tilted 17-18 deg the
+    # wall slopes about as the face does (benchmarks/RESULTS.md, sixteenth session).
+    pytest.param(4, 12, 14, True, True, gentle_wall_model, id="gentle-walls-s4d12f14-size-reference-11deg"),
+    pytest.param(4, 12, 8, False, True, gentle_wall_model, id="gentle-walls-s4d12f8-nosize-reference-17deg"),
 ]
 
 

@@ -231,6 +231,20 @@ def stirred_image_model(jig: JigConfig) -> JigConfig:
     )
 
 
+#: How steeply the membrane's wall stands beside a contact in :func:`gentle_wall_model` (deg).
+GENTLE_WALL_SLOPE_DEG = 20.0
+
+
+def gentle_wall_model(jig: JigConfig) -> JigConfig:
+    """``jig`` filled with beads whose wall beside a contact stands no steeper than
+    :data:`GENTLE_WALL_SLOPE_DEG` (``membrane.max_wall_slope_deg``; every zoo design keeps the default 35
+    deg). The bead pack's angle of repose sets how steeply the membrane rises beside a pressed face, and
+    smooth beads lubricated by oil can slide at 20 deg: beside a part tilted 15-20 deg, the wall then
+    slopes about as the face does. A variant to check the estimator on membrane mechanics that no design
+    of the zoo has (``benchmarks/bench_zoo.py --image-model gentle-walls``); the estimator is not told."""
+    return jig.replace(membrane=replace(jig.membrane, max_wall_slope_deg=GENTLE_WALL_SLOPE_DEG))
+
+
 #: The damaged jig's defects (:func:`damaged_image_model`): share of markers lost, bubbles in the fill
 #: and their typical radius (mm), glints per image.
 DAMAGED_MISSING_MARKERS = 0.05
