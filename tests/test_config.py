@@ -88,6 +88,9 @@ def _with(section: str, **changes):
         ("cameras.right", {"position_mm": [15.0, 3.0, -155.0]}, "cameras.right.position_mm"),
         ("cameras.left", {"fx_px": "wide"}, "cameras.left.fx_px"),
         ("tolerances", {"camera_position_mm": -1.0}, "tolerances.camera_position_mm"),
+        # every depth off by over 100 %: the sigma's depth scale error would flip the normal
+        ("tolerances", {"focal_fraction": 1.2}, "tolerances"),
+        ("tolerances", {"refractive_index": 2.0}, "tolerances"),
         ("sensing", {"min_points": 2}, "sensing.min_points"),
         ("sensing", {"min_points": 10**40}, "sensing.min_points"),  # no frame could have so many markers
         ("markers", {"pitch_mm": 10**400}, "markers.pitch_mm"),  # an int beyond the floats: no OverflowError

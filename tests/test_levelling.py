@@ -121,6 +121,22 @@ def test_a_head_that_moves_a_fine_grid_by_over_a_pitch_is_levelled_to_it_not_to_
     assert _rotation_error_deg(level.T_correction, C_true) < 3.0 * level.tilt_sigma_deg
 
 
+def test_markers_whose_rays_do_not_meet_are_left_out_of_the_level():
+    """A pair of parallel rays triangulates to NaN (``refractive.closest_points_of_rays``); the level is
+    measured on the other markers (the k-d tree refused a NaN with a traceback)."""
+    C_true = _about_head((0.3, -0.2, 0.0), (0.5, 0.2, 0.0))
+    seen = _seen_through(C_true, REST, 0.1)
+
+    def with_a_nan(T):
+        points = seen(T)
+        points[3] = np.nan
+        return points
+
+    level = level_head(with_a_nan, REST, pitch_mm=PITCH, prior=PRIOR)
+    assert isinstance(level, HeadLevel)
+    assert _rotation_error_deg(level.T_correction, C_true) < 3.0 * level.tilt_sigma_deg
+
+
 #: A few dozen markers of a grid on the dome's flank.
 PATCH = REST[np.hypot(REST[:, 0] - 25.0, REST[:, 1] - 10.0) < 22.0]
 

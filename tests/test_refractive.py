@@ -17,7 +17,6 @@ from softjig.jig_shape import marker_layout_xy, rest_inner_height_mm
 from softjig.optics import project_points
 from softjig.rig import flat_layers
 from softjig.sensing.contact import contact_candidates, describe_contact, indentation
-from softjig.sensing.fitting import depth_scale_error
 from softjig.sensing.identities import ReferenceMarkers, identify_markers, rest_shape_reference
 from softjig.sensing.jigframe import jig_frame_from_config
 from softjig.sensing.refractive import closest_points_of_rays, triangulate_refracted
@@ -62,10 +61,10 @@ def test_refraction_matters():
     assert triangulate_refracted(left, right, JIG, FRAME).points_J[0, 2] == pytest.approx(30.0, abs=1e-9)
 
 
-def _off_by_its_tolerance(error: str, tolerance: float):
-    """JIG with its oil's index ``tolerance`` higher, or both cameras' focal lengths ``tolerance`` (a
-    fraction) longer, than drawn."""
-    if error == "oil index":
+def _off_by_its_tolerance(field: str, tolerance: float):
+    """JIG with its oil's index ``tolerance`` higher (``field`` ``"refractive_index"``), or both cameras'
+    focal lengths ``tolerance`` (a fraction) longer (``"focal_fraction"``), than drawn."""
+    if field == "refractive_index":
         index = JIG.medium.oil_refractive_index + tolerance
         return JIG.replace(medium=replace(JIG.medium, oil_refractive_index=index))
     cams = JIG.cameras
@@ -78,19 +77,19 @@ def _off_by_its_tolerance(error: str, tolerance: float):
 
 @pytest.mark.accuracy
 @pytest.mark.parametrize("alpha_deg", [5.0, 20.0])
-@pytest.mark.parametrize(
-    ("error", "field"), [("oil index", "refractive_index"), ("focal length", "focal_fraction")]
-)
-def test_the_depth_scale_error_tilts_a_face_as_the_refraction_does(error, field, alpha_deg):
+@pytest.mark.parametrize("field", ["refractive_index", "focal_fraction"])
+def test_the_depth_scale_error_tilts_a_face_as_the_refraction_does(field, alpha_deg):
     """An oil's index or a focal length off by its tolerance turns a tilted face's triangulated plane by
-    the depth scale error times sin(tilt) cos(tilt), the error ``depth_scale_error`` puts in the sigma."""
+    the depth scale error times sin(tilt) cos(tilt), the error ``ToleranceConfig.depth_scale_error`` puts
+    in the sigma."""
     tolerance = getattr(default_jig().tolerances, field)
-    scale_error = depth_scale_error(JIG.replace(tolerances=replace(JIG.tolerances, **{field: tolerance})))
+    only = replace(JIG.tolerances, **{field: tolerance})
+    scale_error = only.depth_scale_error(JIG.medium.oil_refractive_index)
     alpha = np.radians(alpha_deg)
     normal = normal_from_tilt(alpha, np.radians(30.0))
     xy = np.stack(np.meshgrid(np.linspace(-20, 20, 9), np.linspace(-20, 20, 9)), axis=-1).reshape(-1, 2)
     face = np.column_stack([xy, 25.0 - xy @ normal[:2] / normal[2]])
-    built = _off_by_its_tolerance(error, tolerance)
+    built = _off_by_its_tolerance(field, tolerance)
     layers = flat_layers(built)
     left, right = (
         project_points(face, c.K, None, c.T_J_cam, layers) for c in (built.cameras.left, built.cameras.right)

@@ -9,18 +9,10 @@ membrane's wall, 15-25 deg off, which markers contradict, and flagged it suspect
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import pytest
 
-from softjig.config import JigConfig
+from test_levelling import _config_poses
 from test_silent_zoo import _estimate
-
-
-def _config_poses(jig: JigConfig) -> JigConfig:
-    """``jig`` with its cameras' poses taken as the config has them (``sensing.extrinsics = "config"``)."""
-    return replace(jig, sensing=replace(jig.sensing, extrinsics="config"))
-
 
 FALLBACK_NOTE = "the contact found without the size, which passes them, is reported"
 

@@ -311,6 +311,15 @@ class ToleranceConfig:
         """True when the as-built jig equals the nominal one."""
         return all(v == 0 for v in asdict(self).values())
 
+    def depth_scale_error(self, oil_refractive_index: float) -> float:
+        """The relative error (1 sigma) of every depth a refractive triangulation measures, the same for all
+        markers: the oil's index (a depth in the oil is its apparent depth times the index, so a relative
+        error of ``refractive_index / n_oil``) and the cameras' focal length (depth from disparity scales
+        with it), in quadrature. The plate's index shifts every depth by the same amount, which tilts no
+        plane; a scale error tilts a face tilted by ``alpha`` by about its value times
+        ``sin(alpha) cos(alpha)``."""
+        return math.hypot(self.refractive_index / oil_refractive_index, self.focal_fraction)
+
 
 @dataclass(frozen=True)
 class SensingConfig:
@@ -719,6 +728,14 @@ def validate_jig(jig: JigConfig) -> None:
         _validate_rectified(jig.cameras)
     for name, value in asdict(jig.tolerances).items():
         _non_negative(value, f"tolerances.{name}")
+    scale = jig.tolerances.depth_scale_error(jig.medium.oil_refractive_index)
+    if not scale < 1.0:
+        _fail(
+            "tolerances",
+            f"refractive_index / the oil's index and focal_fraction are relative errors of every depth, "
+            f"{scale:.3g} combined: they must be well below 1 (one sigma of the as-built error, "
+            "e.g. 0.005 and 0.001)",
+        )
     _validate_sensing(jig.sensing)
 
 

@@ -72,7 +72,7 @@ CONTACT_INLIER_SIGMAS = 2.5  # a marker within this many depth-noise sigmas of t
 MODEL_ERROR_FACTOR = 1.5
 # The paper method's error of the normal that does not shrink with more markers (the as-built jig against
 # the nominal one): added in quadrature, as an isotropic RMS angle (deg); the same calibration as above.
-# The refractive method derives its own from the jig's tolerances (:func:`depth_scale_error`).
+# The refractive method derives its own from the jig's tolerances (``ToleranceConfig.depth_scale_error``).
 NORMAL_ANGLE_FLOOR_DEG = 0.1
 # The face must lie this many depth-noise sigmas below the unloaded membrane at a marker to touch it.
 LIFT_OFF_SIGMAS = 1.5
@@ -160,23 +160,6 @@ Found = tuple[Contact, RivalCheck | None] | Refusal  # a contact with its rival,
 
 
 # ------------------------------------------------------------------------------------------ shared
-
-
-def depth_scale_error(jig: JigConfig) -> float:
-    """The relative error (1 sigma) of every depth the refractive triangulation measures, the same for
-    all markers, from the jig's tolerances (``jig.tolerances``): the oil's refractive index (a depth in
-    the oil is its apparent depth times the index: a relative error of ``dn / n_oil``) and the cameras'
-    focal length (depth from disparity scales with it). The plate's index shifts every depth by the same
-    amount, which tilts no plane.
-
-    Why: it is the error of a tilted face's normal that more markers do not reduce
-    (:func:`~softjig.sensing.uncertainty.with_depth_scale_error`). It takes the place of a constant
-    angle floor that left frames whose head pose was measured over-covered (``benchmarks/RESULTS.md``).
-    """
-    tolerances = jig.tolerances
-    return math.hypot(
-        tolerances.refractive_index / jig.medium.oil_refractive_index, tolerances.focal_fraction
-    )
 
 
 def fit_or_fail(points: np.ndarray, minimum: int) -> PlaneFit:
@@ -597,6 +580,9 @@ class ContactPlaneFitter:
         self._calibration = calibration
         self._minimum = model.jig.sensing.min_points
         self._pitch = model.jig.markers.pitch_mm
+        self._depth_scale_error = model.jig.tolerances.depth_scale_error(
+            model.jig.medium.oil_refractive_index
+        )
 
     def fit(
         self, observation: Observation, points_J: np.ndarray, part_diameter_mm: float | None
@@ -1497,7 +1483,7 @@ class ContactPlaneFitter:
     ) -> tuple[NormalUncertainty, SplitCheck | None]:
         """The normal's uncertainty: the fit's statistics, the spread between the narrowest and widest
         plausible contacts, the model-error factor, what the split halves show beyond their noise, and
-        the depths' scale error (:func:`depth_scale_error`); and the split check itself."""
+        the depths' scale error (``ToleranceConfig.depth_scale_error``); and the split check itself."""
         minimum = self._minimum
         uncertainty = normal_uncertainty(points_J[used], plane, floor_mm=UNCERTAINTY_FLOOR_MM)
         narrow, wide = ambiguous_selection(
@@ -1529,7 +1515,7 @@ class ContactPlaneFitter:
             uncertainty = with_spread_between(
                 uncertainty, split.normal_a, split.normal_b, share=split.excess_rad / split.angle_rad
             )
-        uncertainty = with_depth_scale_error(uncertainty, plane.normal, depth_scale_error(self._jig))
+        uncertainty = with_depth_scale_error(uncertainty, plane.normal, self._depth_scale_error)
         return uncertainty, split
 
     def _without_measured_frame(

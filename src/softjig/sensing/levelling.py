@@ -373,7 +373,8 @@ def level_head(
     Parameters
     ----------
     triangulate : ``T_correction -> (M, 3)``: the frame's matched markers triangulated in J with the
-        config's camera poses corrected by ``T_correction`` (4, 4).
+        config's camera poses corrected by ``T_correction`` (4, 4); markers not finite (rays that do not
+        meet) are left out.
     rest_xyz_mm : (N, 3) the rest markers in J (mm): the config's layout on its rest shape.
     pitch_mm : the marker pitch (mm): pairs are matched within half of it.
     prior : the head's mounting tolerances: the first alignment is the most probable one given them, a
@@ -390,10 +391,14 @@ def level_head(
         return "the config's tolerances say the head is mounted exactly (tolerances.camera_rotation_deg = 0)"
     from scipy.spatial import cKDTree
 
+    def triangulate_finite(T: np.ndarray) -> np.ndarray:  # a pair of parallel rays meets nowhere: NaN
+        points = triangulate(T)
+        return points[np.isfinite(points).all(axis=1)]
+
     rest_xyz = np.asarray(rest_xyz_mm, dtype=float)
     rest = cKDTree(rest_xyz[:, :2])
     reach = MATCH_REACH_PITCHES * pitch_mm
-    points = triangulate(np.eye(4))
+    points = triangulate_finite(np.eye(4))
     search = points[:: max(1, -(-len(points) // SEARCH_MARKERS))]  # every k-th: at most SEARCH_MARKERS
     span = SEARCH_LATERAL_SIGMAS * prior.lateral_sigma_mm(float(np.median(rest_xyz[:, 2])))
     fits = _candidates(search, rest, rest_xyz, reach, span)
@@ -416,7 +421,7 @@ def level_head(
     refined = [
         found
         for k in np.argsort(first_order)[:REFINED_ALIGNMENTS]
-        if (found := _refined(triangulate, fits[k].T, rest, rest_xyz, reach)) is not None
+        if (found := _refined(triangulate_finite, fits[k].T, rest, rest_xyz, reach)) is not None
     ]
     if not refined:
         return "the level did not converge: the markers left the rest markers when the head was moved"
@@ -444,7 +449,8 @@ def level_head(
             f"the markers lie {fit.rms_mm:.2f} mm (RMS) from the config's rest markers after the best rigid "
             f"fit, more than {MAX_RMS_PITCHES} pitch: the config's layout or rest shape is not this jig's"
         )
-    tilt_sigma_deg = float(np.degrees(np.sqrt(fit.covariance[0, 0] + fit.covariance[1, 1])))
+    covariance = fit.covariance
+    tilt_sigma_deg = float(np.degrees(np.sqrt(covariance[0, 0] + covariance[1, 1])))
     if tilt_sigma_deg >= prior.rotation_deg:
         return (
             f"the level's own uncertainty ({tilt_sigma_deg:.2f} deg) is no better than the head's mounting "
