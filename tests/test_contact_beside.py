@@ -1,5 +1,6 @@
-"""Holes beside the contact (:func:`softjig.sensing.contact.holes_beside`) on synthetic markers: a strip
-of wall fitted beside a deeper face has them, a real face with its lift-off side and its wall does not."""
+"""Holes beside the contact (:func:`softjig.sensing.contact.holes_beside`) and in its dent
+(:func:`~softjig.sensing.contact.holes_in_the_dent`) on synthetic markers: a strip of wall fitted beside a
+deeper face has them, a real face with its lift-off side and its wall does not."""
 
 from __future__ import annotations
 
@@ -8,9 +9,12 @@ import numpy as np
 from softjig.geometry import fit_plane_svd, normal_from_tilt_angles
 from softjig.sensing.contact import (
     BESIDE_HOLE_THRESHOLDS,
+    DENT_HOLE_THRESHOLDS,
     Indentation,
     contact_violations,
+    face_depth_mm,
     holes_beside,
+    holes_in_the_dent,
     just_outside,
 )
 
@@ -151,3 +155,66 @@ def test_markers_far_above_the_plane_are_tolerated_once():
         points, contact, plane = _flat_contact_with_markers_above(heights)
         count = contact_violations(points, contact, plane, threshold_mm=THRESHOLD, pitch_mm=PITCH)
         assert count == expected, (heights, count)
+
+
+def _holes_in_the_dent(points, dent, contact, plane):
+    return holes_in_the_dent(
+        points,
+        dent,
+        contact,
+        plane,
+        threshold_mm=THRESHOLD,
+        pitch_mm=PITCH,
+        plane_depth_mm=face_depth_mm(points, dent, plane),
+        outside=just_outside(points[:, :2], contact, PITCH),
+    )
+
+
+def test_a_face_with_its_wall_and_lift_off_has_no_hole_in_its_dent():
+    points, dent, on_face = _membrane(alpha_deg=15.0, push_mm=4.0, radius_mm=25.0, wall_mm=12.0)
+    assert not _holes_in_the_dent(points, dent, on_face, fit_plane_svd(points[on_face])).any()
+
+
+def test_a_face_fitted_without_its_lowered_rim_has_no_hole_in_its_dent():
+    """The rim's markers lie deeper than any marker fitted, but on the plane: no evidence against it."""
+    points, dent, on_face = _membrane(alpha_deg=15.0, push_mm=4.0, radius_mm=25.0, wall_mm=12.0)
+    fitted = on_face & (points[:, 0] < 10.0)
+    assert dent.depth_mm[on_face & ~fitted].max() > dent.depth_mm[fitted].max() + 1.0
+    assert not _holes_in_the_dent(points, dent, fitted, fit_plane_svd(points[fitted])).any()
+
+
+def test_a_stretch_of_drape_far_from_a_deeper_face_has_holes_in_its_dent_beyond_those_beside_it():
+    """The wall of the raised side, over 1.5 pitches from the face, fitted instead of it: only the dent's
+    extent reaches the face's markers, deep below that plane where it still presses into the membrane."""
+    points, dent, on_face = _membrane(alpha_deg=15.0, push_mm=10.0, radius_mm=20.0, wall_mm=30.0)
+    x, r = points[:, 0], np.hypot(*points[:, :2].T)
+    strip = ~on_face & (x <= -20.0) & (r >= 20.0 + 1.5 * PITCH) & (dent.depth_mm > 0.3)
+    assert strip.sum() >= 6
+    plane = fit_plane_svd(points[strip])
+    holes = _holes_in_the_dent(points, dent, strip, plane)
+    beyond_beside = on_face & ~just_outside(points[:, :2], strip, PITCH)  # where holes_beside never looks
+    assert (holes & beyond_beside).sum() >= 2
+    gaps = (plane.centroid_mm - points[holes]) @ plane.normal
+    assert gaps.min() > DENT_HOLE_THRESHOLDS * THRESHOLD
+
+
+def test_deep_markers_cut_off_from_the_dent_are_not_holes_in_it():
+    """A cluster of mismatched markers deep under the plane, beyond markers at rest: not of the dent."""
+    points, dent, on_face = _membrane(alpha_deg=15.0, push_mm=10.0, radius_mm=20.0, wall_mm=30.0)
+    x, r = points[:, 0], np.hypot(*points[:, :2].T)
+    strip = ~on_face & (x <= -20.0) & (r >= 20.0 + 1.5 * PITCH) & (dent.depth_mm > 0.3)
+    plane = fit_plane_svd(points[strip])
+    # Only the strip is pushed in; a cluster far off in the membrane at rest is deep (mismatched).
+    depth = np.where(strip, dent.depth_mm, 0.0)
+    far = (x > 40.0) & (np.abs(points[:, 1]) < 10.0)
+    assert far.sum() >= 2
+    depth[far] = 20.0
+    moved = points.copy()
+    moved[:, 2] = np.where(strip, points[:, 2], REST_Z - depth)
+    lone = Indentation(depth, 0.0, 0.05)
+    assert not _holes_in_the_dent(moved, lone, strip, plane).any()
+    # The same cluster joined to the strip by pushed-in markers is of the dent.
+    between = (np.abs(points[:, 1]) < 10.0) & ~far & ~strip
+    depth[between] = 5.0
+    moved[:, 2] = np.where(strip, points[:, 2], REST_Z - depth)
+    assert _holes_in_the_dent(moved, Indentation(depth, 0.0, 0.05), strip, plane)[far].any()

@@ -463,6 +463,36 @@ def test_a_head_whose_reference_frame_fits_as_well_in_two_places_keeps_a_sigma_o
     assert estimate.tilt_sigma_deg > 2.0 and error < estimate.tilt_sigma_deg, (error, estimate.tilt_sigma_deg)
 
 
+@pytest.mark.parametrize(
+    ("design_index", "frame", "with_reference"),
+    [
+        pytest.param(12, 14, True, id="s4d12f14-size-reference-11deg"),
+        pytest.param(12, 14, False, id="s4d12f14-size-rest-12deg"),
+        pytest.param(39, 5, True, id="s4d39f5-size-reference-9deg"),
+    ],
+)
+def test_a_stretch_of_drape_fitted_far_from_the_dents_deepest_markers_is_suspect(
+    design_index, frame, with_reference
+):
+    """A bead pack whose walls slope at 20 deg (``gentle_wall_model``), seed 4. Design 12, frame 14: a box
+    tilted 17 deg pressed its lowered edge 12 mm deep, and the fit took 53 markers of the drape beside it,
+    none in contact, 11-12 deg off and "ok" (sigma 0.7-1.6 deg). The dent's deepest markers lie 2.5-4
+    pitches from them, out of reach of the holes beside the contact, 3-6 mm below the plane where it would
+    still press into the membrane: holes in the dent (:func:`~softjig.sensing.contact.holes_in_the_dent`).
+    Design 39, frame 5: the same, 9 deg off."""
+    error, estimate = _estimate(
+        design_index,
+        frame,
+        with_size=True,
+        with_reference=with_reference,
+        seed=4,
+        render_jig=gentle_wall_model,
+    )
+    assert error > 3.0  # the drape is still what is fitted; the check makes it suspect, not right
+    assert estimate.quality == "suspect"
+    assert any("markers of the dent" in w for w in estimate.warnings), estimate.warnings
+
+
 SILENT_FAILURES_LEFT = [
     pytest.param(15, 15, 10, False, True, None, id="s15d15f10-nosize-reference-32deg"),
     pytest.param(2, 43, 9, True, True, stirred_image_model, id="stirred-s2d43f9-size-reference-13deg"),
@@ -471,7 +501,6 @@ SILENT_FAILURES_LEFT = [
     pytest.param(3, 18, 14, True, True, damaged_image_model, id="damaged-s3d18f14-size-reference-19deg"),
     # A bead pack whose wall stands at 20 deg (the zoo's designs: 35): beside a part tilted 17-18 deg the
     # wall slopes about as the face does (benchmarks/RESULTS.md, sixteenth session).
-    pytest.param(4, 12, 14, True, True, gentle_wall_model, id="gentle-walls-s4d12f14-size-reference-11deg"),
     pytest.param(4, 12, 8, False, True, gentle_wall_model, id="gentle-walls-s4d12f8-nosize-reference-17deg"),
 ]
 

@@ -13,6 +13,9 @@ A plane is the face of its contact only if no marker contradicts it (:func:`cont
 penetrates it inside the contact, none lies far below it inside the contact's hull (a hole), and
 none beside the contact lies deep below it where it would still press into the membrane, deeper than the
 contact next to it (:func:`holes_beside`: the part's real face beside a strip of wall fitted instead).
+The contact chosen is also checked across its whole dent (:func:`holes_in_the_dent`): no marker joined to
+it through pushed-in markers lies deep below its plane, where the plane would press, deeper than the face
+reaches at the contact (a stretch of drape fitted far from the part's deeper face).
 
 The **footprint** of the contact is the convex hull of the contact markers dilated by half a marker pitch
 (each marker stands for one cell of the grid; by Steiner's formula the area grows by
@@ -29,6 +32,9 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 
 from softjig.config import JigConfig
 from softjig.errors import EstimationError, InputError
@@ -59,6 +65,13 @@ HOLE_THRESHOLDS = 2.0
 #: suspect) for a smaller, wrong one that no marker contradicted (35 deg off; zoo seed 0, design 7,
 #: frame 2, stirred image model, size-free against the rest shape).
 BESIDE_HOLE_THRESHOLDS = 1.5
+#: A marker of the contact's dent pushed in deeper than the face reaches in or just outside the contact
+#: is a hole in the dent (:func:`holes_in_the_dent`) when it also lies this many inlier thresholds below
+#: the plane where the plane presses into the membrane (2 thresholds: 5 sigmas of a marker's height) ...
+DENT_HOLE_THRESHOLDS = 2.0
+#: ... and the check of the contact chosen counts holes in the dent only when there are this many (one
+#: may be a stereo mismatch that passed :func:`off_the_membrane`).
+DENT_HOLE_MIN_MARKERS = 2
 #: The fewest pushed-in markers whose scatter :func:`pushed_in_scatter_mm` measures.
 MIN_SCATTER_MARKERS = 10
 #: A marker's neighbours lie within this many marker pitches (a square grid's 8 nearest).
@@ -505,6 +518,59 @@ def _holes_beside(
     deepest_near = np.where(near, depth[members][None, :], -np.inf).max(axis=1)
     out[candidates[depth[candidates] > deepest_near]] = True
     return out
+
+
+def holes_in_the_dent(
+    points_J: np.ndarray,
+    dent: Indentation,
+    contact: np.ndarray,
+    plane: PlaneFit,
+    *,
+    threshold_mm: float,
+    pitch_mm: float,
+    plane_depth_mm: np.ndarray,
+    outside: np.ndarray,
+) -> np.ndarray:
+    """Markers of the contact's dent, however far from the contact, that only a deeper face explains, as
+    booleans: pushed in deeper than ``plane`` reaches below the unloaded membrane at any marker in or just
+    outside ``contact`` (``plane_depth_mm``, :func:`face_depth_mm`; ``outside``, :func:`just_outside`),
+    and lying :data:`DENT_HOLE_THRESHOLDS` inlier thresholds below the plane where it presses into the
+    membrane. "Of the dent": joined to the contact through markers clearly pushed in
+    (:func:`contact_candidates`) that lie within :data:`NEIGHBOUR_RADIUS_PITCHES` of each other, so a
+    cluster of mismatched markers far from the part is no evidence.
+
+    :func:`holes_beside` looks just outside the contact; this looks across the whole dent. A rigid face
+    presses its dent deepest where it reaches deepest, and the membrane elsewhere is only dragged down
+    by it, no deeper than the face reaches. A marker deeper than that, and under a plane that would
+    still press into it, was pushed by a face that is deeper than the plane fitted: the plane is a stretch
+    of the membrane's drape beside the part's edge. Beside a part tilted 17 deg on a bead pack whose walls
+    slope at 20 deg (``softjig.sim.zoo.gentle_wall_model``; zoo seed 4, design 12, frame 14), a plane
+    of 53 drape markers, 11 deg off, none of them in contact, passed every other check, with the dent's
+    deepest markers 2.5-4 pitches away and 3-6 mm below it.
+    """
+    out = np.zeros(len(points_J), dtype=bool)
+    if not contact.any():
+        return out
+    depth = _nan_as_minus_inf(dent.depth_mm)
+    reach = max(depth[contact].max(), plane_depth_mm[contact | outside].max())
+    height = (points_J - plane.centroid_mm) @ plane.normal
+    candidates = (
+        ~contact
+        & (depth > reach)
+        & (height < -DENT_HOLE_THRESHOLDS * threshold_mm)
+        & (plane_depth_mm > threshold_mm)
+    )
+    if not candidates.any():  # the usual case: the costlier test of the dent's extent is skipped
+        return out
+    pushed = np.flatnonzero(contact | candidates | contact_candidates(dent))
+    pairs = cKDTree(points_J[pushed, :2]).query_pairs(
+        NEIGHBOUR_RADIUS_PITCHES * pitch_mm, output_type="ndarray"
+    )
+    links = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(pushed), len(pushed)))
+    _, label = connected_components(links, directed=False)
+    in_the_dent = np.zeros(len(points_J), dtype=bool)
+    in_the_dent[pushed] = np.isin(label, label[contact[pushed]])
+    return candidates & in_the_dent
 
 
 def _nan_as_minus_inf(values: np.ndarray) -> np.ndarray:

@@ -25,6 +25,7 @@ from softjig.geometry import PlaneFit, angle_between, fit_plane_svd, normal_from
 from softjig.jig_shape import rest_inner_height_mm
 from softjig.sensing.contact import (
     BESIDE_HOLE_THRESHOLDS,
+    DENT_HOLE_MIN_MARKERS,
     MAX_TILT_DEG,
     NOISE_RADIUS_PITCHES,
     TOLERATED_VIOLATION_SHARE,
@@ -40,6 +41,7 @@ from softjig.sensing.contact import (
     face_depth_mm,
     footprint_misfit,
     grow_contact,
+    holes_in_the_dent,
     indentation,
     indentations,
     just_outside,
@@ -314,13 +316,16 @@ def suspicions(
     n_used: int,
     *,
     size_free_search: bool = False,
+    dent_hole_gaps_mm: np.ndarray | None = None,
 ) -> list[str]:
     """The reasons (warnings starting with ``"suspect: "``) why an estimate may be wrong, from the frame's
     own evidence (:mod:`softjig.sensing.selfcheck`); none for an estimate that passed every check. An
     estimate the checks cannot verify (too few markers to split) is suspect too, and so is a partial
     contact of under :data:`PARTIAL_CONTACT_MIN_POINTS` markers grown without the part's size
     (``size_free_search``: without a size, or as the fallback of a face under the known size that
-    failed its checks)."""
+    failed its checks), and so is one with :data:`~softjig.sensing.contact.DENT_HOLE_MIN_MARKERS` or more
+    holes in its dent, markers deeper than its face reaches (``dent_hole_gaps_mm``: how far below the
+    plane each lies, :func:`~softjig.sensing.contact.holes_in_the_dent`)."""
     reasons = []
     fewest = fewest_to_check(jig.sensing.min_points)
     if n_used < fewest or split is None:
@@ -346,6 +351,13 @@ def suspicions(
             f"suspect: {violations} {'marker' if violations == 1 else 'markers'} in or beside the contact "
             f"{'lies' if violations == 1 else 'lie'} above the fitted face or far below it, beyond what the "
             "noise explains: the plane may not be the part's face"
+        )
+    if dent_hole_gaps_mm is not None and len(dent_hole_gaps_mm) >= DENT_HOLE_MIN_MARKERS:
+        reasons.append(
+            f"suspect: {len(dent_hole_gaps_mm)} markers of the dent are pushed in deeper than the fitted "
+            f"face reaches at its contact, up to {np.max(dent_hole_gaps_mm):.1f} mm below it where it would "
+            "press into the membrane: the part's face is deeper, beside the markers fitted (a stretch of "
+            "the membrane's drape?)"
         )
     if plane.normal[2] < np.cos(np.radians(MAX_TILT_DEG)):
         reasons.append(
@@ -922,6 +934,16 @@ class ContactPlaneFitter:
             edge_face_depth_mm=plane_depth[outside],
         )
         violations = self._violations_of_chosen(points_J, used, plane, ordered.threshold_mm, dent, outside)
+        holes = holes_in_the_dent(
+            points_J,
+            dent,
+            used,
+            plane,
+            threshold_mm=ordered.threshold_mm,
+            pitch_mm=self._pitch,
+            plane_depth_mm=plane_depth,
+            outside=outside,
+        )
         estimate = self._estimate(
             observation,
             points_J,
@@ -936,6 +958,7 @@ class ContactPlaneFitter:
             int(ordered.candidates.sum()),
             part_diameter_mm,
             size_free_search=search_size_mm is None,
+            dent_hole_gaps_mm=(plane.centroid_mm - points_J[holes]) @ plane.normal,
         )
         return SensingResult(
             estimate,
@@ -1569,9 +1592,11 @@ class ContactPlaneFitter:
         part_diameter_mm: float | None,
         *,
         size_free_search: bool,
+        dent_hole_gaps_mm: np.ndarray,
     ) -> Estimate:
         """The reported estimate, with its warnings and the self-check's reasons (``size_free_search``: the
-        contact was grown without the part's size)."""
+        contact was grown without the part's size; ``dent_hole_gaps_mm``: how far below the plane the holes
+        in the dent lie, :func:`~softjig.sensing.contact.holes_in_the_dent`)."""
         part_centre = None
         if part_diameter_mm is not None:
             part_centre = face_centre_xy(
@@ -1593,6 +1618,7 @@ class ContactPlaneFitter:
             self._jig,
             n_used,
             size_free_search=size_free_search,
+            dent_hole_gaps_mm=dent_hole_gaps_mm,
         )
         if rival is not None:
             suspect.append(
