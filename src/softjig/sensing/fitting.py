@@ -1059,6 +1059,11 @@ class ContactPlaneFitter:
         if part_diameter_mm is None:
             used, plane = size_free()
             rival = self._other_arm(dent, (used, plane), fit) if other_arm else None
+            # Of the two arms of a V, both plausible, the one that holds more markers is reported (a face
+            # presses flat more of the membrane than the strip of wall beside its lowered edge), the other
+            # stays its rival (the estimate is suspect either way).
+            if rival is not None and rival.contact[0].sum() > used.sum():
+                (used, plane), rival = rival.contact, rival.seen_from((used, plane))
         elif first is not None:
             found = self._placement_search(dent, part_diameter_mm / 2.0, fit, first)
             if not found:
@@ -1150,11 +1155,12 @@ class ContactPlaneFitter:
         disagrees beyond their noise (:meth:`_rival`); else ``None``.
 
         Why: beside the lowered edge of a tilted face, the membrane's wall rises from the face's deepest
-        markers as the face does, and the two meet in a V. The growth takes the arm with more markers
-        (its seed's robust fit), which can be the wall; the face's markers then lie above the wall's
-        plane, where the membrane outside a face may lie, so no marker contradicts it (zoo seed 3, design
-        34, frame 20: "ok" and 25 deg off). Seen from the face instead, the wall is a rougher surface (it
-        curves up to the rest shape) or a smaller one, and is not a rival."""
+        markers as the face does, and the two meet in a V. The growth takes the arm its seed's robust fit
+        takes, which can be the wall; the face's markers then lie above the wall's plane, where the
+        membrane outside a face may lie, so no marker contradicts it (zoo seed 3, design 34, frame 20:
+        "ok" and 25 deg off). Seen from the face instead, the wall is a rougher surface (it curves up to
+        the rest shape) or a smaller one, and is not a rival. Of two plausible arms, the size-free search
+        (:meth:`_contact`) reports the larger."""
         points_J = dent.points_J
         used, plane = chosen
         above = points_J @ plane.normal + plane.offset_mm > dent.threshold_mm
