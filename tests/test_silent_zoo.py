@@ -478,9 +478,10 @@ def test_a_stretch_of_drape_fitted_far_from_the_dents_deepest_markers_is_suspect
 ):
     """A bead pack whose walls slope at 20 deg (``gentle_wall_model``), seed 4. Design 12, frame 14: a box
     tilted 17 deg pressed its lowered edge 12 mm deep, and the fit took 53 markers of the drape beside it,
-    none in contact, 11-12 deg off and "ok" (sigma 0.7-1.6 deg). The dent's deepest markers lie 2.5-4
-    pitches from them, out of reach of the holes beside the contact, 3-6 mm below the plane where it would
-    still press into the membrane: holes in the dent (:func:`~softjig.sensing.contact.holes_in_the_dent`)."""
+    none in contact, 11-12 deg off and "ok" (sigma 0.7-1.6 deg). With the reference, 44 markers of the dent
+    lie 1.7-9.6 pitches from them, all out of reach of the holes beside the contact, 1.9-5.5 mm below the
+    plane where it would still press into the membrane, and deeper than any marker fitted: holes in the
+    dent (:func:`~softjig.sensing.contact.holes_in_the_dent`)."""
     error, estimate = _estimate(
         design_index,
         frame,
