@@ -515,17 +515,51 @@ def test_of_two_plausible_arms_of_a_v_the_larger_is_reported(design_index, frame
     assert any("another contact fits the frame as well" in w for w in estimate.warnings)
 
 
-def test_a_sized_face_with_holes_in_its_dent_gives_way_to_the_larger_arm_found_without_the_size():
+def test_a_sized_face_with_holes_in_its_dent_gives_way_to_the_contact_found_without_the_size():
     """Gentle walls, seed 4, design 39, frame 5, with the size and the reference: the face searched under
     the part's 65 mm size was a stretch of drape, 9 deg off and "ok", with 16 holes in its dent. Suspect
-    for them, it gives way to the contact found without the size, whose larger arm is the face: 0.7 deg,
-    suspect (the other arm is its rival)."""
+    for them, it gives way to the contact found without the size, the face: 0.7 deg and suspect for the
+    other arm of its V at 4743428; 1.5 deg and "ok" with a sigma of 1.9 deg since the growth of that arm
+    stays on the seed's depth (it is no longer a rival)."""
     error, estimate = _estimate(
         39, 5, with_size=True, with_reference=True, seed=4, render_jig=gentle_wall_model
     )
     assert error < 2.0, (error, estimate.n_points)
-    assert estimate.quality == "suspect"
-    assert any("markers of the dent" in w for w in estimate.warnings), estimate.warnings
+    assert not _silent(error, estimate)
+    assert any("failed its checks" in w and "markers of the dent" in w for w in estimate.warnings), (
+        estimate.warnings
+    )
+
+
+@pytest.mark.parametrize(
+    ("design_index", "frame", "with_size"),
+    [
+        pytest.param(17, 10, False, id="s5d17f10-nosize-was-8.5deg-ok"),
+        pytest.param(17, 7, False, id="s5d17f7-nosize-was-11deg"),
+        pytest.param(32, 4, True, id="s5d32f4-size-was-11deg-ok"),
+    ],
+)
+def test_a_level_face_whose_drape_meets_its_plane_far_off_is_not_a_silent_answer(
+    design_index, frame, with_size
+):
+    """Gentle walls, seed 5, against the reference frame: the broad, shallow drape around a face tilted
+    1-2 deg falls through the face's plane far from it, the growth over every pushed-in marker followed it
+    there and was contradicted, and a strip of drape beside the face was fitted instead (s5d17f10: 101
+    markers, 22 in contact, 8.5 deg off and "ok"; s5d17f7: 11 deg, suspect). Kept to the seed's depth,
+    the growth stays on the face (:func:`~softjig.sensing.contact.grow_contact`). With the size
+    (s5d32f4: 27 markers, 11 deg off and "ok"), the contact found without it is now the face, and
+    contradicts the face searched under the size."""
+    error, estimate = _estimate(
+        design_index,
+        frame,
+        with_size=with_size,
+        with_reference=True,
+        seed=5,
+        render_jig=gentle_wall_model,
+    )
+    assert not _silent(error, estimate), (error, estimate.tilt_sigma_deg, estimate.n_points)
+    if not with_size:
+        assert error < 1.0, (error, estimate.n_points)
 
 
 SILENT_FAILURES_LEFT = [

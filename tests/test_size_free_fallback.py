@@ -108,8 +108,10 @@ def test_a_size_free_contact_with_a_rival_does_not_replace_the_few_marker_face()
 def test_a_size_free_contact_whose_rival_the_face_is_not_still_replaces_it(
     seed, design, frame, with_reference
 ):
-    """The size-free contact (15-16 markers) is right, and suspect only for the other arm of its V; the
-    face under the known size (7-14 markers, suspect) is 7-18 deg off and is not that arm. The size-free
+    """The size-free contact (15-16 markers) is right, and suspect only for the other arm of its V or for
+    its few markers (s2d3f15: both until the growth of the other arm stayed on its seed's depth, the
+    eighteenth session; now the few markers alone); the face under the known size (7-14 markers,
+    suspect) is 7-18 deg off and is not that arm. The size-free
     estimate is still reported in the face's place, suspect (when any doubt of the size-free contact kept
     the face, these frames came out 6.8 and 17.8 deg off). The rest-shape frame keeps the config's camera
     poses, as it had before a frame without a reference was levelled on its own markers at rest (levelled,
@@ -122,7 +124,8 @@ def test_a_size_free_contact_whose_rival_the_face_is_not_still_replaces_it(
         design, frame, with_size=False, with_reference=with_reference, seed=seed, estimate_jig=kept_poses
     )
     assert free.quality == "suspect"
-    assert any("another contact fits the frame as well" in w for w in free.warnings)
+    small_or_rivalled = ("another contact fits the frame as well", "too few to tell the part's face")
+    assert any(reason in w for w in free.warnings for reason in small_or_rivalled), free.warnings
     assert error < 3.0, (error, sized.warnings)
     assert sized.normal == pytest.approx(free.normal)
     assert sized.quality == "suspect"
