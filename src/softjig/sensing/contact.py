@@ -421,7 +421,9 @@ def grow_contact(
             if violations == 0:
                 return contact, plane
             deep = _deep_regrowth(seed, as_deep, contact, grow)
-            if deep and not _violations(points_J, *deep, threshold_mm, max_tilt_rad, pitch_mm, dent):
+            if deep is not None and not _violations(
+                points_J, *deep, threshold_mm, max_tilt_rad, pitch_mm, dent
+            ):
                 return deep
             remaining = seed & ~contact
             if remaining.sum() < min_points:
